@@ -1,0 +1,324 @@
+"""Wire contract v1 (DESIGN.md §3): the messages on the Zenoh bus, and their msgpack codec.
+
+Every payload is a msgpack map with snake_case keys, units in the names and ``"v": 1``.
+The pydantic models below ARE the contract: ``schemas/*.schema.json`` is generated from
+them (``radar-fusion schemas``) and a test fails when the two drift apart.
+
+Decoding never raises on bad input: it returns a :class:`Rejection` with a reason from
+:data:`REJECTION_REASONS`, which the daemon counts and shows on the health key.  A plot
+batch is validated per plot: one bad plot is rejected (and counted) without spoiling the
+good plots of its batch.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal, Optional
+
+import msgpack
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+WIRE_VERSION = 1
+
+#: Why a message or a plot was refused. Message-level reasons refuse the whole message;
+#: plot-level reasons (``plot_*``) refuse one plot of an otherwise good batch.
+REJECTION_REASONS = (
+    "oversize",  # payload larger than the configured maximum
+    "malformed_msgpack",  # not decodable as msgpack
+    "schema",  # decodable, but not a message of the expected shape/types
+    "version",  # "v" is not a version this daemon speaks
+    "unknown_radar",  # radar_id not in the configuration
+    "key_mismatch",  # radar_id in the payload differs from the one in the key
+    "duplicate",  # a (radar_id, seq) already received
+    "plot_schema",  # one plot with missing fields or wrong types
+    "plot_non_finite",  # NaN or infinity in a plot
+    "plot_out_of_range",  # negative range, azimuth outside [0, 360), FL out of Mode C range, ...
+    "plot_beyond_max_range",  # range beyond the radar's configured instrumented range
+    "plot_late",  # plot for a period that has already been closed
+    "plot_future",  # plot time implausibly far ahead of the radar's watermark
+)
+
+MODE_S_PATTERN = r"^[0-9A-Fa-f]{6}$"
+RADAR_ID_PATTERN = r"^[A-Za-z0-9_.-]{1,32}$"
+PLOT_KINDS = ("psr", "ssr", "cmb", "modes")
+MAX_PLOTS_PER_BATCH = 20_000
+
+
+class _Message(BaseModel):
+    # Unknown fields from a newer sender are ignored (forward compatibility), not refused.
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True, strict=True)
+    v: Literal[1] = 1
+
+
+class Plot(BaseModel):
+    """One target report of one radar, in the radar's own polar coordinates."""
+
+    # strict: a string "1000" is not a range, a bool is not a code
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True, strict=True)
+    t: float = Field(description="UTC epoch seconds of detection", gt=0, lt=1e10)
+    range_m: float = Field(description="slant range from the antenna, metres", ge=0, le=2_000_000)
+    azimuth_deg: float = Field(description="azimuth from true north, clockwise, degrees", ge=0, lt=360)
+    fl: Optional[float] = Field(None, description="Mode C flight level (100 ft units)", ge=-20, le=1300)
+    mode3a: Optional[int] = Field(None, description="Mode 3/A code as an integer (octal 0000-7777)", ge=0, le=0o7777)
+    mode_s: Optional[str] = Field(None, description="Mode S address, 6 hex digits", pattern=MODE_S_PATTERN)
+    track_no: Optional[int] = Field(None, description="the radar's own track number", ge=0, le=2**32 - 1)
+    kind: Optional[Literal["psr", "ssr", "cmb", "modes"]] = Field(None, description="report type")
+
+
+class PlotBatch(_Message):
+    """Plots of one radar, published on ``<prefix>/radar/<radar_id>/plots``."""
+
+    radar_id: str = Field(pattern=RADAR_ID_PATTERN)
+    seq: int = Field(ge=0, le=2**63 - 1, description="per radar, +1 each message")
+    plots: list[Plot] = Field(max_length=MAX_PLOTS_PER_BATCH)
+
+
+class RadarStatus(_Message):
+    """North marker, sector crossing or heartbeat, on ``<prefix>/radar/<radar_id>/status``."""
+
+    radar_id: str = Field(pattern=RADAR_ID_PATTERN)
+    t: float = Field(gt=0, lt=1e10, description="UTC epoch seconds")
+    kind: Literal["north", "sector", "heartbeat"]
+    sector: Optional[int] = Field(None, ge=0, le=255)
+    rotation_period_s: Optional[float] = Field(None, gt=0, le=120)
+
+
+class Track(BaseModel):
+    """One system track at the batch's reference time."""
+
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True)
+    track_id: int = Field(ge=0)
+    t: float
+    status: Literal["tentative", "confirmed", "coasting"]
+    lat_deg: float
+    lon_deg: float
+    x_m: float = Field(description="system plane, east")
+    y_m: float = Field(description="system plane, north")
+    vx_mps: float
+    vy_mps: float
+    fl: Optional[float] = None
+    cov_xy: list[float] = Field(min_length=3, max_length=3, description="[σxx², σxy, σyy²] in m²")
+    sources: list[str] = Field(description="radar ids that contributed this period")
+    mode3a: Optional[int] = None
+    mode_s: Optional[str] = None
+    updates: int = Field(ge=0)
+    age_s: float = Field(ge=0)
+    # v1 extensions (optional for receivers): vertical rate and acceleration, for safety nets.
+    vrate_fpm: Optional[float] = Field(None, description="vertical rate, feet per minute")
+    ax_mps2: Optional[float] = None
+    ay_mps2: Optional[float] = None
+
+
+class TrackBatch(_Message):
+    """All tracks after one closed period, on ``<prefix>/fusion/tracks``."""
+
+    t: float = Field(description="the period's reference time (its end), UTC epoch seconds")
+    period: int = Field(ge=0)
+    tracks: list[Track]
+    ended: list[int] = Field(default_factory=list, description="track ids that ended in this period")
+
+
+class Alert(_Message):
+    """A safety-net alert, on ``<prefix>/fusion/alerts/<kind>``."""
+
+    kind: Literal["stca", "apw", "msaw"]
+    alert_id: int = Field(ge=0)
+    t: float
+    track_ids: list[int]
+    status: Literal["new", "ongoing", "ended"]
+    # STCA
+    time_to_cpa_s: Optional[float] = None
+    min_sep_m: Optional[float] = None
+    min_vsep_ft: Optional[float] = None
+    # APW
+    area_id: Optional[str] = None
+    time_to_entry_s: Optional[float] = None
+    # MSAW
+    time_to_violation_s: Optional[float] = None
+    min_alt_ft: Optional[float] = None
+
+
+class RadarHealth(BaseModel):
+    model_config = ConfigDict(extra="ignore", frozen=True)
+    live: bool
+    watermark_t: Optional[float] = None
+    plots: int = 0
+    batches: int = 0
+    last_seq: Optional[int] = None
+    seq_gaps: int = 0
+    rejected: dict[str, int] = Field(default_factory=dict)
+
+
+class Health(_Message):
+    """Daemon health, on ``<prefix>/fusion/health`` every few seconds."""
+
+    t: float = Field(description="wall-clock UTC epoch seconds when published")
+    uptime_s: float
+    counters: dict[str, int] = Field(description="received, accepted, periods_closed, tracks, ...")
+    rejected: dict[str, int] = Field(description="rejections by reason, all radars")
+    radars: dict[str, RadarHealth]
+    periods_closed: int
+    tracks: int
+    processing_ms_p50: Optional[float] = None
+    processing_ms_p99: Optional[float] = None
+    lag_s: Optional[float] = Field(None, description="wall clock minus the newest closed period's time")
+
+
+MESSAGE_MODELS: dict[str, type[BaseModel]] = {
+    "PlotBatch": PlotBatch,
+    "Plot": Plot,
+    "RadarStatus": RadarStatus,
+    "TrackBatch": TrackBatch,
+    "Track": Track,
+    "Alert": Alert,
+    "Health": Health,
+}
+
+
+# --------------------------------------------------------------------------- codec
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """A refused message: the reason (one of REJECTION_REASONS) and a human-readable detail."""
+
+    reason: str
+    detail: str = ""
+
+
+KIND_CODES = {None: 0, "psr": 1, "ssr": 2, "cmb": 3, "modes": 4}
+
+
+@dataclass
+class DecodedPlots:
+    """The accepted plots of one PlotBatch as columns (what the engine ingests).
+
+    Missing optional values are encoded as NaN (``fl``) or −1 (``mode3a``, ``mode_s``,
+    ``track_no``); ``mode_s`` is the 24-bit address as an integer.
+    """
+
+    radar_id: str
+    seq: int
+    t_s: np.ndarray
+    range_m: np.ndarray
+    azimuth_deg: np.ndarray
+    fl: np.ndarray
+    mode3a: np.ndarray
+    mode_s: np.ndarray
+    track_no: np.ndarray
+    kind: np.ndarray
+    rejected: dict[str, int] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+
+_UNPACK_LIMITS = dict(
+    raw=False,
+    strict_map_key=True,
+    max_str_len=1 << 16,
+    max_bin_len=1 << 20,
+    max_array_len=MAX_PLOTS_PER_BATCH + 1,
+    max_map_len=64,
+    max_ext_len=0,
+)
+_PLOT_LIST = TypeAdapter(list[Plot])
+
+
+def _plot_reason(err: ValidationError) -> str:
+    """Map a pydantic error on one plot to a rejection reason."""
+    for e in err.errors():
+        if e["type"] == "finite_number":
+            return "plot_non_finite"
+    for e in err.errors():
+        if e["type"] in ("greater_than", "greater_than_equal", "less_than", "less_than_equal", "string_pattern_mismatch"):
+            return "plot_out_of_range"
+    return "plot_schema"
+
+
+def unpack(payload: bytes, max_bytes: int) -> Any | Rejection:
+    """msgpack-decode with size limits; a Rejection instead of an exception."""
+    if len(payload) > max_bytes:
+        return Rejection("oversize", f"{len(payload)} bytes > {max_bytes}")
+    try:
+        return msgpack.unpackb(payload, **_UNPACK_LIMITS)
+    except Exception as exc:  # msgpack raises several unrelated exception types
+        return Rejection("malformed_msgpack", type(exc).__name__)
+
+
+def _envelope_check(obj: Any) -> Rejection | None:
+    if not isinstance(obj, dict):
+        return Rejection("schema", f"expected a map, got {type(obj).__name__}")
+    if obj.get("v") != WIRE_VERSION:
+        return Rejection("version", f"v={obj.get('v')!r}")
+    return None
+
+
+def decode_plot_batch(payload: bytes, max_bytes: int = 4 << 20) -> DecodedPlots | Rejection:
+    """Decode and validate a PlotBatch; bad plots are dropped and counted in ``rejected``."""
+    obj = unpack(payload, max_bytes)
+    if isinstance(obj, Rejection):
+        return obj
+    rej = _envelope_check(obj)
+    if rej:
+        return rej
+    radar_id, seq, plots = obj.get("radar_id"), obj.get("seq"), obj.get("plots")
+    try:
+        PlotBatch.model_validate({"v": 1, "radar_id": radar_id, "seq": seq, "plots": []})
+    except ValidationError as exc:
+        return Rejection("schema", exc.errors()[0]["msg"])
+    if not isinstance(plots, list):
+        return Rejection("schema", "plots is not a list")
+    rejected: dict[str, int] = {}
+    try:
+        good = _PLOT_LIST.validate_python(plots)
+    except ValidationError:
+        good = []
+        for p in plots:  # slow path, only for a batch that holds a bad plot
+            try:
+                good.append(Plot.model_validate(p))
+            except ValidationError as exc:
+                reason = _plot_reason(exc)
+                rejected[reason] = rejected.get(reason, 0) + 1
+    n = len(good)
+    return DecodedPlots(
+        radar_id=radar_id,
+        seq=seq,
+        t_s=np.fromiter((p.t for p in good), float, n),
+        range_m=np.fromiter((p.range_m for p in good), float, n),
+        azimuth_deg=np.fromiter((p.azimuth_deg for p in good), float, n),
+        fl=np.fromiter((math.nan if p.fl is None else p.fl for p in good), float, n),
+        mode3a=np.fromiter((-1 if p.mode3a is None else p.mode3a for p in good), np.int64, n),
+        mode_s=np.fromiter((-1 if p.mode_s is None else int(p.mode_s, 16) for p in good), np.int64, n),
+        track_no=np.fromiter((-1 if p.track_no is None else p.track_no for p in good), np.int64, n),
+        kind=np.fromiter((KIND_CODES[p.kind] for p in good), np.int8, n),
+        rejected=rejected,
+    )
+
+
+def decode_message(payload: bytes, model: type[BaseModel], max_bytes: int = 1 << 20) -> BaseModel | Rejection:
+    """Decode and validate any whole message (RadarStatus, TrackBatch, Alert, Health)."""
+    obj = unpack(payload, max_bytes)
+    if isinstance(obj, Rejection):
+        return obj
+    rej = _envelope_check(obj)
+    if rej:
+        return rej
+    try:
+        return model.model_validate(obj)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        return Rejection("schema", f"{'.'.join(map(str, first['loc']))}: {first['msg']}")
+
+
+def encode(message: BaseModel | dict) -> bytes:
+    """msgpack-encode a model (or an already-built dict that follows the contract)."""
+    if isinstance(message, BaseModel):
+        message = message.model_dump(mode="json")
+    return msgpack.packb(message, use_bin_type=True)
+
+
+def mode_s_to_str(address: int) -> Optional[str]:
+    return None if address < 0 else f"{address:06X}"

@@ -1,0 +1,85 @@
+"""Configuration: TOML loading, environment overrides, errors that name file and field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from radar_fusion.config import ConfigError, load_settings
+
+ROOT = Path(__file__).resolve().parents[1]
+
+GOOD = """
+[system]
+center_lat = 45.0
+center_lon = 16.0
+period_s = 4.0
+
+[bus]
+mode = "router"
+listen = ["tcp/127.0.0.1:7447"]
+
+[[radars]]
+id = "r1"
+lat = 45.1
+lon = 16.1
+sigma_range_m = 60
+sigma_azimuth_deg = 0.1
+rotation_period_s = 4.0
+"""
+
+
+def write(tmp_path, text):
+    p = tmp_path / "fusion.toml"
+    p.write_text(text)
+    return p
+
+
+def test_example_configs_load():
+    for path in sorted((ROOT / "deploy").glob("*.toml")):
+        s = load_settings(path)
+        assert s.radars and s.system.period_s > 0
+
+
+def test_good_file_and_defaults(tmp_path):
+    s = load_settings(write(tmp_path, GOOD))
+    assert s.bus.prefix == "atc" and s.radars[0].alt_m == 0.0
+    assert s.tracking.fusion_method == "matrix" and s.outliers.enabled
+
+
+def test_environment_overrides_the_file(tmp_path, monkeypatch):
+    monkeypatch.setenv("RADAR_FUSION_BUS__MODE", "client")
+    monkeypatch.setenv("RADAR_FUSION_SYSTEM__PERIOD_S", "2.5")
+    s = load_settings(write(tmp_path, GOOD))
+    assert s.bus.mode == "client" and s.system.period_s == 2.5 and s.system.center_lat == 45.0
+
+
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        (("center_lat = 45.0", "center_lat = 145.0"), "system.center_lat"),
+        (('mode = "router"', 'mode = "hub"'), "bus.mode"),
+        (("sigma_range_m = 60", "sigma_range_m = -1"), "radars.0.sigma_range_m"),
+        (("rotation_period_s = 4.0", "rotation_period_s = 4.0\ncolour = 3"), "radars.0.colour"),
+        (('id = "r1"', 'id = "r 1"'), "radars.0.id"),
+    ],
+)
+def test_errors_name_the_file_and_the_field(tmp_path, change, field):
+    path = write(tmp_path, GOOD.replace(*change))
+    with pytest.raises(ConfigError) as err:
+        load_settings(path)
+    assert str(path) in str(err.value) and field in str(err.value)
+
+
+def test_duplicate_radar_ids_refused(tmp_path):
+    text = GOOD + GOOD[GOOD.index("[[radars]]"):]
+    with pytest.raises(ConfigError, match="unique"):
+        load_settings(write(tmp_path, text))
+
+
+def test_missing_and_invalid_files(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_settings(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_settings(write(tmp_path, "[system\n"))

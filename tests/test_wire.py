@@ -1,0 +1,120 @@
+"""The wire contract: codec round trips, typed rejections, per-plot validation, schema drift."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import jsonschema
+import msgpack
+import pytest
+
+from radar_fusion import wire
+from radar_fusion.schemas import schema_documents
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def plot(**kw):
+    p = {"t": 1.7e9, "range_m": 120_000.0, "azimuth_deg": 45.0, "fl": 350.0, "mode3a": 0o1234,
+         "mode_s": "4CA1F3", "track_no": 17, "kind": "cmb"}
+    p.update(kw)
+    return p
+
+
+def batch(plots, **kw):
+    b = {"v": 1, "radar_id": "r1", "seq": 3, "plots": plots}
+    b.update(kw)
+    return msgpack.packb(b)
+
+
+def test_good_batch_decodes_to_columns():
+    d = wire.decode_plot_batch(batch([plot(), plot(fl=None, mode_s=None, mode3a=None, track_no=None, kind=None)]))
+    assert isinstance(d, wire.DecodedPlots)
+    assert len(d) == 2 and d.rejected == {}
+    assert d.mode_s.tolist() == [0x4CA1F3, -1]
+    assert d.mode3a.tolist() == [0o1234, -1]
+    assert d.track_no.tolist() == [17, -1]
+    assert d.fl[0] == 350.0 and math.isnan(d.fl[1])
+    assert d.kind.tolist() == [wire.KIND_CODES["cmb"], 0]
+
+
+@pytest.mark.parametrize(
+    "bad, reason",
+    [
+        (plot(range_m=float("nan")), "plot_non_finite"),
+        (plot(t=float("inf")), "plot_non_finite"),
+        (plot(range_m=-5.0), "plot_out_of_range"),
+        (plot(azimuth_deg=360.0), "plot_out_of_range"),
+        (plot(fl=5000.0), "plot_out_of_range"),
+        (plot(mode3a=0o10000), "plot_out_of_range"),
+        (plot(mode_s="XYZ123"), "plot_out_of_range"),
+        (plot(range_m="120000"), "plot_schema"),
+        (plot(mode3a=True), "plot_schema"),
+        (plot(kind="laser"), "plot_schema"),
+        ({"t": 1.7e9}, "plot_schema"),
+        ("not a plot", "plot_schema"),
+    ],
+)
+def test_one_bad_plot_is_counted_and_does_not_spoil_the_batch(bad, reason):
+    d = wire.decode_plot_batch(batch([plot(), bad, plot(azimuth_deg=10.0)]))
+    assert isinstance(d, wire.DecodedPlots)
+    assert len(d) == 2
+    assert d.rejected == {reason: 1}
+    assert sorted(d.azimuth_deg.tolist()) == [10.0, 45.0]
+
+
+@pytest.mark.parametrize(
+    "payload, reason",
+    [
+        (b"\xc1garbage", "malformed_msgpack"),
+        (msgpack.packb([1, 2, 3]), "schema"),
+        (msgpack.packb({"v": 2, "radar_id": "r1", "seq": 1, "plots": []}), "version"),
+        (msgpack.packb({"radar_id": "r1", "seq": 1, "plots": []}), "version"),
+        (msgpack.packb({"v": 1, "radar_id": "r 1", "seq": 1, "plots": []}), "schema"),
+        (msgpack.packb({"v": 1, "radar_id": "r1", "seq": -1, "plots": []}), "schema"),
+        (msgpack.packb({"v": 1, "radar_id": "r1", "seq": 1, "plots": "x"}), "schema"),
+        (msgpack.packb({"v": 1, "radar_id": "r1", "seq": 1}), "schema"),
+    ],
+)
+def test_bad_messages_get_a_typed_rejection(payload, reason):
+    r = wire.decode_plot_batch(payload)
+    assert isinstance(r, wire.Rejection) and r.reason == reason
+
+
+def test_oversize_and_huge_arrays_are_refused_without_decoding():
+    r = wire.decode_plot_batch(b"\x00" * 100, max_bytes=50)
+    assert isinstance(r, wire.Rejection) and r.reason == "oversize"
+    huge = msgpack.packb({"v": 1, "radar_id": "r1", "seq": 1, "plots": [0] * (wire.MAX_PLOTS_PER_BATCH + 5)})
+    r = wire.decode_plot_batch(huge, max_bytes=len(huge) + 1)
+    assert isinstance(r, wire.Rejection) and r.reason == "malformed_msgpack"
+
+
+def test_unknown_fields_are_ignored_for_forward_compatibility():
+    d = wire.decode_plot_batch(batch([plot(snr_db=12.0)], extra_field="x"))
+    assert isinstance(d, wire.DecodedPlots) and len(d) == 1 and d.rejected == {}
+
+
+def test_status_round_trip_and_rejection():
+    s = wire.RadarStatus(radar_id="r1", t=1.7e9, kind="north", rotation_period_s=4.0)
+    assert wire.decode_message(wire.encode(s), wire.RadarStatus) == s
+    r = wire.decode_message(msgpack.packb({"v": 1, "radar_id": "r1", "t": 1.7e9, "kind": "spin"}), wire.RadarStatus)
+    assert isinstance(r, wire.Rejection) and r.reason == "schema" and "kind" in r.detail
+
+
+def test_schemas_in_repository_match_the_models():
+    """schemas/*.schema.json are generated from wire.py: regenerate with `radar-fusion schemas`."""
+    docs = schema_documents()
+    for name, text in docs.items():
+        path = ROOT / "schemas" / name
+        assert path.exists(), f"{path} missing: run `radar-fusion schemas`"
+        assert path.read_text(encoding="utf-8") == text, f"{path} is stale: run `radar-fusion schemas`"
+    assert sorted(p.name for p in (ROOT / "schemas").glob("*.schema.json")) == sorted(docs)
+
+
+def test_a_plot_batch_validates_against_the_published_schema():
+    schema = json.loads((ROOT / "schemas" / "PlotBatch.schema.json").read_text())
+    jsonschema.validate(msgpack.unpackb(batch([plot()])), schema)
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(msgpack.unpackb(batch([plot(azimuth_deg=400.0)])), schema)

@@ -1,0 +1,1 @@
+"""Command-line tools of radar-fusion: simulate, replay, record, evaluate, bench, demo."""

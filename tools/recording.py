@@ -1,0 +1,81 @@
+"""The recording file: what the bus carried, in order, with each message's time.
+
+Format (msgpack stream, optionally gzip-compressed when the file name ends in ``.gz``):
+first a header map ``{"format": "radar-fusion-recording", "v": 1, "meta": {...}}``, then
+one array per message: ``[t_s, key, payload]`` where ``t_s`` is the message's time
+(event time for simulated data, receive time for recorded data; UTC epoch seconds),
+``key`` is the Zenoh key relative to the prefix (``radar/r1/plots``,
+``fusion/tracks``, ...), and ``payload`` the message's exact bytes. Recording what the
+replay tool sends gives back the same payloads byte for byte.
+"""
+
+from __future__ import annotations
+
+import gzip
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO, Iterator
+
+import msgpack
+
+FORMAT = "radar-fusion-recording"
+
+
+@dataclass(frozen=True)
+class Record:
+    t_s: float
+    key: str
+    payload: bytes
+
+
+def _open(path: Path, mode: str) -> BinaryIO:
+    if str(path).endswith(".gz"):
+        return gzip.open(path, mode + "b", compresslevel=3)  # type: ignore[return-value]
+    return open(path, mode + "b")
+
+
+class RecordingWriter:
+    """Append messages to a recording file. Use as a context manager."""
+
+    def __init__(self, path: str | Path, meta: dict[str, Any] | None = None):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = _open(self.path, "w")
+        self._packer = msgpack.Packer(use_bin_type=True)
+        self._f.write(self._packer.pack({"format": FORMAT, "v": 1, "meta": meta or {}}))
+        self.count = 0
+
+    def write(self, t_s: float, key: str, payload: bytes) -> None:
+        self._f.write(self._packer.pack([float(t_s), key, bytes(payload)]))
+        self.count += 1
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_header(path: str | Path) -> dict[str, Any]:
+    with _open(Path(path), "r") as f:
+        unpacker = msgpack.Unpacker(f, raw=False, max_bin_len=1 << 26)
+        header = next(unpacker)
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a radar-fusion recording")
+    return header
+
+
+def read_recording(path: str | Path) -> Iterator[Record]:
+    """Yield the records of a recording file in file order."""
+    with _open(Path(path), "r") as f:
+        unpacker = msgpack.Unpacker(f, raw=False, max_bin_len=1 << 26)
+        header = next(unpacker, None)
+        if not isinstance(header, dict) or header.get("format") != FORMAT:
+            raise ValueError(f"{path}: not a radar-fusion recording")
+        for item in unpacker:
+            t_s, key, payload = item
+            yield Record(float(t_s), key, payload)
