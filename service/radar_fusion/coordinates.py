@@ -1,0 +1,494 @@
+"""Coordinate conversion: radar polar measurements <-> the common system plane.
+
+Every function is vectorised over arrays of plots. Plots of many radars come mixed in
+one call; ``radar_index`` (an int array, one entry per plot) says which row of a
+:class:`RadarSites` each plot belongs to.
+
+Frames and conventions
+----------------------
+* Geodetic positions are on the WGS-84 ellipsoid (degrees; heights in metres above the
+  ellipsoid).
+* The *system plane* is an oblique stereographic projection of WGS-84 centred at the
+  system centre (PROJ ``sterea``: the ellipsoid is mapped conformally onto the Gauss
+  conformal sphere, which is projected stereographically), scale factor k0 = 1 at the
+  centre, no false easting/northing: x east and y north *at the centre*, metres.
+  Away from the centre grid north differs from true north by the meridian convergence
+  and the scale factor grows as k ~ 1 + d^2 / (4 R^2) (about 1.001 at 400 km).
+* A radar measures slant range rho (antenna to target, metres) and azimuth theta
+  (degrees from true north, clockwise, at the antenna).
+
+Slant range -> ground range (the EUROCONTROL spherical model)
+---------------------------------------------------------------
+Around each radar the earth is taken as a sphere of the *Gaussian mean radius of
+curvature* at the site latitude, R = sqrt(M N) = a sqrt(1 - e^2) / (1 - e^2 sin^2 phi)
+(M meridian, N prime-vertical radius). It is azimuth-independent, so one radius per
+site is precomputed. With a = R + h_r (antenna height) and b = R + h_t (target height)
+the law of cosines in the plane of the antenna, the target and the earth's centre is
+
+    rho^2 = a^2 + b^2 - 2 a b cos(gamma)  =  (a - b)^2 + 4 a b sin^2(gamma / 2),
+
+where gamma is the angle at the earth's centre. The half-angle form is used in both
+directions because it keeps full precision at short range. The ground range (arc length
+on the sphere of radius R) is g = R gamma. The target's latitude/longitude are then
+found by walking g metres along the geodesic on WGS-84 from the site with initial
+azimuth theta (``pyproj.Geod.fwd``); the inverse uses ``pyproj.Geod.inv``. Using the
+same sphere and the same geodesic both ways makes :func:`geodetic_to_polar` the exact
+inverse of :func:`polar_to_plane` (round trip well below a millimetre).
+
+Heights are the target's height above the ellipsoid. Mode C gives pressure altitude;
+we use it as geometric height (no QNH, temperature or geoid correction) -- see
+:func:`flight_level_to_altitude_m`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import pyproj
+
+__all__ = [
+    "FEET_TO_M",
+    "WGS84_GEOD",
+    "gaussian_earth_radius_m",
+    "SystemPlane",
+    "RadarSites",
+    "slant_to_ground_range",
+    "ground_to_slant_range",
+    "polar_to_plane",
+    "geodetic_to_polar",
+    "flight_level_to_altitude_m",
+    "altitude_m_to_flight_level",
+]
+
+FEET_TO_M = 0.3048
+"""International foot in metres (exact)."""
+
+FLIGHT_LEVEL_M = 100.0 * FEET_TO_M
+"""One flight level (100 ft) in metres: 30.48 m."""
+
+WGS84_GEOD = pyproj.Geod(ellps="WGS84")
+"""Geodesic calculator on the WGS-84 ellipsoid (Karney's algorithms, nm accuracy)."""
+
+_WGS84_A_M = WGS84_GEOD.a
+_WGS84_E2 = WGS84_GEOD.es
+
+
+def gaussian_earth_radius_m(lat_deg: np.ndarray | float) -> np.ndarray:
+    """Gaussian mean radius of curvature of WGS-84 at latitude ``lat_deg``.
+
+    R = sqrt(M N) = a sqrt(1 - e^2) / (1 - e^2 sin^2 phi), where M is the meridian and
+    N the prime-vertical radius of curvature. It is the radius of the sphere that best
+    fits the ellipsoid around that latitude in all directions (≈ 6 381 km at 45°).
+    """
+    s = np.sin(np.radians(np.asarray(lat_deg, dtype=float)))
+    return _WGS84_A_M * np.sqrt(1.0 - _WGS84_E2) / (1.0 - _WGS84_E2 * s * s)
+
+
+class SystemPlane:
+    """The system plane: oblique stereographic projection of WGS-84 at the system centre.
+
+    PROJ ``+proj=sterea +lat_0=<lat> +lon_0=<lon> +k_0=1 +x_0=0 +y_0=0 +ellps=WGS84``
+    (the "double" stereographic used by ARTAS-like systems: conformal, so a small
+    circle stays a circle, with point scale k0 = 1 at the centre). x is east and y is
+    north at the centre, in metres.
+    """
+
+    def __init__(self, center_lat_deg: float, center_lon_deg: float) -> None:
+        if not (-90.0 < float(center_lat_deg) < 90.0):
+            raise ValueError(f"center_lat_deg must be in (-90, 90), got {center_lat_deg}")
+        if not np.isfinite(center_lon_deg):
+            raise ValueError(f"center_lon_deg must be finite, got {center_lon_deg}")
+        self.center_lat_deg = float(center_lat_deg)
+        # Normalised to [-180, 180).
+        self.center_lon_deg = (float(center_lon_deg) + 180.0) % 360.0 - 180.0
+        self.proj = pyproj.Proj(
+            proj="sterea",
+            lat_0=self.center_lat_deg,
+            lon_0=self.center_lon_deg,
+            k_0=1.0,
+            x_0=0.0,
+            y_0=0.0,
+            ellps="WGS84",
+            units="m",
+        )
+
+    def __repr__(self) -> str:
+        return f"SystemPlane(center_lat_deg={self.center_lat_deg!r}, center_lon_deg={self.center_lon_deg!r})"
+
+    def to_plane(self, lat_deg: Any, lon_deg: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Geodetic (degrees) -> plane (x_m east, y_m north), arrays in and out."""
+        lat = np.asarray(lat_deg, dtype=float)
+        lon = np.asarray(lon_deg, dtype=float)
+        x_m, y_m = self.proj(lon, lat, errcheck=False)
+        return np.asarray(x_m, dtype=float), np.asarray(y_m, dtype=float)
+
+    def to_geodetic(self, x_m: Any, y_m: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Plane (x_m, y_m) -> geodetic (lat_deg, lon_deg), arrays in and out."""
+        x = np.asarray(x_m, dtype=float)
+        y = np.asarray(y_m, dtype=float)
+        lon, lat = self.proj(x, y, inverse=True, errcheck=False)
+        return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
+
+    def grid_convergence_deg(self, lat_deg: Any, lon_deg: Any) -> np.ndarray:
+        """Meridian convergence c at the given points, degrees.
+
+        A true bearing (clockwise from true north) becomes the grid bearing
+        (clockwise from the plane's +y axis) ``true - c``; c > 0 east of the centre.
+        """
+        lat = np.asarray(lat_deg, dtype=float)
+        lon = np.asarray(lon_deg, dtype=float)
+        f = self.proj.get_factors(lon, lat, errcheck=False)
+        return np.asarray(f.meridian_convergence, dtype=float)
+
+    def scale_factor(self, lat_deg: Any, lon_deg: Any) -> np.ndarray:
+        """Point scale factor k (plane metres per ellipsoid metre; 1 at the centre)."""
+        lat = np.asarray(lat_deg, dtype=float)
+        lon = np.asarray(lon_deg, dtype=float)
+        f = self.proj.get_factors(lon, lat, errcheck=False)
+        # Conformal projection: meridional and parallel scales are equal.
+        return np.asarray(f.meridional_scale, dtype=float)
+
+
+class RadarSites:
+    """Per-radar parameters as numpy arrays (row i = radar index i).
+
+    Attributes (all shape (M,)): ``lat_deg``, ``lon_deg``, ``alt_m`` (antenna height
+    above the ellipsoid), ``sigma_range_m``, ``sigma_azimuth_deg`` (1-sigma measurement
+    noise), ``sigma_azimuth_rad``, ``earth_radius_m`` (Gaussian mean radius at the site,
+    see :func:`gaussian_earth_radius_m`), and ``ids`` (tuple of radar ids, or indices
+    as strings when none were given).
+    """
+
+    def __init__(
+        self,
+        lat_deg: Sequence[float] | np.ndarray,
+        lon_deg: Sequence[float] | np.ndarray,
+        alt_m: Sequence[float] | np.ndarray,
+        sigma_range_m: Sequence[float] | np.ndarray,
+        sigma_azimuth_deg: Sequence[float] | np.ndarray,
+        ids: Sequence[str] | None = None,
+    ) -> None:
+        arrays = [
+            np.array(v, dtype=float, ndmin=1)
+            for v in (lat_deg, lon_deg, alt_m, sigma_range_m, sigma_azimuth_deg)
+        ]
+        n = arrays[0].shape[0]
+        for name, arr in zip(
+            ("lat_deg", "lon_deg", "alt_m", "sigma_range_m", "sigma_azimuth_deg"), arrays
+        ):
+            if arr.shape != (n,):
+                raise ValueError(f"{name} must be a 1-D sequence of length {n}, got shape {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{name} must be finite")
+        self.lat_deg, self.lon_deg, self.alt_m, self.sigma_range_m, self.sigma_azimuth_deg = arrays
+        if np.any(np.abs(self.lat_deg) >= 90.0):
+            raise ValueError("radar latitude must be in (-90, 90)")
+        if np.any(self.sigma_range_m < 0.0) or np.any(self.sigma_azimuth_deg < 0.0):
+            raise ValueError("sigmas must be non-negative")
+        self.sigma_azimuth_rad = np.radians(self.sigma_azimuth_deg)
+        self.earth_radius_m = gaussian_earth_radius_m(self.lat_deg)
+        if ids is None:
+            self.ids: tuple[str, ...] = tuple(str(i) for i in range(n))
+        else:
+            self.ids = tuple(str(i) for i in ids)
+            if len(self.ids) != n:
+                raise ValueError(f"ids must have length {n}")
+        for arr in (*arrays, self.sigma_azimuth_rad, self.earth_radius_m):
+            arr.setflags(write=False)
+
+    @classmethod
+    def from_configs(cls, configs: Sequence[Any]) -> "RadarSites":
+        """Build from objects with attributes ``lat_deg``, ``lon_deg``, ``alt_m``,
+        ``sigma_range_m``, ``sigma_azimuth_deg`` (``lat``/``lon`` are accepted in place
+        of ``lat_deg``/``lon_deg``, as in the daemon's TOML ``[[radars]]`` table) and
+        optionally ``id``."""
+
+        def get(c: Any, *names: str) -> Any:
+            for name in names:
+                if hasattr(c, name):
+                    return getattr(c, name)
+            raise AttributeError(f"radar config {c!r} has none of {names}")
+
+        configs = list(configs)
+        ids = [getattr(c, "id") for c in configs] if all(hasattr(c, "id") for c in configs) else None
+        return cls(
+            lat_deg=[get(c, "lat_deg", "lat") for c in configs],
+            lon_deg=[get(c, "lon_deg", "lon") for c in configs],
+            alt_m=[get(c, "alt_m") for c in configs],
+            sigma_range_m=[get(c, "sigma_range_m") for c in configs],
+            sigma_azimuth_deg=[get(c, "sigma_azimuth_deg") for c in configs],
+            ids=ids,
+        )
+
+    def __len__(self) -> int:
+        return int(self.lat_deg.shape[0])
+
+    def __repr__(self) -> str:
+        return f"RadarSites(n={len(self)}, ids={self.ids!r})"
+
+    def index_of(self, radar_id: str) -> int:
+        """Row index of radar ``radar_id``."""
+        return self.ids.index(str(radar_id))
+
+    def plane_positions(self, plane: SystemPlane) -> tuple[np.ndarray, np.ndarray]:
+        """Site positions in ``plane`` (x_m, y_m), shape (M,)."""
+        return plane.to_plane(self.lat_deg, self.lon_deg)
+
+    def check_index(self, radar_index: Any) -> np.ndarray:
+        """Return ``radar_index`` as an int array, raising ValueError if out of range."""
+        idx = np.asarray(radar_index)
+        if idx.size and not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"radar_index must be integers, got dtype {idx.dtype}")
+        idx = idx.astype(np.intp, copy=False)
+        if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
+            raise ValueError(f"radar_index out of range [0, {len(self)})")
+        return idx
+
+
+def slant_to_ground_range(
+    earth_radius_m: np.ndarray,
+    antenna_alt_m: np.ndarray,
+    target_alt_m: np.ndarray,
+    range_m: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ground range on the sphere of radius R from slant range, with partial derivatives.
+
+    With a = R + h_r, b = R + h_t, rho the slant range (all broadcast arrays):
+
+        sin(gamma/2) = sqrt((rho^2 - (a - b)^2) / (4 a b)),   g = R gamma,
+        dg/drho = R rho / (a b sin gamma),
+        dg/dh_t = R (a cos gamma - b) / (a b sin gamma).
+
+    Impossible geometry is clamped: if rho < |a - b| (slant range shorter than the height
+    difference, e.g. a wrong Mode C or a primary plot inside the assumed-altitude
+    "cone") the ground range is 0 (target overhead the site); if rho > a + b it is
+    pi R. Both cases, and non-finite inputs, come back with ``valid = False`` and NaN
+    derivatives. At gamma = 0 exactly (rho = |a - b|) the derivatives are infinite:
+    the linearisation breaks down in the cone of silence, and the value says so.
+
+    Returns (ground_range_m, valid, dground_drange, dground_dheight).
+    """
+    r = np.asarray(earth_radius_m, dtype=float)
+    a = r + np.asarray(antenna_alt_m, dtype=float)
+    b = r + np.asarray(target_alt_m, dtype=float)
+    rho = np.asarray(range_m, dtype=float)
+    ab = a * b
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s2 = (rho * rho - (a - b) ** 2) / (4.0 * ab)
+        valid = np.isfinite(s2) & (s2 >= 0.0) & (s2 <= 1.0) & (rho >= 0.0)
+        s2c = np.clip(np.where(np.isfinite(s2), s2, 0.0), 0.0, 1.0)
+        gamma = 2.0 * np.arcsin(np.sqrt(s2c))
+        ground_m = r * gamma
+        ground_m = np.where(np.isfinite(s2), ground_m, np.nan)
+        sin_g = np.sin(gamma)
+        d_rho = r * rho / (ab * sin_g)
+        d_h = r * (a * np.cos(gamma) - b) / (ab * sin_g)
+    d_rho = np.where(valid, d_rho, np.nan)
+    d_h = np.where(valid, d_h, np.nan)
+    return ground_m, valid, d_rho, d_h
+
+
+def ground_to_slant_range(
+    earth_radius_m: np.ndarray,
+    antenna_alt_m: np.ndarray,
+    target_alt_m: np.ndarray,
+    ground_range_m: np.ndarray,
+) -> np.ndarray:
+    """Slant range from ground range (exact inverse of :func:`slant_to_ground_range`).
+
+    rho = sqrt((a - b)^2 + 4 a b sin^2(gamma/2)), gamma = g / R, a = R + h_r, b = R + h_t.
+    """
+    r = np.asarray(earth_radius_m, dtype=float)
+    a = r + np.asarray(antenna_alt_m, dtype=float)
+    b = r + np.asarray(target_alt_m, dtype=float)
+    half = 0.5 * np.asarray(ground_range_m, dtype=float) / r
+    s = np.sin(half)
+    return np.sqrt((a - b) ** 2 + 4.0 * a * b * s * s)
+
+
+def polar_to_plane(
+    plane: SystemPlane,
+    sites: RadarSites,
+    radar_index: Any,
+    range_m: Any,
+    azimuth_deg: Any,
+    altitude_m: Any,
+    assumed_altitude_m: float = 3000.0,
+    sigma_unknown_altitude_m: float = 3000.0,
+    sigma_known_altitude_m: float = 60.0,
+    *,
+    return_valid: bool = False,
+) -> tuple[np.ndarray, ...]:
+    """Radar plots (slant range, azimuth, height) -> system plane position and covariance.
+
+    Parameters (all per plot, shape (N,)):
+        radar_index: row of ``sites`` that produced each plot.
+        range_m: slant range from the antenna, metres.
+        azimuth_deg: from true north at the antenna, clockwise, degrees.
+        altitude_m: target height above the ellipsoid, metres; NaN when unknown.
+        assumed_altitude_m: height used for plots without altitude (primary-only plots).
+        sigma_unknown_altitude_m / sigma_known_altitude_m: 1-sigma height error used
+            for the covariance of plots without / with altitude.
+        return_valid: also return the ``valid`` mask (see below).
+
+    Position. Ground range g from the spherical law of cosines on the site's Gaussian
+    sphere (:func:`slant_to_ground_range`); then ``Geod.fwd`` walks g along the WGS-84
+    geodesic from the site with initial azimuth theta, and the result is projected into
+    ``plane``.
+
+    Covariance (linearised, 2x2 in plane metres). In the local frame at the target:
+
+        along-range  var_r = (dg/drho * sigma_rho)^2 + (dg/dh_t * sigma_h)^2
+        cross-range  var_c = (R sin(gamma) * sigma_theta)^2
+
+    (R sin gamma is the geodesic's lateral displacement per radian of azimuth on the
+    sphere; it equals g to 0.1 % at 250 NM, i.e. var_c ~ (g sigma_theta)^2.) The
+    along-range direction at the target is its forward azimuth alpha_t = back azimuth
+    from ``Geod.fwd`` + 180° (this carries the direction change along the geodesic);
+    in the plane it points at grid bearing beta = alpha_t - c, c the meridian
+    convergence of the stereographic plane at the target (``Proj.get_factors``). With
+    u = (sin beta, cos beta), v = (cos beta, -sin beta) and k the point scale factor:
+
+        cov_xy = k^2 (var_r u u^T + var_c v v^T).
+
+    Assumption for plots without altitude: the target flies at ``assumed_altitude_m``
+    with 1-sigma ``sigma_unknown_altitude_m``; the error this causes in the ground range
+    enters var_r through dg/dh_t (it is small far out and large close to the radar).
+
+    Impossible geometry (slant range shorter than the height difference between antenna
+    and target): the ground range is clamped to 0, the plot is placed at the site, and
+    its covariance is isotropic with variance rho^2 + sigma_rho^2 per axis (the target
+    is somewhere within the slant range of the antenna), so fusion gives it almost no
+    weight. Such plots, and plots with non-finite or negative range or non-finite azimuth (which give NaN
+    position and covariance), have ``valid = False``.
+
+    Returns ``(x_m, y_m, cov_xy_m2 (N,2,2), ground_range_m)``, plus ``valid`` (N,) bool
+    when ``return_valid`` is true.
+    """
+    idx = sites.check_index(radar_index)
+    rho = np.asarray(range_m, dtype=float)
+    theta_deg = np.asarray(azimuth_deg, dtype=float)
+    h_t = np.asarray(altitude_m, dtype=float)
+    rho, theta_deg, h_t, idx = np.broadcast_arrays(rho, theta_deg, h_t, idx)
+    rho = rho.reshape(-1)
+    theta_deg = theta_deg.reshape(-1)
+    h_t = h_t.reshape(-1)
+    idx = idx.reshape(-1)
+    n = rho.shape[0]
+    if n == 0:
+        empty = np.empty(0, dtype=float)
+        out = (empty, empty.copy(), np.empty((0, 2, 2), dtype=float), empty.copy())
+        return (*out, np.empty(0, dtype=bool)) if return_valid else out
+
+    known = np.isfinite(h_t)
+    h_used = np.where(known, h_t, float(assumed_altitude_m))
+    sigma_h = np.where(known, float(sigma_known_altitude_m), float(sigma_unknown_altitude_m))
+
+    r_m = sites.earth_radius_m[idx]
+    h_r = sites.alt_m[idx]
+    finite_in = np.isfinite(rho) & np.isfinite(theta_deg) & (rho >= 0.0)
+    rho_safe = np.where(finite_in, rho, 0.0)
+    theta_safe = np.where(finite_in, theta_deg, 0.0)
+
+    ground_m, valid, d_rho, d_h = slant_to_ground_range(r_m, h_r, h_used, rho_safe)
+    valid &= finite_in
+
+    lon_t, lat_t, back_az_deg = WGS84_GEOD.fwd(
+        sites.lon_deg[idx], sites.lat_deg[idx], theta_safe, ground_m
+    )
+    lon_t = np.asarray(lon_t, dtype=float)
+    lat_t = np.asarray(lat_t, dtype=float)
+    back_az_deg = np.asarray(back_az_deg, dtype=float)
+    x_m, y_m = plane.to_plane(lat_t, lon_t)
+
+    # Direction of the radial line at the target. At g = 0 the back azimuth is
+    # meaningless; the site-side azimuth is used there (clamped plots only).
+    forward_az_deg = np.where(ground_m > 0.0, back_az_deg + 180.0, theta_safe)
+    factors = plane.proj.get_factors(lon_t, lat_t, errcheck=False)
+    convergence_deg = np.asarray(factors.meridian_convergence, dtype=float)
+    k = np.asarray(factors.meridional_scale, dtype=float)
+    beta = np.radians(forward_az_deg - convergence_deg)
+    sb, cb = np.sin(beta), np.cos(beta)
+
+    sigma_rho = sites.sigma_range_m[idx]
+    sigma_theta = sites.sigma_azimuth_rad[idx]
+    var_r = (d_rho * sigma_rho) ** 2 + (d_h * sigma_h) ** 2
+    var_c = (r_m * np.sin(ground_m / r_m) * sigma_theta) ** 2
+
+    k2 = k * k
+    cov = np.empty((n, 2, 2), dtype=float)
+    cov[:, 0, 0] = k2 * (var_r * sb * sb + var_c * cb * cb)
+    cov[:, 1, 1] = k2 * (var_r * cb * cb + var_c * sb * sb)
+    cov[:, 0, 1] = cov[:, 1, 0] = k2 * (var_r - var_c) * sb * cb
+
+    clamped = finite_in & ~valid
+    if np.any(clamped):
+        iso = rho[clamped] ** 2 + sigma_rho[clamped] ** 2
+        cov[clamped] = iso[:, None, None] * np.eye(2)
+
+    if not np.all(finite_in):
+        bad = ~finite_in
+        x_m = np.where(bad, np.nan, x_m)
+        y_m = np.where(bad, np.nan, y_m)
+        ground_m = np.where(bad, np.nan, ground_m)
+        cov[bad] = np.nan
+
+    if return_valid:
+        return x_m, y_m, cov, ground_m, valid
+    return x_m, y_m, cov, ground_m
+
+
+def geodetic_to_polar(
+    sites: RadarSites,
+    radar_index: Any,
+    lat_deg: Any,
+    lon_deg: Any,
+    altitude_m: Any,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Target position -> what radar ``radar_index`` measures (noise-free).
+
+    ``Geod.inv`` from the site to the target gives the azimuth theta (true north,
+    clockwise, in [0, 360)) and the geodesic length g on WGS-84; the slant range is
+    rho = sqrt((a - b)^2 + 4 a b sin^2(g / 2R)) on the site's Gaussian sphere
+    (a = R + h_r, b = R + h_t). This is the exact inverse of :func:`polar_to_plane`.
+    A NaN altitude gives a NaN slant range (truth always has a height).
+
+    Returns (range_m slant, azimuth_deg, ground_range_m), each (N,).
+    """
+    idx = sites.check_index(radar_index)
+    lat = np.asarray(lat_deg, dtype=float)
+    lon = np.asarray(lon_deg, dtype=float)
+    h_t = np.asarray(altitude_m, dtype=float)
+    lat, lon, h_t, idx = (a.reshape(-1) for a in np.broadcast_arrays(lat, lon, h_t, idx))
+    az_deg, _back_az, ground_m = WGS84_GEOD.inv(
+        sites.lon_deg[idx], sites.lat_deg[idx], lon, lat
+    )
+    az_deg = np.mod(np.asarray(az_deg, dtype=float), 360.0)
+    ground_m = np.asarray(ground_m, dtype=float)
+    bad = ~(np.isfinite(lat) & np.isfinite(lon))
+    if np.any(bad):
+        az_deg[bad] = np.nan
+        ground_m[bad] = np.nan
+    range_m = ground_to_slant_range(sites.earth_radius_m[idx], sites.alt_m[idx], h_t, ground_m)
+    return range_m, az_deg, ground_m
+
+
+def flight_level_to_altitude_m(fl: Any) -> np.ndarray:
+    """Flight level (100 ft units) -> altitude in metres: alt_m = fl * 30.48.
+
+    Assumption: pressure altitude is used as height above the ellipsoid, with no
+    QNH, temperature or geoid correction (errors of a few hundred metres are possible;
+    the covariance's altitude term is meant to absorb them). NaN passes through.
+    """
+    return np.asarray(fl, dtype=float) * FLIGHT_LEVEL_M
+
+
+def altitude_m_to_flight_level(alt_m: Any) -> np.ndarray:
+    """Altitude in metres -> flight level (100 ft units): fl = alt_m / 30.48.
+
+    Same assumption as :func:`flight_level_to_altitude_m` (no pressure correction);
+    not rounded; NaN passes through.
+    """
+    return np.asarray(alt_m, dtype=float) / FLIGHT_LEVEL_M

@@ -1,0 +1,474 @@
+"""Tests of radar_fusion.coordinates against independent computations.
+
+The references written here do not call the module's maths: the earth radius comes from
+the ellipsoid's radii of curvature, the ground range from the arccos form of the law of
+cosines (the module uses the half-angle form), slant range is checked against the 3-D
+distance in ECEF, the plane against geodesic distances and the stereographic scale
+law, and covariances against Monte Carlo spreads of noisy measurements converted by a
+converter written in this file.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pyproj
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from radar_fusion.coordinates import (
+    RadarSites,
+    SystemPlane,
+    altitude_m_to_flight_level,
+    flight_level_to_altitude_m,
+    gaussian_earth_radius_m,
+    geodetic_to_polar,
+    polar_to_plane,
+)
+
+NM = 1852.0
+GEOD = pyproj.Geod(ellps="WGS84")
+A_M = 6378137.0
+F = 1.0 / 298.257223563
+E2 = F * (2.0 - F)
+B_M = A_M * (1.0 - F)
+
+CENTER_LAT, CENTER_LON = 50.0, 5.0
+
+
+# --------------------------------------------------------------------------- references
+def ref_radius(lat_deg):
+    """sqrt(M N) from the meridian and prime-vertical radii of curvature."""
+    s2 = np.sin(np.radians(lat_deg)) ** 2
+    m = A_M * (1.0 - E2) / (1.0 - E2 * s2) ** 1.5
+    n = A_M / np.sqrt(1.0 - E2 * s2)
+    return np.sqrt(m * n)
+
+
+def ref_ground_from_slant(r, h_r, h_t, rho):
+    a, b = r + h_r, r + h_t
+    return r * np.arccos((a * a + b * b - rho * rho) / (2.0 * a * b))
+
+
+def ref_slant_from_ground(r, h_r, h_t, g):
+    a, b = r + h_r, r + h_t
+    return np.sqrt(a * a + b * b - 2.0 * a * b * np.cos(g / r))
+
+
+def ref_transformer(lat0=CENTER_LAT, lon0=CENTER_LON):
+    return pyproj.Transformer.from_crs(
+        "EPSG:4326",
+        f"+proj=sterea +lat_0={lat0} +lon_0={lon0} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m",
+        always_xy=True,
+    )
+
+
+def ref_polar_to_xy(tr, site_lat, site_lon, site_alt, rho, az_deg, h_t):
+    """Independent conversion (no module code): arccos law of cosines, Geod.fwd, sterea."""
+    n = np.size(rho)
+    r = ref_radius(site_lat)
+    g = ref_ground_from_slant(r, site_alt, h_t, rho)
+    lon, lat, _ = GEOD.fwd(np.full(n, site_lon), np.full(n, site_lat), az_deg, g)
+    x, y = tr.transform(lon, lat)
+    return np.asarray(x), np.asarray(y), g
+
+
+def sites_5():
+    return RadarSites(
+        lat_deg=[50.0, 51.8, 47.9, 52.5, 49.2],
+        lon_deg=[5.0, 8.2, 3.1, 1.0, 9.9],
+        alt_m=[120.0, 850.0, 15.0, 0.0, 2200.0],
+        sigma_range_m=[50.0, 30.0, 70.0, 40.0, 60.0],
+        sigma_azimuth_deg=[0.1, 0.07, 0.15, 0.09, 0.12],
+        ids=["r0", "r1", "r2", "r3", "r4"],
+    )
+
+
+def site_300km_from_center():
+    lon, lat, _ = GEOD.fwd(CENTER_LON, CENTER_LAT, 60.0, 300e3)
+    return RadarSites([lat], [lon], [300.0], [30.0], [0.08])
+
+
+def targets_from(sites, idx, ground_m, az_deg):
+    lon, lat, _ = GEOD.fwd(sites.lon_deg[idx], sites.lat_deg[idx], az_deg, ground_m)
+    return np.asarray(lat), np.asarray(lon)
+
+
+def whitened(cov_emp, cov_model):
+    l_inv = np.linalg.inv(np.linalg.cholesky(cov_model))
+    return l_inv @ cov_emp @ l_inv.T
+
+
+# --------------------------------------------------------------------------- earth radius
+def test_gaussian_radius_known_values():
+    # Equator: M = a(1-e^2), N = a -> sqrt(MN) = b. Pole: M = N = a^2/b.
+    assert gaussian_earth_radius_m(0.0) == pytest.approx(B_M, abs=1e-6)
+    assert gaussian_earth_radius_m(89.999999) == pytest.approx(A_M**2 / B_M, abs=1e-3)
+    lats = np.linspace(-80, 80, 17)
+    np.testing.assert_allclose(gaussian_earth_radius_m(lats), ref_radius(lats), rtol=1e-13)
+    np.testing.assert_allclose(sites_5().earth_radius_m, ref_radius(sites_5().lat_deg), rtol=1e-13)
+
+
+# --------------------------------------------------------------------------- round trips
+def _grid_targets():
+    sites = sites_5()
+    ground = np.array([1.0, 5.0, 30.0, 100.0, 180.0, 250.0]) * NM
+    az = np.arange(0.0, 360.0, 22.5) + 0.3
+    alt = np.array([0.0, 500.0, 3000.0, 10668.0, 13000.0])
+    i, g, a, h = np.meshgrid(np.arange(len(sites)), ground, az, alt, indexing="ij")
+    i, g, a, h = i.ravel(), g.ravel(), a.ravel(), h.ravel()
+    lat, lon = targets_from(sites, i, g, a)
+    return sites, i, lat, lon, h, g, a
+
+
+def test_round_trip_geodetic_polar_plane_geodetic_grid():
+    sites, idx, lat, lon, h, g, a = _grid_targets()
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    rho, az, ground = geodetic_to_polar(sites, idx, lat, lon, h)
+    x, y, cov, ground2, valid = polar_to_plane(plane, sites, idx, rho, az, h, return_valid=True)
+    assert valid.all()
+    lat2, lon2 = plane.to_geodetic(x, y)
+    err_m = GEOD.inv(lon, lat, lon2, lat2)[2]
+    assert np.max(err_m) < 1e-3
+    np.testing.assert_allclose(ground2, ground, atol=1e-3)
+    # The polar values themselves agree with the independent Geod/law-of-cosines route.
+    np.testing.assert_allclose(ground, g, atol=1e-6)
+    np.testing.assert_allclose(np.mod(az - a + 180.0, 360.0) - 180.0, 0.0, atol=1e-9)
+    r = ref_radius(sites.lat_deg[idx])
+    np.testing.assert_allclose(rho, ref_slant_from_ground(r, sites.alt_m[idx], h, g), atol=1e-6)
+    assert np.all(np.isfinite(cov))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    site_lat=st.floats(-70.0, 70.0),
+    site_lon=st.floats(-179.0, 179.0),
+    site_alt=st.floats(0.0, 3000.0),
+    slant_nm=st.floats(1.0, 250.0),
+    az=st.floats(0.0, 359.999),
+    alt=st.floats(0.0, 15000.0),
+)
+def test_round_trip_polar_plane_polar_property(site_lat, site_lon, site_alt, slant_nm, az, alt):
+    rho = slant_nm * NM
+    if rho <= abs(alt - site_alt) + 1.0:  # impossible geometry, covered elsewhere
+        alt = site_alt
+    sites = RadarSites([site_lat], [site_lon], [site_alt], [50.0], [0.1])
+    # Plane centred 2 degrees away so the site is not at the centre.
+    plane = SystemPlane(float(np.clip(site_lat + 2.0, -80, 80)), site_lon - 2.0)
+    x, y, _, ground = polar_to_plane(plane, sites, [0], [rho], [az], [alt])
+    lat, lon = plane.to_geodetic(x, y)
+    rho2, az2, ground2 = geodetic_to_polar(sites, [0], lat, lon, [alt])
+    assert abs(rho2[0] - rho) < 1e-3
+    assert abs(ground2[0] - ground[0]) < 1e-3
+    # Azimuth error expressed as a cross-range distance.
+    daz = (az2[0] - az + 180.0) % 360.0 - 180.0
+    assert abs(np.radians(daz) * ground[0]) < 1e-3
+
+
+# --------------------------------------------------------------------------- ground range
+def test_ground_range_matches_independent_spherical_formula_and_geodesic():
+    sites = sites_5()
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    rng = np.random.default_rng(7)
+    n = 2000
+    idx = rng.integers(0, 5, n)
+    rho = rng.uniform(1.0, 250.0, n) * NM
+    az = rng.uniform(0.0, 360.0, n)
+    h = rng.uniform(0.0, 13000.0, n)
+    h = np.where(rho > np.abs(h - sites.alt_m[idx]) + 10.0, h, sites.alt_m[idx])
+    x, y, _, ground = polar_to_plane(plane, sites, idx, rho, az, h)
+    r = ref_radius(sites.lat_deg[idx])
+    np.testing.assert_allclose(ground, ref_ground_from_slant(r, sites.alt_m[idx], h, rho), atol=1e-3)
+    # The target lies at that geodesic distance and initial azimuth from the site.
+    lat, lon = plane.to_geodetic(x, y)
+    az_g, _, dist = GEOD.inv(sites.lon_deg[idx], sites.lat_deg[idx], lon, lat)
+    np.testing.assert_allclose(dist, ground, atol=1e-3)
+    np.testing.assert_allclose((az_g - az + 180.0) % 360.0 - 180.0, 0.0, atol=1e-7)
+    # Textbook limit h_r = h_t = 0: the chord rho subtends g = 2 R asin(rho / 2R).
+    sea = RadarSites([50.0], [5.0], [0.0], [1.0], [0.1])
+    chord = np.array([10.0, 100.0, 250.0]) * NM
+    _, _, _, g0 = polar_to_plane(plane, sea, [0, 0, 0], chord, [0.0, 90.0, 180.0], [0.0, 0.0, 0.0])
+    r0 = ref_radius(50.0)
+    np.testing.assert_allclose(g0, 2 * r0 * np.arcsin(chord / (2 * r0)), atol=1e-6)
+
+
+def test_slant_range_matches_ecef_distance_on_the_ellipsoid():
+    """The spherical model (Gaussian radius at the site) vs the true 3-D distance in
+    ECEF between antenna and target: within 1 m out to 250 NM."""
+    sites, idx, lat, lon, h, g, a = _grid_targets()
+    rho, _, _ = geodetic_to_polar(sites, idx, lat, lon, h)
+    to_ecef = pyproj.Transformer.from_crs(
+        "+proj=longlat +ellps=WGS84", "+proj=geocent +ellps=WGS84", always_xy=True
+    )
+    p_site = np.array(to_ecef.transform(sites.lon_deg[idx], sites.lat_deg[idx], sites.alt_m[idx]))
+    p_tgt = np.array(to_ecef.transform(lon, lat, h))
+    d = np.linalg.norm(p_tgt - p_site, axis=0)
+    assert np.max(np.abs(rho - d)) < 1.0
+
+
+def test_short_range_close_to_flat_earth():
+    sites = RadarSites([50.0], [5.0], [100.0], [50.0], [0.1])
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    rho = np.array([5000.0, 10000.0, 20000.0])
+    h = np.array([1100.0, 2100.0, 3100.0])
+    _, _, _, ground = polar_to_plane(plane, sites, [0, 0, 0], rho, [10.0, 20.0, 30.0], h)
+    flat = np.sqrt(rho**2 - (h - 100.0) ** 2)
+    # The flat-earth leg lives at the mean height of antenna and target; brought down to
+    # the sphere it shrinks by the factor R / (R + mean height): g ~ flat (1 - h_mean / R).
+    shortening = flat * 0.5 * (h + 100.0) / ref_radius(50.0)
+    assert np.all(shortening > 0.4)
+    np.testing.assert_allclose(flat - ground, shortening, atol=0.05)
+
+
+# --------------------------------------------------------------------------- the plane
+def test_plane_axes_and_round_trip():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    x, y = plane.to_plane(CENTER_LAT, CENTER_LON)
+    assert abs(x) < 1e-6 and abs(y) < 1e-6
+    lon_n, lat_n, _ = GEOD.fwd(CENTER_LON, CENTER_LAT, 0.0, 10e3)
+    lon_e, lat_e, _ = GEOD.fwd(CENTER_LON, CENTER_LAT, 90.0, 10e3)
+    xn, yn = plane.to_plane(lat_n, lon_n)
+    xe, ye = plane.to_plane(lat_e, lon_e)
+    assert abs(xn) < 1e-3 and yn == pytest.approx(10e3, abs=0.01)
+    assert abs(ye) < 10e3 * 1e-3 and xe == pytest.approx(10e3, abs=0.01)  # east: geodesic bends
+    rng = np.random.default_rng(3)
+    lat = rng.uniform(44.0, 56.0, 1000)
+    lon = rng.uniform(-4.0, 14.0, 1000)
+    x, y = plane.to_plane(lat, lon)
+    lat2, lon2 = plane.to_geodetic(x, y)
+    np.testing.assert_allclose(lat2, lat, atol=1e-10)
+    np.testing.assert_allclose(lon2, lon, atol=1e-10)
+
+
+@pytest.mark.parametrize("dist_m", [500.0, 100e3, 300e3, 600e3])
+def test_plane_local_scale_is_stereographic(dist_m):
+    """Distances between nearby points in the plane vs Geod.inv: conformal (same scale in
+    every direction) with k = 1 / cos^2(c / 2), c = d / R, the spherical stereographic law
+    with k0 = 1 (Gaussian sphere at the centre)."""
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    bearings = np.arange(0.0, 360.0, 30.0)
+    lon0, lat0, _ = GEOD.fwd(np.full(12, CENTER_LON), np.full(12, CENTER_LAT), bearings, np.full(12, dist_m))
+    x0, y0 = plane.to_plane(lat0, lon0)
+    k_expected = 1.0 / np.cos(dist_m / ref_radius(CENTER_LAT) / 2.0) ** 2
+    for direction in (0.0, 45.0, 90.0, 135.0):
+        lon1, lat1, _ = GEOD.fwd(lon0, lat0, np.full(12, direction), np.full(12, 20.0))
+        x1, y1 = plane.to_plane(lat1, lon1)
+        d_plane = np.hypot(x1 - x0, y1 - y0)
+        d_geod = GEOD.inv(lon0, lat0, lon1, lat1)[2]
+        np.testing.assert_allclose(d_plane / d_geod, k_expected, rtol=5e-6)
+
+
+# --------------------------------------------------------------------------- covariance
+def _monte_carlo(sites, plane, rho, az, h_true, n_draws, seed, h_used=None, sigma_h=None, **kw):
+    """Empirical covariance of plane positions from noisy (range, azimuth[, height]) draws,
+    converted by the independent reference converter."""
+    rng = np.random.default_rng(seed)
+    tr = ref_transformer(plane.center_lat_deg, plane.center_lon_deg)
+    site = (float(sites.lat_deg[0]), float(sites.lon_deg[0]), float(sites.alt_m[0]))
+    rho_n = rho + rng.normal(0.0, sites.sigma_range_m[0], n_draws)
+    az_n = az + rng.normal(0.0, sites.sigma_azimuth_deg[0], n_draws)
+    if sigma_h is None:
+        h_meas = np.full(n_draws, h_true)
+        x, y, _ = ref_polar_to_xy(tr, *site, rho_n, az_n, h_meas)
+    else:
+        # The true height is random around the assumed one; the slant range is what the
+        # radar measures of that true target; the converter only knows h_used.
+        h_t = h_true + rng.normal(0.0, sigma_h, n_draws)
+        g_true = ref_ground_from_slant(ref_radius(site[0]), site[2], h_true, rho)
+        rho_t = ref_slant_from_ground(ref_radius(site[0]), site[2], h_t, g_true)
+        rho_n = rho_t + rng.normal(0.0, sites.sigma_range_m[0], n_draws)
+        x, y, _ = ref_polar_to_xy(tr, *site, rho_n, az_n, np.full(n_draws, h_used))
+    return np.cov(np.vstack([x, y]))
+
+
+def test_cross_range_sigma_at_100nm_is_323m():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = RadarSites([CENTER_LAT], [CENTER_LON], [0.0], [50.0], [0.1])
+    _, _, cov, ground = polar_to_plane(plane, sites, [0], [100 * NM], [90.0], [0.0])
+    eig = np.linalg.eigvalsh(cov[0])
+    assert np.sqrt(eig[1]) == pytest.approx(100 * NM * np.radians(0.1), abs=1.0)  # 323.2 m
+    assert np.sqrt(eig[1]) == pytest.approx(323.2, abs=1.0)
+    assert np.sqrt(eig[0]) == pytest.approx(50.0, rel=0.01)
+
+
+def test_covariance_monte_carlo_site_at_center_100nm():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = RadarSites([CENTER_LAT], [CENTER_LON], [100.0], [50.0], [0.1])
+    rho, az, h = 100 * NM, 30.0, 9000.0
+    _, _, cov, _ = polar_to_plane(plane, sites, [0], [rho], [az], [h])
+    emp = _monte_carlo(sites, plane, rho, az, h, 20000, seed=11)
+    np.testing.assert_allclose(whitened(emp, cov[0]), np.eye(2), atol=0.05)
+
+
+def test_covariance_monte_carlo_200nm_site_300km_off_center_rotation_matters():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = site_300km_from_center()
+    rho, az, h = 200 * NM, 20.0, 11000.0
+    x, y, cov, _ = polar_to_plane(plane, sites, [0], [rho], [az], [h])
+    emp = _monte_carlo(sites, plane, rho, az, h, 20000, seed=12)
+    np.testing.assert_allclose(whitened(emp, cov[0]), np.eye(2), atol=0.05)
+
+    # The test has power: the target's grid convergence (measured here numerically)
+    # is several degrees, and ignoring it would fail the same check.
+    tr = ref_transformer()
+    lon_t, lat_t = tr.transform(x, y, direction="INVERSE")
+    lon_n, lat_n, _ = GEOD.fwd(lon_t, lat_t, [0.0], [100.0])
+    xn, yn = tr.transform(lon_n, lat_n)
+    conv = np.arctan2(xn[0] - x[0], yn[0] - y[0])  # grid bearing of true north
+    assert abs(np.degrees(conv)) > 3.0
+    c, s = np.cos(conv), np.sin(conv)
+    rot = np.array([[c, s], [-s, c]])  # undo the convergence
+    wrong = rot @ cov[0] @ rot.T
+    assert np.max(np.abs(whitened(emp, wrong) - np.eye(2))) > 0.2
+
+
+def test_covariance_monte_carlo_unknown_altitude_close_range():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = RadarSites(*[[v] for v in (51.0, 7.0, 100.0, 20.0, 0.1)])
+    assumed, sigma_h = 3000.0, 500.0
+    g_nom = ref_ground_from_slant(ref_radius(51.0), 100.0, assumed, 20 * NM)
+    rho = float(ref_slant_from_ground(ref_radius(51.0), 100.0, assumed, g_nom))
+    az = 250.0
+    _, _, cov, _ = polar_to_plane(
+        plane, sites, [0], [rho], [az], [np.nan],
+        assumed_altitude_m=assumed, sigma_unknown_altitude_m=sigma_h,
+    )
+    emp = _monte_carlo(sites, plane, rho, az, assumed, 20000, seed=13, h_used=assumed, sigma_h=sigma_h)
+    np.testing.assert_allclose(whitened(emp, cov[0]), np.eye(2), atol=0.05)
+    # The altitude term dominates the range noise here (else the test would not test it).
+    _, _, cov_known, _ = polar_to_plane(plane, sites, [0], [rho], [az], [assumed], sigma_known_altitude_m=0.0)
+    assert np.trace(cov[0]) - np.trace(cov_known[0]) > 2.0 * sites.sigma_range_m[0] ** 2
+
+
+def test_unknown_altitude_inflates_along_range_variance_only():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = sites_5()
+    idx = np.array([0, 0, 2, 2])
+    rho = np.array([15.0, 200.0, 15.0, 200.0]) * NM
+    az = np.array([45.0, 45.0, 300.0, 300.0])
+    x_k, y_k, cov_k, g = polar_to_plane(plane, sites, idx, rho, az, np.full(4, 3000.0))
+    x_u, y_u, cov_u, _ = polar_to_plane(plane, sites, idx, rho, az, np.full(4, np.nan))
+    # NaN altitude -> the assumed 3000 m: same position.
+    np.testing.assert_allclose(x_u, x_k, atol=1e-6)
+    np.testing.assert_allclose(y_u, y_k, atol=1e-6)
+    assert np.all(np.linalg.det(cov_u) > np.linalg.det(cov_k))
+    # The added part is rank one, along the radial line: its major axis points from the
+    # site to the target (in the plane, within the small bending of the geodesic).
+    diff = cov_u - cov_k
+    ev, vec = np.linalg.eigh(diff)
+    assert np.all(np.abs(ev[:, 0]) < 1e-9 * ev[:, 1])
+    sx, sy = plane.to_plane(sites.lat_deg[idx], sites.lon_deg[idx])
+    radial = np.stack([x_k - sx, y_k - sy], axis=1)
+    radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+    cos_angle = np.abs(np.sum(vec[:, :, 1] * radial, axis=1))
+    assert np.all(cos_angle > np.cos(np.radians(1.0)))
+    # Its size: (dg/dh)^2 (3000^2 - 60^2) with the small-angle derivative
+    # dg/dh ~ -(dh / g + g / 2R) (the second term is the earth's curvature).
+    dh = 3000.0 - sites.alt_m[idx]
+    r = ref_radius(sites.lat_deg[idx])
+    dg_dh = dh / g + g / (2.0 * r)
+    k2 = (plane.scale_factor(*plane.to_geodetic(x_k, y_k))) ** 2
+    np.testing.assert_allclose(ev[:, 1], k2 * dg_dh**2 * (3000.0**2 - 60.0**2), rtol=0.02)
+    # Close in (15 NM) it dominates the range noise; at 200 NM it is small beside the
+    # cross-range variance.
+    assert ev[0, 1] > 10 * sites.sigma_range_m[0] ** 2
+    assert ev[0, 1] > 5 * ev[1, 1]
+    assert ev[1, 1] < 0.1 * np.trace(cov_k[1])
+
+
+# --------------------------------------------------------------------------- edge cases
+def test_nan_and_impossible_geometry():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = sites_5()
+    idx = np.array([0, 0, 0, 1, 1])
+    rho = np.array([100e3, np.nan, 2000.0, 50e3, -5.0])
+    az = np.array([10.0, 10.0, 10.0, np.nan, 10.0])
+    h = np.array([np.nan, 5000.0, 9000.0, 5000.0, 5000.0])
+    x, y, cov, ground, valid = polar_to_plane(plane, sites, idx, rho, az, h, return_valid=True)
+    assert valid.tolist() == [True, False, False, False, False]
+    assert np.all(np.isfinite([x[0], y[0], ground[0]])) and np.all(np.isfinite(cov[0]))
+    for i in (1, 3, 4):
+        assert np.isnan(x[i]) and np.isnan(y[i]) and np.all(np.isnan(cov[i]))
+    # Slant range 2 km to a target 8.9 km above the antenna: clamped onto the site,
+    # with a wide isotropic covariance.
+    sx, sy = plane.to_plane(sites.lat_deg[0], sites.lon_deg[0])
+    assert ground[2] == 0.0
+    assert abs(x[2] - sx) < 1e-3 and abs(y[2] - sy) < 1e-3
+    np.testing.assert_allclose(cov[2], (2000.0**2 + 50.0**2) * np.eye(2))
+    # geodetic_to_polar: NaN height -> NaN slant range, azimuth still defined.
+    r, a, g = geodetic_to_polar(sites, [0, 0], [50.5, 50.5], [5.5, 5.5], [np.nan, 1000.0])
+    assert np.isnan(r[0]) and np.isfinite(r[1]) and np.isfinite(a[0]) and g[0] == g[1]
+    # Empty input (a radar with no plots this period).
+    x0, y0, c0, g0, v0 = polar_to_plane(plane, sites, np.array([], int), [], [], [], return_valid=True)
+    assert x0.shape == y0.shape == g0.shape == v0.shape == (0,) and c0.shape == (0, 2, 2)
+    r0, a0, gg0 = geodetic_to_polar(sites, np.array([], int), [], [], [])
+    assert r0.shape == a0.shape == gg0.shape == (0,)
+    with pytest.raises(ValueError):
+        polar_to_plane(plane, sites, [5], [1e4], [0.0], [0.0])
+    with pytest.raises(ValueError):
+        geodetic_to_polar(sites, [-1], [50.0], [5.0], [0.0])
+
+
+def test_flight_level_helpers():
+    assert flight_level_to_altitude_m(350) == pytest.approx(350 * 100 * 0.3048)
+    assert float(flight_level_to_altitude_m(100)) == pytest.approx(3048.0)
+    assert float(altitude_m_to_flight_level(10668.0)) == pytest.approx(350.0)
+    out = flight_level_to_altitude_m(np.array([np.nan, 0.0, 410.0]))
+    assert np.isnan(out[0]) and out[1] == 0.0 and out[2] == pytest.approx(12496.8)
+    assert np.isnan(altitude_m_to_flight_level(np.nan))
+
+
+def test_radar_sites_from_configs_and_validation():
+    cfgs = [
+        SimpleNamespace(id="alpha", lat_deg=50.0, lon_deg=5.0, alt_m=10.0, sigma_range_m=50.0, sigma_azimuth_deg=0.1),
+        SimpleNamespace(id="bravo", lat=51.0, lon=6.0, alt_m=20.0, sigma_range_m=40.0, sigma_azimuth_deg=0.2),
+    ]
+    s = RadarSites.from_configs(cfgs)
+    assert len(s) == 2 and s.ids == ("alpha", "bravo") and s.index_of("bravo") == 1
+    np.testing.assert_array_equal(s.lat_deg, [50.0, 51.0])
+    np.testing.assert_allclose(s.sigma_azimuth_rad, np.radians([0.1, 0.2]))
+    px, py = s.plane_positions(SystemPlane(50.0, 5.0))
+    assert abs(px[0]) < 1e-6 and py[1] > 100e3
+    with pytest.raises(ValueError):
+        RadarSites([50.0, 51.0], [5.0], [0.0], [1.0], [0.1])
+    with pytest.raises(ValueError):
+        RadarSites([50.0], [5.0], [0.0], [-1.0], [0.1])
+
+
+# --------------------------------------------------------------------------- vectorisation
+def test_vectorised_10000_plots_5_radars_equals_per_plot_loop():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = sites_5()
+    rng = np.random.default_rng(5)
+    n = 10_000
+    idx = rng.integers(0, 5, n)
+    rho = rng.uniform(2.0, 250.0, n) * NM
+    az = rng.uniform(0.0, 360.0, n)
+    h = np.where(rng.random(n) < 0.3, np.nan, rng.uniform(1000.0, 12000.0, n))
+    x, y, cov, ground, valid = polar_to_plane(plane, sites, idx, rho, az, h, return_valid=True)
+    assert x.shape == (n,) and cov.shape == (n, 2, 2)
+    # A few short-range plots are inside the impossible cone (slant < height difference).
+    h_used = np.where(np.isnan(h), 3000.0, h)
+    inside = rho < np.abs(h_used - sites.alt_m[idx])
+    assert inside.any() and np.array_equal(valid, ~inside)
+    lat_t, lon_t = plane.to_geodetic(x, y)
+    r2, a2, g2 = geodetic_to_polar(sites, idx, lat_t, lon_t, np.where(np.isnan(h), 3000.0, h))
+    tr = ref_transformer()
+    for i in np.concatenate([rng.choice(n, 40, replace=False), np.flatnonzero(inside)[:3]]):
+        xi, yi, ci, gi = polar_to_plane(plane, sites, [idx[i]], [rho[i]], [az[i]], [h[i]])
+        assert xi[0] == pytest.approx(x[i], abs=1e-6) and yi[0] == pytest.approx(y[i], abs=1e-6)
+        np.testing.assert_allclose(ci[0], cov[i], rtol=1e-9)
+        ri, ai, _ = geodetic_to_polar(sites, [idx[i]], [lat_t[i]], [lon_t[i]], [np.nan_to_num(h[i], nan=3000.0)])
+        assert ri[0] == pytest.approx(r2[i], abs=1e-6) and ai[0] == pytest.approx(a2[i], abs=1e-9)
+        if inside[i]:
+            continue
+        # ... and with the independent reference converter.
+        k = idx[i]
+        xr, yr, gr = ref_polar_to_xy(
+            tr, sites.lat_deg[k], sites.lon_deg[k], sites.alt_m[k], np.array([rho[i]]),
+            np.array([az[i]]), np.array([np.nan_to_num(h[i], nan=3000.0)]),
+        )
+        assert abs(xr[0] - x[i]) < 1e-3 and abs(yr[0] - y[i]) < 1e-3 and abs(gr[0] - ground[i]) < 1e-3
+    np.testing.assert_allclose(r2[valid], rho[valid], atol=1e-3)
