@@ -1,0 +1,542 @@
+"""Singer-model Kalman filter over N tracks at once (Shu et al. 2007, §3.2 and §4).
+
+State per track, in Shu's order (eq. 12)::
+
+    x = [x, vx, ax, y, vy, ay]      (m, m/s, m/s²)
+
+Each horizontal axis follows Singer's (1970) model: the acceleration is a first-order
+Gauss-Markov process with correlation time T_c = 1/α and stationary variance σ_m²,
+
+    d/dt [p, v, a]ᵀ = A [p, v, a]ᵀ + G w,   A = [[0,1,0],[0,0,1],[0,0,-α]],  G = [0,0,1]ᵀ,
+
+with w white noise of spectral density q_c = 2·α·σ_m² (so that E[a²] = σ_m² in steady
+state).  The two axes are independent, so Φ and Q are block-diagonal with two equal
+3×3 blocks.
+
+Relation to the paper
+---------------------
+* Φ (eq. 12).  Shu prints row 5 as ``0 0 0 1 T 0``; block-diagonal Singer needs
+  ``0 0 0 0 1 T`` (misprint, fixed here).  Shu also prints the simplified acceleration
+  column T²/2 and T.  :func:`singer_transition` implements Singer's *exact* transition
+  ``Φ = expm(A·T)``, whose acceleration column is
+  ``(αT − 1 + e^{−αT})/α²`` and ``(1 − e^{−αT})/α``; these tend to T²/2 and T as αT → 0
+  and differ from them by −αT³/6 + O(α²T⁴) and −αT²/2 + O(α²T³) respectively.
+  The exact form keeps Φ consistent with Q (both come from the same continuous model).
+  :func:`singer_transition_printed` gives the paper's printed form with the row-5
+  misprint corrected, for comparison.
+* Q(k) (§4).  Shu prints ``Q = σ_m²·[q_ij]``.  The continuous model (Van Loan's method,
+  proven in tests/test_singer_filter.py) gives ``Q = 2·α·σ_m²·[q_ij]`` as in Singer
+  (1970); the factor 2α is what makes the steady-state acceleration variance σ_m².
+  Two of the printed q_ij are also misprinted: Singer's (and Van Loan's) values are
+  ``q13 = (1 − e^{−2αT} − 2αT·e^{−αT}) / 2α³`` (Shu prints e^{−αT} for e^{−2αT}) and
+  ``q22 = (4e^{−αT} − 3 − e^{−2αT} + 2αT) / 2α³`` (Shu prints −3e^{−2αT} for
+  −3 − e^{−2αT}); the printed forms do not even vanish as T → 0.
+  The closed forms lose all precision for small αT (q11 is a difference of O(1) terms
+  whose sum is (αT)⁵/10), so below αT = 0.5 each q_ij is evaluated from its Taylor
+  series in αT instead.
+* P0 (§4) is implemented exactly as printed, by :func:`two_point_initiation`.
+* H (§4) picks x and y: ``H = [[1,0,0,0,0,0],[0,0,0,1,0,0]]``.
+* The filter equations are Shu eq. 7–11; the covariance update uses the Joseph form,
+  which equals eq. 10 for the optimal gain of eq. 9 and stays symmetric and positive
+  semi-definite under round-off.
+
+All functions are vectorised over the leading axis N (numpy batched matmul / einsum,
+closed-form 2×2 inverses); none loops over tracks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from fractions import Fraction
+
+import numpy as np
+
+__all__ = [
+    "STATE_DIM",
+    "POS_IDX",
+    "H",
+    "singer_sigma_m_mps2",
+    "singer_transition",
+    "singer_transition_printed",
+    "singer_process_noise",
+    "two_point_initiation",
+    "SingerFilter",
+    "AltitudeFilter",
+]
+
+STATE_DIM = 6
+#: indices of x and y in the state vector [x, vx, ax, y, vy, ay]
+POS_IDX = np.array([0, 3])
+#: measurement matrix of Shu §4: z = H x picks the two positions
+H = np.zeros((2, STATE_DIM))
+H[0, 0] = 1.0
+H[1, 3] = 1.0
+
+G0_MPS2 = 9.80665
+
+
+def singer_sigma_m_mps2(a_max_mps2: float, p_max: float, p_0: float) -> float:
+    """Singer's (1970) acceleration standard deviation from his manoeuvre model.
+
+    The target accelerates at ±A_max with probability P_max each, not at all with
+    probability P_0, and otherwise uniformly in (−A_max, A_max); then
+    ``σ_m² = A_max²/3 · (1 + 4·P_max − P_0)``.
+    """
+    if not (0.0 <= p_max and 0.0 <= p_0 and 2.0 * p_max + p_0 <= 1.0):
+        raise ValueError("need p_max, p_0 >= 0 and 2*p_max + p_0 <= 1")
+    return math.sqrt(a_max_mps2**2 / 3.0 * (1.0 + 4.0 * p_max - p_0))
+
+
+# --- series for the αT → 0 limit ---------------------------------------------------
+
+_SERIES_TERMS = 30
+#: below this αT the Taylor series are used; above it the closed forms
+_SERIES_SWITCH_AT = 0.5
+
+
+def _exp_coeffs(k: int, shift: int = 0) -> list[Fraction]:
+    """Taylor coefficients c_n (n < _SERIES_TERMS + 6) of x**shift · e^{−k x}."""
+    n_max = _SERIES_TERMS + 6
+    out = [Fraction(0)] * n_max
+    for n in range(shift, n_max):
+        m = n - shift
+        out[n] = Fraction((-k) ** m, math.factorial(m))
+    return out
+
+
+def _series(numerator: dict, power: int) -> np.ndarray:
+    """Coefficients of N(x) / (2 x**power) as a power series in x.
+
+    ``numerator`` maps a term to its factor: ("poly", j) is x**j, ("exp", k, s) is
+    x**s · e^{−k x}.  The coefficients of x**0 … x**(power−1) of N must vanish (they
+    do for every q_ij: that is the cancellation the series avoids).
+    """
+    n_max = _SERIES_TERMS + 6
+    c = [Fraction(0)] * n_max
+    for term, factor in numerator.items():
+        if term[0] == "poly":
+            c[term[1]] += Fraction(factor)
+        else:
+            ec = _exp_coeffs(term[1], term[2])
+            for n in range(n_max):
+                c[n] += Fraction(factor) * ec[n]
+    assert all(ci == 0 for ci in c[:power]), "numerator does not cancel"
+    return np.array([float(ci / 2) for ci in c[power : power + _SERIES_TERMS]])
+
+
+# q_ij = T**p · g_ij(αT), g_ij(x) = N_ij(x) / (2 x**p)   (Singer 1970; Shu §4 with the
+# q13 and q22 misprints fixed).  Keys: (row, col) in the 3×3 per-axis block.
+_Q_NUMERATORS = {
+    # q11: (1 − e^{−2x} + 2x + 2x³/3 − 2x² − 4x e^{−x}) / 2x⁵
+    (0, 0): ({("poly", 0): 1, ("exp", 2, 0): -1, ("poly", 1): 2, ("poly", 3): Fraction(2, 3),
+              ("poly", 2): -2, ("exp", 1, 1): -4}, 5),
+    # q12: (1 + e^{−2x} − 2e^{−x} + 2x e^{−x} − 2x + x²) / 2x⁴
+    (0, 1): ({("poly", 0): 1, ("exp", 2, 0): 1, ("exp", 1, 0): -2, ("exp", 1, 1): 2,
+              ("poly", 1): -2, ("poly", 2): 1}, 4),
+    # q13: (1 − e^{−2x} − 2x e^{−x}) / 2x³
+    (0, 2): ({("poly", 0): 1, ("exp", 2, 0): -1, ("exp", 1, 1): -2}, 3),
+    # q22: (4e^{−x} − 3 − e^{−2x} + 2x) / 2x³
+    (1, 1): ({("exp", 1, 0): 4, ("poly", 0): -3, ("exp", 2, 0): -1, ("poly", 1): 2}, 3),
+    # q23: (1 + e^{−2x} − 2e^{−x}) / 2x²
+    (1, 2): ({("poly", 0): 1, ("exp", 2, 0): 1, ("exp", 1, 0): -2}, 2),
+    # q33: (1 − e^{−2x}) / 2x
+    (2, 2): ({("poly", 0): 1, ("exp", 2, 0): -1}, 1),
+}
+_Q_SERIES = {ij: _series(num, p) for ij, (num, p) in _Q_NUMERATORS.items()}
+_Q_POWER = {ij: p for ij, (_, p) in _Q_NUMERATORS.items()}
+
+# Φ13 = T² h2(αT), h2(x) = (x − 1 + e^{−x})/x² = Σ (−x)ⁿ/(n+2)!
+_H2_SERIES = np.array([(-1.0) ** n / math.factorial(n + 2) for n in range(_SERIES_TERMS)])
+
+
+def _horner(coeffs: np.ndarray, x: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(x)
+    for c in coeffs[::-1]:
+        out = out * x + c
+    return out
+
+
+def _q_closed(ij: tuple[int, int], x: np.ndarray) -> np.ndarray:
+    """g_ij(x) from the closed form (accurate for x not small)."""
+    e1 = np.exp(-x)
+    e2 = np.exp(-2.0 * x)
+    if ij == (0, 0):
+        num = 1 - e2 + 2 * x + 2 * x**3 / 3 - 2 * x**2 - 4 * x * e1
+    elif ij == (0, 1):
+        num = 1 + e2 - 2 * e1 + 2 * x * e1 - 2 * x + x**2
+    elif ij == (0, 2):
+        num = 1 - e2 - 2 * x * e1
+    elif ij == (1, 1):
+        num = 4 * e1 - 3 - e2 + 2 * x
+    elif ij == (1, 2):
+        num = 1 + e2 - 2 * e1
+    else:
+        num = 1 - e2
+    return num / (2 * x ** _Q_POWER[ij])
+
+
+def _g(ij: tuple[int, int], x: np.ndarray) -> np.ndarray:
+    small = x < _SERIES_SWITCH_AT
+    x_big = np.where(small, 1.0, x)  # keep the closed form away from 0/0
+    return np.where(small, _horner(_Q_SERIES[ij], x), _q_closed(ij, x_big))
+
+
+def _as_tracks(*arrays) -> list[np.ndarray]:
+    """Broadcast scalars / (N,) arrays to a common 1-D float shape (N,)."""
+    out = np.broadcast_arrays(*[np.atleast_1d(np.asarray(a, dtype=float)) for a in arrays])
+    if out[0].ndim != 1:
+        raise ValueError("expected scalars or 1-D arrays over tracks")
+    return [np.ascontiguousarray(a) for a in out]
+
+
+def _block_diag2(b: np.ndarray) -> np.ndarray:
+    """(N,3,3) per-axis block → (N,6,6) block-diagonal [x-axis, y-axis]."""
+    out = np.zeros((b.shape[0], STATE_DIM, STATE_DIM))
+    out[:, 0:3, 0:3] = b
+    out[:, 3:6, 3:6] = b
+    return out
+
+
+def singer_transition(dt_s, alpha_per_s) -> np.ndarray:
+    """Exact Singer transition Φ(T, α) = expm(A·T), shape (N,6,6).
+
+    Per axis (Shu eq. 12 with the row-5 misprint fixed and the exact acceleration
+    column)::
+
+        [[1, T, (αT − 1 + e^{−αT})/α²],
+         [0, 1, (1 − e^{−αT})/α      ],
+         [0, 0, e^{−αT}              ]]
+
+    ``dt_s`` (T) and ``alpha_per_s`` (α ≥ 0) are scalars or (N,) arrays.  The α → 0 limit
+    is the constant-acceleration transition; small αT uses a Taylor series.
+    """
+    dt_s, alpha_per_s = _as_tracks(dt_s, alpha_per_s)
+    if np.any(alpha_per_s < 0):
+        raise ValueError("alpha_per_s must be >= 0")
+    x = alpha_per_s * dt_s
+    small = x < _SERIES_SWITCH_AT
+    x_big = np.where(small, 1.0, x)
+    h2 = np.where(small, _horner(_H2_SERIES, x), (x_big - 1.0 + np.exp(-x_big)) / x_big**2)
+    # (1 − e^{−x})/x via expm1 is accurate for every x > 0; limit 1 at x = 0
+    h1 = np.where(x > 0, -np.expm1(-x) / np.where(x > 0, x, 1.0), 1.0)
+    b = np.zeros((dt_s.size, 3, 3))
+    b[:, 0, 0] = b[:, 1, 1] = 1.0
+    b[:, 0, 1] = dt_s
+    b[:, 0, 2] = dt_s**2 * h2
+    b[:, 1, 2] = dt_s * h1
+    b[:, 2, 2] = np.exp(-x)
+    return _block_diag2(b)
+
+
+def singer_transition_printed(dt_s, alpha_per_s) -> np.ndarray:
+    """Φ as printed in Shu eq. 12 (acceleration column T²/2, T) with row 5 corrected.
+
+    An approximation of :func:`singer_transition`; kept for comparison only.
+    """
+    dt_s, alpha_per_s = _as_tracks(dt_s, alpha_per_s)
+    b = np.zeros((dt_s.size, 3, 3))
+    b[:, 0, 0] = b[:, 1, 1] = 1.0
+    b[:, 0, 1] = dt_s
+    b[:, 0, 2] = dt_s**2 / 2.0
+    b[:, 1, 2] = dt_s
+    b[:, 2, 2] = np.exp(-alpha_per_s * dt_s)
+    return _block_diag2(b)
+
+
+def singer_process_noise(dt_s, alpha_per_s, sigma_m_mps2) -> np.ndarray:
+    """Discrete process noise Q(k) = 2·α·σ_m² · [q_ij(T, α)], shape (N,6,6).
+
+    q_ij are Singer's (1970) (Shu §4, with the q13/q22 misprints fixed, see module
+    docstring); the factor 2·α·σ_m² is the white-noise spectral density q_c of the
+    continuous model, as proven against Van Loan's method in the tests (the paper's
+    σ_m² alone is wrong by the factor 2α).  Small αT (< 0.5) uses the Taylor series
+    of each q_ij, so Q is accurate from αT = 0 up: Q → q_c·[[T⁵/20, T⁴/8, T³/6],
+    [T⁴/8, T³/3, T²/2], [T³/6, T²/2, T]] as αT → 0.
+    """
+    dt_s, alpha_per_s, sigma_m_mps2 = _as_tracks(dt_s, alpha_per_s, sigma_m_mps2)
+    if np.any(alpha_per_s < 0) or np.any(dt_s < 0):
+        raise ValueError("alpha_per_s and dt_s must be >= 0")
+    x = alpha_per_s * dt_s
+    q_c = 2.0 * alpha_per_s * sigma_m_mps2**2
+    b = np.empty((dt_s.size, 3, 3))
+    for (i, j), p in _Q_POWER.items():  # six matrix elements, not tracks
+        b[:, i, j] = b[:, j, i] = q_c * dt_s**p * _g((i, j), x)
+    return _block_diag2(b)
+
+
+def two_point_initiation(z1_m, R1, z2_m, R2, dt_s, sigma_m_mps2):
+    """Two-point differencing initiation with Shu's P0 (§4).
+
+    From two position measurements z1 (time t1) and z2 (t2 = t1 + T) of each track::
+
+        x0 = [z2x, (z2x − z1x)/T, 0, z2y, (z2y − z1y)/T, 0]
+
+    and, with σ_x1², σ_xy1, σ_y1² the entries of R1 and likewise for R2 (Shu writes
+    the covariance σ_xy as σ_xy²), P0 exactly as printed::
+
+        [[σx2²,    σx2²/T,            0,    σxy2,    σxy2/T,            0   ],
+         [σx2²/T,  (σx1²+σx2²)/T²,    0,    σxy2/T,  (σxy1+σxy2)/T²,    0   ],
+         [0,       0,                 σm²,  0,       0,                 0   ],
+         [σxy2,    σxy2/T,            0,    σy2²,    σy2²/T,            0   ],
+         [σxy2/T,  (σxy1+σxy2)/T²,    0,    σy2²/T,  (σy1²+σy2²)/T²,    0   ],
+         [0,       0,                 0,    0,       0,                 σm² ]]
+
+    The position/velocity block is the exact covariance of the estimator for
+    independent measurement errors and a constant-velocity target; the acceleration
+    is initialised at 0 with the Singer prior variance σ_m².  (A real acceleration a
+    would add the bias −a·T/2 to the velocity estimate, which P0 ignores.)
+
+    Shapes: z1_m, z2_m (N,2); R1, R2 (N,2,2); dt_s (N,) or scalar (> 0);
+    sigma_m_mps2 scalar or (N,).  Returns x (N,6), P (N,6,6).
+    """
+    z1_m = np.asarray(z1_m, dtype=float)
+    z2_m = np.asarray(z2_m, dtype=float)
+    R1 = np.asarray(R1, dtype=float)
+    R2 = np.asarray(R2, dtype=float)
+    n = z2_m.shape[0]
+    dt_s, sigma_m_mps2 = _as_tracks(dt_s, sigma_m_mps2)
+    dt_s = np.broadcast_to(dt_s, (n,))
+    sigma_m_mps2 = np.broadcast_to(sigma_m_mps2, (n,))
+    if np.any(dt_s <= 0):
+        raise ValueError("two-point initiation needs dt_s > 0")
+
+    x = np.zeros((n, STATE_DIM))
+    x[:, POS_IDX] = z2_m
+    x[:, POS_IDX + 1] = (z2_m - z1_m) / dt_s[:, None]
+
+    # position/velocity covariance: cov(p, p) = R2, cov(p, v) = R2/T,
+    # cov(v, v) = (R1 + R2)/T², for each pair of axes (a, b) ∈ {x, y}²
+    inv_t = (1.0 / dt_s)[:, None, None]
+    pp = R2
+    pv = R2 * inv_t
+    vv = (R1 + R2) * inv_t**2
+    P = np.zeros((n, STATE_DIM, STATE_DIM))
+    pos, vel = POS_IDX, POS_IDX + 1
+    P[:, pos[:, None], pos[None, :]] = pp
+    P[:, pos[:, None], vel[None, :]] = pv
+    P[:, vel[:, None], pos[None, :]] = np.swapaxes(pv, 1, 2)
+    P[:, vel[:, None], vel[None, :]] = vv
+    P[:, 2, 2] = P[:, 5, 5] = sigma_m_mps2**2
+    return x, P
+
+
+def _inv_2x2(m: np.ndarray) -> np.ndarray:
+    """Closed-form inverse of a stack of 2×2 matrices, (N,2,2) → (N,2,2)."""
+    a, b, c, d = m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1]
+    det = a * d - b * c
+    inv = np.empty_like(m)
+    inv[:, 0, 0] = d / det
+    inv[:, 0, 1] = -b / det
+    inv[:, 1, 0] = -c / det
+    inv[:, 1, 1] = a / det
+    return inv
+
+
+def _sym(P: np.ndarray) -> np.ndarray:
+    return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+# Defaults for civil air traffic (see SingerFilter):
+#   A_max = g·tan(25°) ≈ 4.57 m/s², the horizontal acceleration of a coordinated turn
+#   at 25° bank (airline turns are flown at 25–30° bank or rate one, whichever is less);
+#   P_max = 0.1 (at most one flight in ten is in a maximum-bank turn at a given time),
+#   P_0 = 0.5 (half the time the aircraft is in straight, unaccelerated flight).
+#   σ_m² = A_max²/3·(1 + 4·0.1 − 0.5) → σ_m ≈ 2.5 m/s².
+_DEFAULT_A_MAX_MPS2 = G0_MPS2 * math.tan(math.radians(25.0))
+DEFAULT_SIGMA_M_MPS2 = singer_sigma_m_mps2(_DEFAULT_A_MAX_MPS2, p_max=0.1, p_0=0.5)
+#   T_c = 30 s: a rate-one (3°/s) turn through 90° lasts 30 s, the typical heading
+#   change at a vectoring instruction or a route turn; Singer's "lazy turn" is ~60 s.
+DEFAULT_ALPHA_PER_S = 1.0 / 30.0
+
+
+@dataclass(frozen=True)
+class SingerFilter:
+    """Singer-model Kalman filter (Shu eq. 7–11) for N tracks at once.
+
+    Parameters
+    ----------
+    alpha_per_s:
+        Manoeuvre bandwidth α = 1/T_c.  Default 1/30 s⁻¹: the ~30 s of a rate-one
+        90° turn, inside the 20–60 s range of civil manoeuvres.
+    sigma_m_mps2:
+        Stationary standard deviation of the target acceleration σ_m.  Default from
+        Singer's formula σ_m² = A_max²/3·(1 + 4P_max − P_0) with A_max = g·tan 25°
+        ≈ 4.57 m/s² (coordinated turn at 25° bank), P_max = 0.1, P_0 = 0.5, giving
+        σ_m ≈ 2.5 m/s².
+    """
+
+    alpha_per_s: float = DEFAULT_ALPHA_PER_S
+    sigma_m_mps2: float = DEFAULT_SIGMA_M_MPS2
+
+    def __post_init__(self) -> None:
+        if not self.alpha_per_s > 0:
+            raise ValueError("alpha_per_s must be > 0")
+        if not self.sigma_m_mps2 >= 0:
+            raise ValueError("sigma_m_mps2 must be >= 0")
+
+    def transition(self, dt_s) -> np.ndarray:
+        """Φ(T, α), (N,6,6)."""
+        return singer_transition(dt_s, self.alpha_per_s)
+
+    def process_noise(self, dt_s) -> np.ndarray:
+        """Q(k), (N,6,6)."""
+        return singer_process_noise(dt_s, self.alpha_per_s, self.sigma_m_mps2)
+
+    def initiate(self, z1_m, R1, z2_m, R2, dt_s):
+        """Two-point initiation with Shu's P0; see :func:`two_point_initiation`."""
+        return two_point_initiation(z1_m, R1, z2_m, R2, dt_s, self.sigma_m_mps2)
+
+    def predict(self, x, P, dt_s):
+        """Prediction over dt_s (scalar or (N,)) for x (N,6), P (N,6,6).
+
+        x(k+1|k) = Φ x(k|k)                        (eq. 8)
+        P(k+1|k) = Φ P(k|k) Φᵀ + Q(k)              (eq. 11)
+        """
+        x = np.asarray(x, dtype=float)
+        P = np.asarray(P, dtype=float)
+        dt_s = np.broadcast_to(np.asarray(dt_s, dtype=float), (x.shape[0],))
+        phi = self.transition(dt_s)
+        x_pred = np.einsum("nij,nj->ni", phi, x)
+        P_pred = phi @ P @ np.swapaxes(phi, 1, 2) + self.process_noise(dt_s)
+        return x_pred, _sym(P_pred)
+
+    @staticmethod
+    def innovation(x_pred, P_pred, z, R):
+        """Innovation ν = z − H x(k+1|k) (N,2) and its covariance S = H P Hᵀ + R (N,2,2)."""
+        x_pred = np.asarray(x_pred, dtype=float)
+        P_pred = np.asarray(P_pred, dtype=float)
+        nu = np.asarray(z, dtype=float) - x_pred[:, POS_IDX]
+        S = P_pred[:, POS_IDX[:, None], POS_IDX[None, :]] + np.asarray(R, dtype=float)
+        return nu, S
+
+    def update(self, x_pred, P_pred, z, R):
+        """Measurement update with fused measurements z (N,2) of covariance R (N,2,2).
+
+        K = P Hᵀ [H P Hᵀ + R]⁻¹                      (eq. 9)
+        x(k+1|k+1) = x(k+1|k) + K [z − H x(k+1|k)]   (eq. 7; H Φ x(k|k) = H x(k+1|k))
+        P(k+1|k+1) = (I − K H) P (I − K H)ᵀ + K R Kᵀ (Joseph form of eq. 10; equal to
+                                                     (I − K H) P for this optimal K)
+
+        Returns x (N,6), P (N,6,6), innovation ν (N,2), innovation covariance S (N,2,2).
+        """
+        x_pred = np.asarray(x_pred, dtype=float)
+        P_pred = np.asarray(P_pred, dtype=float)
+        R = np.asarray(R, dtype=float)
+        nu, S = self.innovation(x_pred, P_pred, z, R)
+        PHt = P_pred[:, :, POS_IDX]  # P Hᵀ, (N,6,2)
+        K = PHt @ _inv_2x2(S)  # eq. 9
+        x = x_pred + np.einsum("nij,nj->ni", K, nu)  # eq. 7
+        I_KH = np.broadcast_to(np.eye(STATE_DIM), P_pred.shape).copy()
+        I_KH[:, :, POS_IDX] -= K  # I − K H: H only has ones at columns 0 and 3
+        P = I_KH @ P_pred @ np.swapaxes(I_KH, 1, 2) + K @ R @ np.swapaxes(K, 1, 2)
+        return x, _sym(P), nu, S
+
+    def mahalanobis_sq(self, x_pred, P_pred, z, R) -> np.ndarray:
+        """Squared Mahalanobis distance νᵀ S⁻¹ ν of z from the prediction, (N,).
+
+        χ²-distributed with 2 degrees of freedom for a correct association; gate with
+        e.g. ``scipy.stats.chi2.ppf(0.99, 2)`` ≈ 9.21.
+        """
+        nu, S = self.innovation(x_pred, P_pred, z, R)
+        return np.einsum("ni,nij,nj->n", nu, _inv_2x2(S), nu)
+
+
+# --- altitude ------------------------------------------------------------------------
+
+#: variance of Mode C's 100 ft (1 FL) quantisation error, uniform over ±0.5 FL: 1/12 FL²
+MODE_C_QUANT_VAR_FL2 = 1.0 / 12.0
+
+
+@dataclass(frozen=True)
+class AltitudeFilter:
+    """Vertical constant-velocity Kalman filter on [FL, FL/s] (FL = 100 ft) for N tracks.
+
+    Continuous white-noise-acceleration model, for T = dt_s::
+
+        Φ = [[1, T], [0, 1]],   Q = q_c · [[T³/3, T²/2], [T²/2, T]],   H = [1, 0]
+
+    Parameters
+    ----------
+    accel_psd_fl2_ps3:
+        q_c, spectral density of the vertical acceleration in FL²/s³.  Default 0.001:
+        a climb start or level-off changes the vertical rate by ~0.25 FL/s
+        (1,500 ft/min) in ~15 s, so a_max ≈ 0.017 FL/s² (≈ 0.05 g); the usual
+        guideline (Bar-Shalom, Li & Kirubarajan 2001, §6.2) makes the velocity change
+        over one scan, sqrt(q_c·T), of order a_max·T, i.e. q_c ≈ a_max²·T ≈ 0.0012
+        for T = 4 s.  Larger values follow level-offs faster but make the vertical
+        rate noisier (Mode C's 100 ft steps dominate the measurement error).
+    meas_var_fl2:
+        Default Mode C measurement variance: the 100 ft quantisation (1/12 FL²) plus
+        ~0.2 FL (20 ft) of altimeter/encoder noise, 1/12 + 0.04 ≈ 0.123 FL²
+        (σ ≈ 0.35 FL).  Used where ``update`` gets no per-plot variance.
+    rate_var0_fl2_ps2:
+        Prior variance of the vertical rate when a track first gets an altitude:
+        (0.5 FL/s)², i.e. σ = 3,000 ft/min, covering civil climbs and descents.
+    """
+
+    accel_psd_fl2_ps3: float = 0.001
+    meas_var_fl2: float = MODE_C_QUANT_VAR_FL2 + 0.2**2
+    rate_var0_fl2_ps2: float = 0.5**2
+
+    def initiate(self, fl_measured, var_fl=None):
+        """State from a first altitude: x = [FL, 0], P = diag(var_fl, rate_var0).
+
+        Tracks whose FL is NaN (no Mode C) get NaN states; ``update`` initialises them
+        at their first valid FL.
+        """
+        fl = np.atleast_1d(np.asarray(fl_measured, dtype=float))
+        var = self._var(var_fl, fl.shape[0])
+        x = np.stack([fl, np.where(np.isnan(fl), np.nan, 0.0)], axis=1)
+        P = np.zeros((fl.shape[0], 2, 2))
+        P[:, 0, 0] = np.where(np.isnan(fl), np.nan, var)
+        P[:, 1, 1] = np.where(np.isnan(fl), np.nan, self.rate_var0_fl2_ps2)
+        return x, P
+
+    def _var(self, var_fl, n):
+        if var_fl is None:
+            return np.full(n, self.meas_var_fl2)
+        return np.broadcast_to(np.asarray(var_fl, dtype=float), (n,))
+
+    def predict(self, x, P, dt_s):
+        """x(k+1|k) = Φ x,  P(k+1|k) = Φ P Φᵀ + Q; dt_s scalar or (N,)."""
+        x = np.asarray(x, dtype=float)
+        P = np.asarray(P, dtype=float)
+        t = np.broadcast_to(np.asarray(dt_s, dtype=float), (x.shape[0],))
+        x_pred = np.stack([x[:, 0] + t * x[:, 1], x[:, 1]], axis=1)
+        p00, p01, p11 = P[:, 0, 0], P[:, 0, 1], P[:, 1, 1]
+        q = self.accel_psd_fl2_ps3
+        P_pred = np.empty_like(P)
+        P_pred[:, 0, 0] = p00 + 2 * t * p01 + t**2 * p11 + q * t**3 / 3
+        P_pred[:, 0, 1] = P_pred[:, 1, 0] = p01 + t * p11 + q * t**2 / 2
+        P_pred[:, 1, 1] = p11 + q * t
+        return x_pred, P_pred
+
+    def update(self, x, P, fl_measured, var_fl=None):
+        """Scalar Kalman update with z = FL; tracks with NaN FL keep the prediction.
+
+        K = P Hᵀ / (H P Hᵀ + r), x += K (z − H x), P = (I − K H) P (I − K H)ᵀ + K r Kᵀ.
+        A track whose state is NaN (no altitude yet) and whose FL is valid is
+        initialised from it as in :meth:`initiate`.
+        """
+        x = np.asarray(x, dtype=float)
+        P = np.asarray(P, dtype=float)
+        z = np.atleast_1d(np.asarray(fl_measured, dtype=float))
+        r = self._var(var_fl, z.shape[0])
+        have_z = np.isfinite(z)
+        fresh = have_z & ~np.isfinite(x[:, 0])
+        ok = have_z & ~fresh
+
+        s = P[:, 0, 0] + r
+        k = P[:, :, 0] / np.where(ok, s, 1.0)[:, None]  # (N,2)
+        nu = np.where(ok, z - x[:, 0], 0.0)
+        x_new = x + k * nu[:, None]
+        a = np.broadcast_to(np.eye(2), P.shape).copy()
+        a[:, :, 0] -= k
+        P_new = a @ P @ np.swapaxes(a, 1, 2) + r[:, None, None] * k[:, :, None] * k[:, None, :]
+        P_new = _sym(P_new)
+
+        x0, P0 = self.initiate(np.where(fresh, z, np.nan), r)
+        x_out = np.where(ok[:, None], x_new, np.where(fresh[:, None], x0, x))
+        P_out = np.where(ok[:, None, None], P_new, np.where(fresh[:, None, None], P0, P))
+        return x_out, P_out
