@@ -1,0 +1,278 @@
+"""Tests of radar_fusion.outliers (Hu 2013): equations by hand, decision rule, the
+reproduction (soft >= K-MODF on runs), and the live gate."""
+
+import math
+
+import numpy as np
+import pytest
+
+from radar_fusion.outliers import (
+    LiveOutlierGate, OutlierParams, analyse, decide_wild, edge_points, hard_edge_weight,
+    innovation_gate_3sigma, k_distance, k_mean_distance, minmax_normalise, outlier_factor,
+    segment_at_edges, soft_edge_weight, subsequence_features,
+)
+from radar_fusion.tools.outlier_experiment import evaluate, make_scenario, run_method, score
+
+TINY = [1.0, 2.0, 2.0, 9.0, 3.0, 4.0, 4.0]
+V = 3
+
+
+def _windows_of(i, n, v):
+    """The v windows summed for sample i: starts i-v+1..i clipped to 0..n-v."""
+    return [min(max(i - v + 1 + m, 0), n - v) for m in range(v)]
+
+
+def _mean(xs):
+    return sum(xs) / len(xs)
+
+
+def _pstd(xs):
+    mu = _mean(xs)
+    return math.sqrt(sum((x - mu) ** 2 for x in xs) / len(xs))
+
+
+def test_eq1_soft_weight_by_hand():
+    n = len(TINY)
+    expected = []
+    for i in range(n):
+        total = 0.0
+        for j in _windows_of(i, n, V):
+            win = TINY[j:j + V]
+            sd = _pstd(win)
+            total += (TINY[i] - _mean(win)) / (sd + (1e-9 if sd == 0 else 0.0))
+        expected.append(abs(total))
+    got = soft_edge_weight(np.array(TINY), V)
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+    # The spike at index 3 has the largest weight; window 3 of the sample 3 sum, by hand:
+    # window [9,3,4]: mean 16/3, std sqrt(((11/3)^2+(7/3)^2+(4/3)^2)/3)
+    sd = math.sqrt(((11 / 3) ** 2 + (7 / 3) ** 2 + (4 / 3) ** 2) / 3)
+    # Sample 0 sums the first window v times (series end); among interior samples
+    # the spike has the largest weight.
+    assert got[1:6].argmax() == 2
+    assert abs((9 - 16 / 3) / sd - 11 / math.sqrt(62.0)) < 1e-12
+
+
+def test_eq1_delta_guard_constant_window():
+    s = np.array([5.0, 5.0, 5.0, 5.0, 6.0])
+    w = soft_edge_weight(s, 3, epsilon=1e-6)
+    assert np.all(np.isfinite(w))
+    # Sample 0 sums window 0 three times: constant, so (5-5)/(0+eps) = 0.
+    assert w[0] == 0.0
+
+
+def test_kmodf_hard_weight_by_hand():
+    n = len(TINY)
+    expected = []
+    for i in range(n):
+        total = 0
+        for j in _windows_of(i, n, V):
+            win = TINY[j:j + V]
+            if max(win) > min(win):
+                total += (TINY[i] == max(win)) - (TINY[i] == min(win))
+        expected.append(abs(total))
+    np.testing.assert_array_equal(hard_edge_weight(np.array(TINY), V), expected)
+    # The spike is the maximum of all three windows that contain it.
+    assert hard_edge_weight(np.array(TINY), V)[3] == 3
+
+
+def test_edge_rule_and_segmentation():
+    w = np.array([0.0, 1.0, 5.0, 6.0, 0.5, 0.2, 7.0, 0.1])
+    edge = edge_points(w, v=2, edge_quantile=0.6, edge_level=1.0)
+    # quantile 0.6 of w (linear interpolation) = 1.0; and w/2 >= 1 -> w >= 2.
+    np.testing.assert_array_equal(edge, [0, 0, 1, 1, 0, 0, 1, 0])
+    starts, stops, edge_stops = segment_at_edges(edge)
+    np.testing.assert_array_equal(starts, [0, 2, 6])
+    np.testing.assert_array_equal(stops, [2, 6, 8])
+    np.testing.assert_array_equal(edge_stops, [0, 4, 7])
+
+
+def test_eq2_to_eq5_features_by_hand():
+    s = np.array([1.0, 2.0, 2.0, 9.0, 3.0, 4.0, 4.0])
+    starts, stops = np.array([0, 3, 6]), np.array([3, 6, 7])
+    f = subsequence_features(s, starts, stops)
+    for p, (a, b) in enumerate(zip(starts, stops)):
+        seg = list(s[a:b])
+        h = seg[-1] - seg[0]
+        length = len(seg)
+        mu = sum(seg) / length
+        sd = math.sqrt(sum((x - mu) ** 2 for x in seg) / (length - 1)) if length > 1 else 0.0
+        np.testing.assert_allclose(f[p], [h, length, mu, sd], rtol=1e-12)
+    np.testing.assert_allclose(f[1], [-5.0, 3.0, 16 / 3, math.sqrt(31.0 / 3.0)], rtol=1e-12)
+
+
+def test_eq6_minmax_with_constant_column():
+    c = np.array([[1.0, 7.0], [3.0, 7.0], [2.0, 7.0]])
+    d = minmax_normalise(c, epsilon=1e-3)
+    np.testing.assert_allclose(d[:, 0], [0.0, 1.0, 0.5])
+    np.testing.assert_allclose(d[:, 1], [0.0, 0.0, 0.0])
+
+
+def test_k_distance_and_k_mean_distance_by_hand():
+    x = np.array([0.0, 1.0, 3.0, 7.0])
+    # distances from 0: 1,3,7; from 1: 1,2,6; from 3: 3,2,4; from 7: 7,6,4
+    np.testing.assert_allclose(k_distance(x, 2), [3.0, 2.0, 3.0, 6.0])
+    np.testing.assert_allclose(k_mean_distance(x, 2), [2.0, 1.5, 2.5, 5.0])
+    # Ties: condition 1 and 2 give the tied distance as the k-distance.
+    np.testing.assert_allclose(k_distance(np.array([0.0, 1.0, -1.0, 5.0]), 2)[0], 1.0)
+
+
+def test_eq7_outlier_factor_by_hand():
+    f = np.array([[0.0, 0.0, 0.0, 0.0], [0.1, 0.0, 0.1, 0.0], [0.0, 0.1, 0.0, 0.1],
+                  [1.0, 1.0, 1.0, 1.0]])
+    k = 1
+    cols = []
+    pts = [list(r) for r in f]
+    # Independent: plain loops for 4-D and each 1-D k-mean distance (k = 1).
+    def nn(points, i):
+        return min(math.dist(points[i], points[j]) for j in range(len(points)) if j != i)
+    cols.append([nn(pts, i) for i in range(4)])
+    for dim in range(4):
+        sub = [[r[dim]] for r in pts]
+        cols.append([nn(sub, i) for i in range(4)])
+    norm = []
+    for c in cols:
+        lo, hi = min(c), max(c)
+        norm.append([(v - lo) / (hi - lo) for v in c])
+    expected = [norm[0][i] + max(norm[d][i] for d in range(1, 5)) for i in range(4)]
+    of, dist = outlier_factor(f, k)
+    np.testing.assert_allclose(of, expected, rtol=1e-9)
+    assert of.argmax() == 3 and abs(of[3] - 2.0) < 1e-9
+
+
+def test_decision_rule():
+    of = np.array([0.1, 0.12, 0.11, 0.09, 0.1, 1.5, 1.6, 0.13])
+    run = np.array([0, 1, 1, 2, 1, 1, 20, 1])
+    wild, thr = decide_wild(of, run, OutlierParams(of_sigma=6.0, max_wild_length=8))
+    med = np.median(of)
+    assert thr == pytest.approx(med + 6.0 * 1.4826 * np.median(np.abs(of - med)))
+    # Index 6 has a large OF but its edge run is too long to be a wild run.
+    np.testing.assert_array_equal(wild, [0, 0, 0, 0, 0, 1, 0, 0])
+    wild_abs, thr_abs = decide_wild(of, run, OutlierParams(of_threshold=0.115))
+    assert thr_abs == 0.115
+    np.testing.assert_array_equal(wild_abs, [0, 1, 0, 0, 0, 1, 0, 1])
+
+
+def test_analyse_on_reproduction_series():
+    sc = make_scenario(7)
+    a = analyse(sc.azimuth_deg, sc.t_s, method="soft")
+    assert a.wild[sc.wild].mean() >= 0.9
+    assert (a.wild & ~sc.wild).sum() <= 6
+    # Sub-sequences tile the series; wild samples lie in the edge runs of wild ones.
+    assert a.starts[0] == 0 and a.stops[-1] == sc.t_s.size
+    np.testing.assert_array_equal(a.starts[1:], a.stops[:-1])
+    assert a.edge[a.wild].all()
+
+
+def test_soft_at_least_as_good_as_kmodf_on_runs():
+    soft_tp = kmodf_tp = 0
+    for seed in range(6):
+        sc = make_scenario(seed)
+        soft_tp += score(run_method("soft", sc), sc)["tp_run"]
+        kmodf_tp += score(run_method("kmodf", sc), sc)["tp_run"]
+    assert soft_tp >= kmodf_tp
+    assert soft_tp > 0
+
+
+def test_reproduction_summary_soft_finds_wild_points():
+    r = evaluate(5, first_seed=40)
+    assert r["soft"]["recall"] >= 0.9
+    assert r["soft"]["precision"] >= 0.8
+    assert r["soft"]["recall_runs"] >= r["kmodf"]["recall_runs"]
+
+
+def test_innovation_gate_flags_spike_not_ramp():
+    rng = np.random.default_rng(1)
+    s = np.linspace(0.0, 10.0, 400) + rng.normal(0, 0.05, 400)
+    s[150] += 1.0
+    flagged = innovation_gate_3sigma(s, sigma=0.05)
+    assert flagged[150]
+    assert flagged.sum() <= 5
+
+
+# ---------------------------------------------------------------- live gate
+SCAN_S = 4.0
+
+
+def _track(n, turn_deg_s=0.0, turn=(0.0, 0.0), seed=0):
+    """Range/azimuth plots of a 200 m/s aircraft, 4 s scans, optional coordinated turn."""
+    rng = np.random.default_rng(seed)
+    x, y, hd = 20000.0, 40000.0, math.radians(90.0)
+    t = np.arange(n) * SCAN_S
+    xs, ys = [], []
+    for ti in t:
+        xs.append(x)
+        ys.append(y)
+        rate = math.radians(turn_deg_s) if turn[0] <= ti < turn[1] else 0.0
+        for _ in range(40):
+            hd += rate * 0.1
+            x += 200.0 * math.sin(hd) * 0.1
+            y += 200.0 * math.cos(hd) * 0.1
+    xs, ys = np.array(xs), np.array(ys)
+    r = np.hypot(xs, ys) + rng.normal(0, 50.0, n)
+    az = np.degrees(np.arctan2(xs, ys)) + rng.normal(0, 0.07, n)
+    return t, r, az
+
+
+def _feed(gate, key, t, r, az):
+    return np.array([gate.filter(np.array([key]), t[i:i + 1], r[i:i + 1], az[i:i + 1])[0]
+                     for i in range(t.size)])
+
+
+def test_live_gate_rejects_isolated_wild_and_run_of_five():
+    t, r, az = _track(40, seed=2)
+    r = r.copy()
+    r[12] += 3000.0
+    r[20:25] -= 2500.0  # run of 5 wild plots
+    gate = LiveOutlierGate()
+    acc = _feed(gate, 5, t, r, az)
+    assert not acc[12]
+    assert not acc[20:25].any()
+    # Every genuine plot is accepted, including the ones right after the run.
+    genuine = np.ones(40, dtype=bool)
+    genuine[12] = False
+    genuine[20:25] = False
+    assert acc[genuine].all()
+
+
+def test_live_gate_accepts_coordinated_turn():
+    for seed in range(5):
+        t, r, az = _track(60, turn_deg_s=3.0, turn=(80.0, 170.0), seed=seed)
+        assert _feed(LiveOutlierGate(), 9, t, r, az).all()
+
+
+def test_live_gate_accepts_persistent_change():
+    t, r, az = _track(40, seed=4)
+    r = r.copy()
+    r[20:] += 4000.0  # the track genuinely jumps (e.g. the radar re-associated it)
+    gate = LiveOutlierGate(relock_after=6)
+    acc = _feed(gate, 1, t, r, az)
+    assert not acc[20:25].any()
+    assert acc[25:].all()
+    assert gate.relocked == 1
+
+
+def test_live_gate_disabled_and_multi_plot_batches():
+    t, r, az = _track(20, seed=5)
+    r = r.copy()
+    r[15] += 5000.0
+    assert LiveOutlierGate(enabled=False).filter(np.full(20, 3), t, r, az).all()
+    # The whole track in one batch: plots are decided in time order, shuffled input.
+    perm = np.random.default_rng(0).permutation(20)
+    acc = LiveOutlierGate().filter(np.full(20, 3)[perm], t[perm], r[perm], az[perm])
+    expected = np.ones(20, dtype=bool)
+    expected[15] = False
+    np.testing.assert_array_equal(acc[np.argsort(perm)], expected)
+
+
+def test_live_gate_memory_is_bounded():
+    gate = LiveOutlierGate(max_keys=500, evict_after_s=100.0)
+    rng = np.random.default_rng(0)
+    for step in range(20):
+        keys = rng.integers(0, 10**9, 300).astype(np.int64)
+        t = np.full(300, step * 4.0)
+        gate.filter(keys, t, rng.uniform(1e4, 1e5, 300), rng.uniform(0, 360, 300))
+        assert gate.n_keys <= 500 and gate.capacity <= 500
+    assert gate.evicted >= 20 * 300 - 500
+    # Keys not seen for evict_after_s are evicted.
+    gate.filter(np.array([1], dtype=np.int64), np.array([1000.0]), np.array([5e4]), np.array([10.0]))
+    assert gate.n_keys == 1
