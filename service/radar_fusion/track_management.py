@@ -1,0 +1,127 @@
+"""System tracks: their state arrays and their life cycle (Shu 2007 §2, the three cases).
+
+All tracks live in one :class:`TrackTable` of numpy arrays (N×6 Singer states, N×6×6
+covariances, N×2 altitude states, identities, counters); every operation below works on
+all tracks at once.
+
+Life cycle
+----------
+* Initiation (Shu §2 case 1 and 3): a cluster that no track claims starts a *tentative*
+  track holding that one fused measurement (position, no velocity yet). Its predicted
+  covariance carries a wide velocity prior so that its gate covers any aircraft speed.
+* Second update: the two-point initiation of Shu §4 (x from the two fused measurements,
+  P0 exactly as printed) replaces the one-point state; later updates are Kalman updates
+  (Shu eq. 7-11).
+* Confirmation (M of N): a tentative track with ``confirm_updates`` updates within
+  ``confirm_window_s`` of its first plot becomes *confirmed*; one that fails to do so
+  ends.
+* Coasting: a confirmed track with no update for ``coast_after_s`` is *coasting*
+  (predicted, not measured); an update makes it confirmed again.
+* Deletion: a tentative track with no update for ``delete_tentative_after_s``, or a
+  confirmed/coasting one with none for ``delete_after_s``, ends; its id is reported in
+  the batch's ``ended`` list and never reused.
+* Contributing radars (主辅批): each update records the bit mask of radars whose plots
+  formed the cluster, published as the track's ``sources``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+TENTATIVE, CONFIRMED, COASTING = 0, 1, 2
+STATUS_NAMES = ("tentative", "confirmed", "coasting")
+
+
+@dataclass(frozen=True)
+class LifeCycle:
+    confirm_updates: int
+    confirm_window_s: float
+    coast_after_s: float
+    delete_tentative_after_s: float
+    delete_after_s: float
+
+
+_FIELDS = {
+    # name: (trailing shape, dtype, fill)
+    "track_id": ((), np.int64, -1),
+    "x": ((6,), float, 0.0),
+    "P": ((6, 6), float, 0.0),
+    "alt_x": ((2,), float, np.nan),
+    "alt_P": ((2, 2), float, np.nan),
+    "status": ((), np.int8, TENTATIVE),
+    "initiated": ((), bool, False),  # has a velocity from two-point initiation
+    "updates": ((), np.int64, 0),
+    "first_t_s": ((), float, np.nan),
+    "last_update_t_s": ((), float, np.nan),
+    "z1_m": ((2,), float, np.nan),  # first fused measurement, for two-point initiation
+    "R1_m2": ((2, 2), float, np.nan),
+    "mode_s": ((), np.int64, -1),
+    "mode3a": ((), np.int64, -1),
+    "sources": ((), np.uint64, 0),  # radars that contributed in the latest period (bit mask)
+}
+
+
+class TrackTable:
+    """Column store of all live tracks. Row order is arbitrary; ``track_id`` is stable."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.next_id = 1
+        for name, (shape, dtype, fill) in _FIELDS.items():
+            setattr(self, name, np.full((0,) + shape, fill, dtype=dtype))
+
+    def __len__(self) -> int:
+        return self.n
+
+    def append(self, count: int) -> slice:
+        """Add ``count`` rows with fresh ids (default-filled); returns their slice."""
+        for name, (shape, dtype, fill) in _FIELDS.items():
+            old = getattr(self, name)
+            new = np.full((count,) + shape, fill, dtype=dtype)
+            setattr(self, name, np.concatenate([old, new]))
+        rows = slice(self.n, self.n + count)
+        self.track_id[rows] = np.arange(self.next_id, self.next_id + count)
+        self.next_id += count
+        self.n += count
+        return rows
+
+    def keep(self, mask: np.ndarray) -> None:
+        for name in _FIELDS:
+            setattr(self, name, getattr(self, name)[mask])
+        self.n = int(mask.sum())
+
+    # ---------------------------------------------------------------- queries
+    def velocity_mps(self) -> np.ndarray:
+        return self.x[:, [1, 4]]
+
+    def position_m(self) -> np.ndarray:
+        return self.x[:, [0, 3]]
+
+    def cov_pos_m2(self) -> np.ndarray:
+        return self.P[:, [0, 3]][:, :, [0, 3]]
+
+    def cov_vel(self) -> np.ndarray:
+        return self.P[:, [1, 4]][:, :, [1, 4]]
+
+
+def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndarray:
+    """Confirm, coast and end tracks at time ``t_s``; returns the ids of ended tracks."""
+    since_update = t_s - table.last_update_t_s
+    age = t_s - table.first_t_s
+    status = table.status
+
+    confirm = (status == TENTATIVE) & (table.updates >= rules.confirm_updates) & (age <= rules.confirm_window_s)
+    status[confirm] = CONFIRMED
+    recovered = (status == COASTING) & (since_update <= 0.0)
+    status[recovered] = CONFIRMED
+    status[(status == CONFIRMED) & (since_update > rules.coast_after_s)] = COASTING
+
+    end = ((status == TENTATIVE) & ((since_update > rules.delete_tentative_after_s) | (age > rules.confirm_window_s))) | (
+        (status != TENTATIVE) & (since_update > rules.delete_after_s)
+    )
+    ended = table.track_id[end].copy()
+    if end.any():
+        table.keep(~end)
+    return ended
