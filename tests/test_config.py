@@ -83,3 +83,10 @@ def test_missing_and_invalid_files(tmp_path):
         load_settings(tmp_path / "nope.toml")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_settings(write(tmp_path, "[system\n"))
+
+
+def test_safety_net_section_is_validated_with_file_and_field(tmp_path):
+    path = write(tmp_path, GOOD + "\n[safety_nets]\nlook_ahead_s = -5\n")
+    with pytest.raises(ConfigError) as err:
+        load_settings(path)
+    assert str(path) in str(err.value) and "safety_nets.look_ahead_s" in str(err.value)

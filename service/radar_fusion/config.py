@@ -87,6 +87,12 @@ class TrackingConfig(_Section):
     fusion_method: Literal["scalar", "matrix"] = Field(
         "matrix", description="scalar: Shu eq. 5-6; matrix: full-covariance information form"
     )
+    manoeuvre_sigma_factor: float = Field(
+        4.0, ge=1.0, description="σ_m multiplier while a manoeuvre is detected (1 = off)"
+    )
+    manoeuvre_nis_on: float = Field(6.0, gt=0, description="fading-average NIS above which a track manoeuvres")
+    manoeuvre_nis_off: float = Field(3.0, gt=0, description="... and below which it flies straight again")
+    manoeuvre_nis_fading: float = Field(0.5, ge=0, lt=1, description="weight of the previous NIS average")
     gate_chi2: float = Field(13.8, gt=0, description="association gate, chi-square with 2 dof (99.9 %)")
     new_target_gate_m: float = Field(3000.0, gt=0, description="plots of one new target lie within this distance")
     max_speed_mps: float = Field(350.0, gt=0)
@@ -154,16 +160,27 @@ class Settings(BaseSettings):
         return min(r.rotation_period_s for r in self.radars)
 
 
+def _config_error(exc: ValidationError, source: str, section: str = "") -> ConfigError:
+    lines = []
+    for e in exc.errors():
+        loc = ".".join(str(x) for x in (section,) * bool(section) + tuple(e["loc"])) or "(top level)"
+        lines.append(f"{source}: {loc}: {e['msg']}")
+    return ConfigError("\n".join(lines))
+
+
 def settings_from_dict(data: dict[str, Any], source: str = "<dict>") -> Settings:
     """Validate a configuration mapping; errors name the source and the field."""
+    from .safety_nets import SafetyNetsConfig  # its own model; imported late, it imports no config
+
     try:
-        return Settings(**data)
+        settings = Settings(**data)
     except ValidationError as exc:
-        lines = []
-        for e in exc.errors():
-            loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
-            lines.append(f"{source}: {loc}: {e['msg']}")
-        raise ConfigError("\n".join(lines)) from None
+        raise _config_error(exc, source) from None
+    try:
+        SafetyNetsConfig.model_validate(settings.safety_nets)
+    except ValidationError as exc:
+        raise _config_error(exc, source, "safety_nets") from None
+    return settings
 
 
 def load_settings(path: str | Path) -> Settings:

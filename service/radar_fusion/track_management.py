@@ -60,6 +60,8 @@ _FIELDS = {
     "mode_s": ((), np.int64, -1),
     "mode3a": ((), np.int64, -1),
     "sources": ((), np.uint64, 0),  # radars that contributed in the latest period (bit mask)
+    "nis_avg": ((), float, 2.0),  # fading average of the normalised innovation squared (2 dof)
+    "manoeuvre": ((), bool, False),  # manoeuvre detected: process noise raised
 }
 
 

@@ -1,0 +1,459 @@
+"""The fusion engine: plots in, track batches and alerts out. No bus, no clock, no files.
+
+Pipeline per radar batch (``ingest_plots``):
+    semantic checks (unknown radar, duplicates, late/future, beyond range)
+    → live wild-plot gate (Hu 2013, outliers.py)
+    → coordinate conversion to the system plane (coordinates.py)
+    → per-period buffer with event-time watermarks (period_buffer.py)
+
+Pipeline per closed period (``poll``), all tracks at once in numpy arrays:
+    Singer prediction of every track to the period's reference time (singer_filter.py)
+    → time alignment + k-means clustering seeded by the tracks (clustering.py, Shu §2)
+    → inverse-variance fusion of each cluster (fusion.py, Shu eq. 5-6)
+    → Kalman update / two-point initiation / new tentative tracks (Shu eq. 7-11, §4)
+    → track life cycle (track_management.py) → TrackBatch
+    → safety nets (safety_nets.py) → alerts
+
+The daemon (bus.py), the replay-driven tests and the benchmark all drive this class
+the same way: ``ingest_plots`` / ``ingest_status`` as messages arrive, then ``poll``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+
+from .clustering import ClusteringParams, cluster_plots
+from .config import Settings
+from .coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
+from .fusion import fuse_clusters
+from .outliers import LiveOutlierGate
+from .period_buffer import PeriodBuffer, PlotChunk
+from .singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2, AltitudeFilter, SingerFilter
+from .track_management import (
+    CONFIRMED,
+    STATUS_NAMES,
+    TENTATIVE,
+    LifeCycle,
+    TrackTable,
+    apply_life_cycle,
+)
+from .wire import DecodedPlots, RadarStatus, mode_s_to_str
+
+FT_PER_FL = 100.0
+
+
+@dataclass
+class PeriodOutput:
+    """What one closed period produced: the TrackBatch (a wire-contract dict) and alerts."""
+
+    period: int
+    t_s: float
+    track_batch: dict[str, Any]
+    alerts: list[dict[str, Any]] = field(default_factory=list)
+    processing_s: float = 0.0
+    n_plots: int = 0
+
+
+@dataclass
+class RadarState:
+    last_seq: Optional[int] = None
+    recent_seqs: deque = field(default_factory=lambda: deque(maxlen=4096))
+    recent_set: set = field(default_factory=set)
+    plots: int = 0
+    batches: int = 0
+    seq_gaps: int = 0
+    out_of_order: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    rotation_period_s: Optional[float] = None
+
+
+class Engine:
+    """Sans-I/O multi-radar fusion engine (DESIGN.md §2)."""
+
+    def __init__(self, settings: Settings, safety_nets: Any = None):
+        self.settings = settings
+        sysc, trk = settings.system, settings.tracking
+        self.radar_ids = [r.id for r in settings.radars]
+        if len(self.radar_ids) > 64:
+            raise ValueError("at most 64 radars (sources are a 64-bit mask)")
+        self.radar_index = {rid: i for i, rid in enumerate(self.radar_ids)}
+        self.max_range_m = np.array([r.max_range_m for r in settings.radars])
+        self.plane = SystemPlane(sysc.center_lat, sysc.center_lon)
+        self.sites = RadarSites.from_configs(settings.radars)
+        self.filter = SingerFilter(
+            alpha_per_s=trk.alpha_per_s or DEFAULT_ALPHA_PER_S, sigma_m_mps2=trk.sigma_m_mps2 or DEFAULT_SIGMA_M_MPS2
+        )
+        self.alt_filter = AltitudeFilter()
+        longest = settings.longest_rotation_s
+        self.rules = LifeCycle(
+            confirm_updates=trk.confirm_updates,
+            confirm_window_s=trk.confirm_window_s,
+            coast_after_s=trk.coast_after_s or 1.5 * longest,
+            delete_tentative_after_s=trk.delete_tentative_after_s or 1.5 * longest,
+            delete_after_s=trk.delete_after_s or 3.5 * longest,
+        )
+        self.clustering = ClusteringParams(
+            gate_chi2=trk.gate_chi2, new_target_gate_m=trk.new_target_gate_m, max_speed_mps=trk.max_speed_mps
+        )
+        self.assumed_altitude_m = trk.assumed_altitude_ft * 0.3048
+        self.manoeuvre_sigma_factor = trk.manoeuvre_sigma_factor
+        self.manoeuvre_on, self.manoeuvre_off = trk.manoeuvre_nis_on, trk.manoeuvre_nis_off
+        self.nis_fading = trk.manoeuvre_nis_fading
+        # wide velocity prior of a one-plot track: uniform speed up to max_speed per axis
+        self.one_plot_vel_var = trk.max_speed_mps**2 / 3.0
+        out = settings.outliers
+        self.outlier_gate = (
+            LiveOutlierGate(window=out.window, k=out.k, threshold=out.threshold, relock_after=out.relock_after)
+            if out.enabled
+            else None
+        )
+        self.buffer = PeriodBuffer(
+            period_s=sysc.period_s,
+            allowed_lateness_s=sysc.allowed_lateness_s,
+            radar_timeout_s=sysc.radar_timeout_s,
+            n_radars=len(self.radar_ids),
+        )
+        self.tracks = TrackTable()
+        self.track_t_s: Optional[float] = None  # common time of all track states
+        self.radars = [RadarState() for _ in self.radar_ids]
+        self.counters: Counter = Counter()
+        self.rejected: Counter = Counter()
+        self.safety_nets = safety_nets
+        self.periods_closed = 0
+        self.processing_s: deque = deque(maxlen=1000)
+
+    # ================================================================== input
+    def reject(self, reason: str, n: int = 1, radar_id: Optional[str] = None) -> None:
+        """Count ``n`` rejections (also those the codec made before the engine saw them)."""
+        if n <= 0:
+            return
+        self.rejected[reason] += n
+        if radar_id in self.radar_index:
+            self.radars[self.radar_index[radar_id]].rejected[reason] += n
+
+    def ingest_status(self, status: RadarStatus) -> None:
+        i = self.radar_index.get(status.radar_id)
+        if i is None:
+            self.reject("unknown_radar")
+            return
+        wm = self.buffer.watermark_s
+        if np.isfinite(wm[i]) and status.t > wm[i] + self.settings.system.max_future_s:
+            self.reject("plot_future", radar_id=status.radar_id)
+            return
+        self.counters["status_messages"] += 1
+        if status.rotation_period_s is not None:
+            self.radars[i].rotation_period_s = status.rotation_period_s
+        self.buffer.advance_watermark(i, status.t)
+
+    def ingest_plots(self, batch: DecodedPlots) -> int:
+        """Check, gate, convert and buffer one radar's batch; returns plots accepted."""
+        self.counters["batches_received"] += 1
+        for reason, n in batch.rejected.items():
+            self.reject(reason, n, batch.radar_id)
+        i = self.radar_index.get(batch.radar_id)
+        if i is None:
+            self.reject("unknown_radar", 1)
+            return 0
+        radar = self.radars[i]
+        if batch.seq in radar.recent_set:
+            self.reject("duplicate", 1, batch.radar_id)
+            return 0
+        if len(radar.recent_seqs) == radar.recent_seqs.maxlen:
+            radar.recent_set.discard(radar.recent_seqs[0])
+        radar.recent_seqs.append(batch.seq)
+        radar.recent_set.add(batch.seq)
+        if radar.last_seq is None or batch.seq > radar.last_seq:
+            if radar.last_seq is not None and batch.seq > radar.last_seq + 1:
+                radar.seq_gaps += batch.seq - radar.last_seq - 1
+            radar.last_seq = batch.seq
+        else:
+            radar.out_of_order += 1
+            self.counters["batches_out_of_order"] += 1
+        radar.batches += 1
+        n_in = len(batch)
+        if n_in == 0:
+            return 0
+        self.counters["plots_received"] += n_in
+
+        keep = np.ones(n_in, bool)
+        beyond = batch.range_m > self.max_range_m[i]
+        self.reject("plot_beyond_max_range", int(beyond.sum()), batch.radar_id)
+        keep &= ~beyond
+        late = batch.t_s < self.buffer.closed_until_s
+        self.reject("plot_late", int((late & keep).sum()), batch.radar_id)
+        keep &= ~late
+        wm = self.buffer.watermark_s[i]
+        if np.isfinite(wm):
+            future = batch.t_s > wm + self.settings.system.max_future_s
+            self.reject("plot_future", int((future & keep).sum()), batch.radar_id)
+            keep &= ~future
+        if self.outlier_gate is not None and keep.any():
+            keys = _track_keys(i, batch.track_no, batch.mode_s)
+            has_key = keys >= 0
+            idx = np.flatnonzero(keep & has_key)
+            if idx.size:
+                ok = self.outlier_gate.filter(keys[idx], batch.t_s[idx], batch.range_m[idx], batch.azimuth_deg[idx])
+                wild = idx[~ok]
+                self.counters["plots_wild"] += int(wild.size)
+                keep[wild] = False
+        idx = np.flatnonzero(keep)
+        if idx.size == 0:
+            return 0
+        altitude_m = flight_level_to_altitude_m(batch.fl[idx])
+        x_m, y_m, cov_m2, _ = polar_to_plane(
+            self.plane, self.sites, np.full(idx.size, i), batch.range_m[idx], batch.azimuth_deg[idx], altitude_m,
+            assumed_altitude_m=self.assumed_altitude_m,
+        )
+        chunk = PlotChunk(
+            t_s=batch.t_s[idx],
+            x_m=x_m,
+            y_m=y_m,
+            cov_m2=cov_m2,
+            radar=np.full(idx.size, i, np.int64),
+            mode_s=batch.mode_s[idx],
+            mode3a=batch.mode3a[idx],
+            fl=batch.fl[idx],
+            track_no=batch.track_no[idx],
+        )
+        self.buffer.add(chunk)
+        self.buffer.advance_watermark(i, float(chunk.t_s.max()))
+        radar.plots += idx.size
+        self.counters["plots_accepted"] += int(idx.size)
+        return int(idx.size)
+
+    # ================================================================= output
+    def poll(self) -> list[PeriodOutput]:
+        """Close every period the watermarks allow; returns their outputs in order."""
+        outputs = []
+        while True:
+            if len(self.tracks) == 0:
+                self.buffer.skip_empty_to_data()
+            popped = self.buffer.pop_period()
+            if popped is None:
+                return outputs
+            outputs.append(self._process_period(*popped))
+
+    def flush(self) -> list[PeriodOutput]:
+        """Close every period that holds buffered plots (at shutdown or end of a replay)."""
+        outputs = self.poll()
+        while self.buffer.buffered_plots:
+            self.buffer.skip_empty_to_data()
+            popped = self.buffer.pop_period(force=True)
+            if popped is None:
+                break
+            outputs.append(self._process_period(*popped))
+        return outputs
+
+    # ============================================================== the period
+    def _process_period(self, period: int, t_ref_s: float, plots: PlotChunk) -> PeriodOutput:
+        t0 = time.perf_counter()
+        tracks = self.tracks
+        # 1. Predict all tracks to the reference time (Shu eq. 8, 11).
+        if len(tracks):
+            dt_s = t_ref_s - self.track_t_s
+            tracks.x, tracks.P = self.filter.predict(tracks.x, tracks.P, dt_s)
+            man = tracks.manoeuvre
+            if man.any():
+                # Manoeuvring tracks: Q grows with σ_m² (Shu §4), so adding (k²−1)·Q gives
+                # the prediction of a Singer model whose σ_m is k times larger.
+                q = self.filter.process_noise(np.full(int(man.sum()), dt_s))
+                tracks.P[man] += (self.manoeuvre_sigma_factor**2 - 1.0) * q
+            tracks.alt_x, tracks.alt_P = self.alt_filter.predict(tracks.alt_x, tracks.alt_P, dt_s)
+        self.track_t_s = t_ref_s
+        sources_mask = np.zeros(len(tracks), np.uint64)
+        n_new = 0
+
+        if len(plots):
+            # 2. Time alignment and clustering seeded by the tracks (Shu §2).
+            xy = np.stack([plots.x_m, plots.y_m], axis=1)
+            res = cluster_plots(
+                xy, plots.cov_m2, plots.t_s, plots.radar, plots.mode_s, plots.mode3a,
+                tracks.position_m(), tracks.velocity_mps(), tracks.cov_pos_m2(), tracks.cov_vel(),
+                tracks.mode_s, tracks.mode3a, t_ref_s, self.clustering,
+            )
+            n_clusters = len(res.cluster_track)
+            self.counters["plots_redundant"] += int(res.redundant.sum())
+            self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())
+            used = res.labels >= 0
+            lab = res.labels[used]
+            # 3. Fuse each cluster (Shu eq. 5-6 or its full-covariance form).
+            z_m, R_m2, n_in = fuse_clusters(
+                res.labels, res.aligned_xy_m, res.aligned_cov_m2, n_clusters, self.settings.tracking.fusion_method
+            )
+            fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
+            fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
+            cluster_fl = np.where(fl_n > 0, fl_sum / np.maximum(fl_n, 1), np.nan)
+            cluster_mode_s = np.full(n_clusters, -1, np.int64)
+            np.maximum.at(cluster_mode_s, lab, plots.mode_s[used])
+            cluster_mode3a = np.full(n_clusters, -1, np.int64)
+            np.maximum.at(cluster_mode3a, lab, plots.mode3a[used])
+            cluster_sources = np.zeros(n_clusters, np.uint64)
+            np.bitwise_or.at(cluster_sources, lab, np.left_shift(np.uint64(1), plots.radar[used].astype(np.uint64)))
+            valid = n_in > 0
+
+            # 4a. Clusters of existing tracks: Kalman update, or two-point initiation (§4).
+            matched = np.flatnonzero(valid & (res.cluster_track >= 0))
+            rows = res.cluster_track[matched]
+            if rows.size:
+                init = tracks.initiated[rows]
+                kf_rows, kf_cl = rows[init], matched[init]
+                if kf_rows.size:
+                    x, P, nu, S = self.filter.update(tracks.x[kf_rows], tracks.P[kf_rows], z_m[kf_cl], R_m2[kf_cl])
+                    tracks.x[kf_rows], tracks.P[kf_rows] = x, P
+                    self._detect_manoeuvres(kf_rows, nu, S)
+                tp_rows, tp_cl = rows[~init], matched[~init]
+                if tp_rows.size:
+                    dt_s = t_ref_s - tracks.first_t_s[tp_rows]
+                    x, P = self.filter.initiate(tracks.z1_m[tp_rows], tracks.R1_m2[tp_rows], z_m[tp_cl], R_m2[tp_cl], dt_s)
+                    tracks.x[tp_rows], tracks.P[tp_rows] = x, P
+                    tracks.initiated[tp_rows] = True
+                tracks.alt_x[rows], tracks.alt_P[rows] = self.alt_filter.update(
+                    tracks.alt_x[rows], tracks.alt_P[rows], cluster_fl[matched]
+                )
+                tracks.updates[rows] += 1
+                tracks.last_update_t_s[rows] = t_ref_s
+                ms = cluster_mode_s[matched]
+                tracks.mode_s[rows] = np.where(ms >= 0, ms, tracks.mode_s[rows])
+                m3 = cluster_mode3a[matched]
+                tracks.mode3a[rows] = np.where(m3 >= 0, m3, tracks.mode3a[rows])
+                sources_mask[rows] = cluster_sources[matched]
+
+            # 4b. Clusters no track claims: new tentative tracks (Shu §2 cases 1 and 3).
+            new_cl = np.flatnonzero(valid & (res.cluster_track < 0))
+            n_new = int(new_cl.size)
+            if n_new:
+                new = tracks.append(n_new)
+                x = np.zeros((n_new, 6))
+                x[:, 0], x[:, 3] = z_m[new_cl, 0], z_m[new_cl, 1]
+                P = np.zeros((n_new, 6, 6))
+                P[:, 0, 0], P[:, 0, 3] = R_m2[new_cl, 0, 0], R_m2[new_cl, 0, 1]
+                P[:, 3, 0], P[:, 3, 3] = R_m2[new_cl, 1, 0], R_m2[new_cl, 1, 1]
+                P[:, 1, 1] = P[:, 4, 4] = self.one_plot_vel_var
+                P[:, 2, 2] = P[:, 5, 5] = self.filter.sigma_m_mps2**2
+                tracks.x[new], tracks.P[new] = x, P
+                tracks.z1_m[new], tracks.R1_m2[new] = z_m[new_cl], R_m2[new_cl]
+                tracks.alt_x[new], tracks.alt_P[new] = self.alt_filter.initiate(cluster_fl[new_cl])
+                tracks.updates[new] = 1
+                tracks.first_t_s[new] = tracks.last_update_t_s[new] = t_ref_s
+                tracks.mode_s[new] = cluster_mode_s[new_cl]
+                tracks.mode3a[new] = cluster_mode3a[new_cl]
+                sources_mask = np.concatenate([sources_mask, cluster_sources[new_cl]])
+            self.counters["plots_fused"] += int(used.sum())
+        tracks.sources = sources_mask
+        self.counters["tracks_initiated"] += n_new
+
+        # 5. Track life cycle: confirm, coast, end.
+        ended = apply_life_cycle(tracks, t_ref_s, self.rules)
+        self.counters["tracks_ended"] += int(ended.size)
+        batch = self._track_batch(period, t_ref_s, ended)
+        alerts = self._safety_nets(t_ref_s) if self.safety_nets is not None else []
+        dt = time.perf_counter() - t0
+        self.processing_s.append(dt)
+        self.periods_closed += 1
+        self.counters["periods_closed"] += 1
+        return PeriodOutput(period, t_ref_s, batch, alerts, dt, len(plots))
+
+    def _detect_manoeuvres(self, rows: np.ndarray, nu: np.ndarray, S: np.ndarray) -> None:
+        """Adaptive process noise (not in Shu 2007; a standard extension for ATC turns).
+
+        A Singer filter tuned for the quiet flight that dominates en-route traffic
+        (σ_m ≈ 2.5 m/s²) lags a rate-one turn at jet speed (≈ 10 m/s²). The normalised
+        innovation squared νᵀS⁻¹ν is χ² with 2 dof (mean 2) while the model holds; its
+        fading average rising above ``manoeuvre_on`` marks a manoeuvre, and the track is
+        then predicted with σ_m multiplied by ``manoeuvre_sigma_factor`` until the
+        average falls below ``manoeuvre_off``.
+        """
+        s_inv = np.linalg.inv(S)
+        nis = np.einsum("ni,nij,nj->n", nu, s_inv, nu)
+        tr = self.tracks
+        avg = self.nis_fading * tr.nis_avg[rows] + (1.0 - self.nis_fading) * nis
+        tr.nis_avg[rows] = avg
+        man = tr.manoeuvre[rows]
+        tr.manoeuvre[rows] = np.where(man, avg > self.manoeuvre_off, avg > self.manoeuvre_on)
+
+    def _track_batch(self, period: int, t_ref_s: float, ended: np.ndarray) -> dict[str, Any]:
+        tr = self.tracks
+        n = len(tr)
+        lat, lon = self.plane.to_geodetic(tr.x[:, 0], tr.x[:, 3]) if n else (np.empty(0), np.empty(0))
+        fl = tr.alt_x[:, 0]
+        vrate_fpm = tr.alt_x[:, 1] * FT_PER_FL * 60.0
+        names = self.radar_ids
+        src_cache: dict[int, list[str]] = {}
+
+        def sources(mask: int) -> list[str]:
+            if mask not in src_cache:
+                src_cache[mask] = [names[b] for b in range(len(names)) if mask >> b & 1]
+            return src_cache[mask]
+
+        cols = zip(
+            tr.track_id.tolist(), tr.status.tolist(), lat.tolist(), lon.tolist(),
+            tr.x[:, 0].tolist(), tr.x[:, 3].tolist(), tr.x[:, 1].tolist(), tr.x[:, 4].tolist(),
+            tr.x[:, 2].tolist(), tr.x[:, 5].tolist(),
+            fl.tolist(), vrate_fpm.tolist(), tr.P[:, 0, 0].tolist(), tr.P[:, 0, 3].tolist(), tr.P[:, 3, 3].tolist(),
+            tr.sources.tolist(), tr.mode3a.tolist(), tr.mode_s.tolist(), tr.updates.tolist(), tr.first_t_s.tolist(),
+        )
+        tracks = [
+            {
+                "track_id": tid, "t": t_ref_s, "status": STATUS_NAMES[st], "lat_deg": la, "lon_deg": lo,
+                "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy,
+                "fl": None if f != f else round(f, 2), "cov_xy": [pxx, pxy, pyy], "sources": sources(src),
+                "mode3a": None if m3 < 0 else m3, "mode_s": mode_s_to_str(ms), "updates": up,
+                "age_s": t_ref_s - t1, "vrate_fpm": None if vr != vr else vr, "ax_mps2": ax, "ay_mps2": ay,
+            }
+            for (tid, st, la, lo, x, y, vx, vy, ax, ay, f, vr, pxx, pxy, pyy, src, m3, ms, up, t1) in cols
+        ]
+        return {"v": 1, "t": t_ref_s, "period": period, "tracks": tracks, "ended": ended.tolist()}
+
+    def _safety_nets(self, t_ref_s: float) -> list[dict[str, Any]]:
+        from .safety_nets import TrackArrays
+
+        tr = self.tracks
+        lat, lon = self.plane.to_geodetic(tr.x[:, 0], tr.x[:, 3]) if len(tr) else (np.empty(0), np.empty(0))
+        arrays = TrackArrays(
+            track_id=tr.track_id, confirmed=tr.status != TENTATIVE,
+            x_m=tr.x[:, 0], y_m=tr.x[:, 3], vx_mps=tr.x[:, 1], vy_mps=tr.x[:, 4],
+            ax_mps2=tr.x[:, 2], ay_mps2=tr.x[:, 5], fl=tr.alt_x[:, 0],
+            vrate_fpm=tr.alt_x[:, 1] * FT_PER_FL * 60.0, lat_deg=lat, lon_deg=lon, mode_s=tr.mode_s,
+        )
+        return self.safety_nets.update(t_ref_s, arrays)
+
+    # ================================================================= health
+    def health(self) -> dict[str, Any]:
+        """Counters and per-radar state for the health message (wire.Health fields)."""
+        live = self.buffer.live_mask()
+        radars = {}
+        for i, rid in enumerate(self.radar_ids):
+            r = self.radars[i]
+            wm = self.buffer.watermark_s[i]
+            radars[rid] = {
+                "live": bool(live[i]), "watermark_t": float(wm) if math.isfinite(wm) else None,
+                "plots": r.plots, "batches": r.batches, "last_seq": r.last_seq, "seq_gaps": r.seq_gaps,
+                "rejected": dict(r.rejected),
+            }
+        proc = np.array(self.processing_s) * 1e3
+        counters = dict(self.counters)
+        counters["tracks_confirmed"] = int((self.tracks.status == CONFIRMED).sum())
+        counters["plots_buffered"] = self.buffer.buffered_plots
+        return {
+            "counters": counters,
+            "rejected": dict(self.rejected),
+            "radars": radars,
+            "periods_closed": self.periods_closed,
+            "tracks": len(self.tracks),
+            "processing_ms_p50": float(np.percentile(proc, 50)) if proc.size else None,
+            "processing_ms_p99": float(np.percentile(proc, 99)) if proc.size else None,
+            "newest_period_t": self.track_t_s,
+        }
+
+
+def _track_keys(radar: int, track_no: np.ndarray, mode_s: np.ndarray) -> np.ndarray:
+    """Key of a radar track for the wild-plot gate: radar × (track number, else Mode S)."""
+    key = np.where(track_no >= 0, track_no, np.where(mode_s >= 0, mode_s + (1 << 33), -1))
+    return np.where(key >= 0, (np.int64(radar) << np.int64(40)) + key, -1)
+

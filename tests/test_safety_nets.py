@@ -1,0 +1,403 @@
+"""Safety nets (issue 5): CPA maths, STCA/APW/MSAW detection, life cycle, pruning, hooks."""
+
+from __future__ import annotations
+
+import json
+import math
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from radar_fusion import safety_nets as sn
+from radar_fusion.coordinates import SystemPlane
+from radar_fusion.safety_nets import (
+    NM_M,
+    SafetyNets,
+    SafetyNetsConfig,
+    TrackArrays,
+    load_hooks,
+    segment_conflicts,
+)
+from radar_fusion.wire import Alert
+
+PLANE = SystemPlane(47.0, 8.0)
+REPO = Path(__file__).resolve().parents[1]
+PERIOD_S = 4.0
+
+
+def nets(**cfg) -> SafetyNets:
+    cfg.setdefault("load_entry_point_hooks", False)
+    return SafetyNets(SafetyNetsConfig(**cfg), PLANE)
+
+
+def arrays(rows: list[dict]) -> TrackArrays:
+    """rows: dicts with id, x, y, vx, vy and optional fl, vr, ax, ay, confirmed."""
+    n = len(rows)
+    g = lambda k, d=0.0: np.array([r.get(k, d) for r in rows], dtype=float)  # noqa: E731
+    lat, lon = PLANE.to_geodetic(g("x"), g("y"))
+    return TrackArrays(
+        np.array([r["id"] for r in rows], np.int64), np.array([r.get("confirmed", True) for r in rows], bool),
+        g("x"), g("y"), g("vx"), g("vy"), g("ax"), g("ay"), g("fl", 200.0), g("vr", 0.0), lat, lon,
+    )
+
+
+def fly(acs: list[dict], duration_s: float, net: SafetyNets, t0: float = 1.7e9) -> list[dict]:
+    """Propagate straight-line aircraft (x, y, vx, vy, fl, vr) and run the nets each period."""
+    out = []
+    for k in range(int(duration_s / PERIOD_S) + 1):
+        t = k * PERIOD_S
+        rows = []
+        for a in acs:
+            fl = a.get("fl", 200.0) + a.get("vr", 0.0) * t / 6000.0
+            if "level_at" in a:
+                fl = min(fl, a["level_at"]) if a.get("vr", 0) > 0 else max(fl, a["level_at"])
+            vr = a.get("vr", 0.0) if fl != a.get("level_at") else 0.0
+            rows.append(dict(id=a["id"], x=a["x"] + a["vx"] * t, y=a["y"] + a["vy"] * t, vx=a["vx"], vy=a["vy"],
+                             fl=fl, vr=vr))
+        for al in net.update(t0 + t, arrays(rows)):
+            Alert.model_validate(al)
+            out.append({**al, "t": al["t"] - t0})
+    return out
+
+
+def first_loss_s(acs: list[dict], h_m: float = 5 * NM_M, v_ft: float = 1000.0) -> float:
+    """Truth loss of separation of the first two aircraft, by 0.1 s sampling."""
+    t = np.arange(0, 2000, 0.1)
+    a, b = acs[0], acs[1]
+    d = np.hypot(a["x"] + a["vx"] * t - b["x"] - b["vx"] * t, a["y"] + a["vy"] * t - b["y"] - b["vy"] * t)
+    za = a.get("fl", 200) * 100 + a.get("vr", 0) * t / 60
+    zb = b.get("fl", 200) * 100 + b.get("vr", 0) * t / 60
+    lost = (d < h_m) & (np.abs(za - zb) < v_ft)
+    return float(t[np.argmax(lost)])
+
+
+# ------------------------------------------------------------------ CPA maths
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.floats(-40_000, 40_000), st.floats(-40_000, 40_000), st.floats(-500, 500), st.floats(-500, 500),
+    st.floats(-3000, 3000), st.floats(-60, 60),
+)
+def test_cpa_matches_brute_force_sampling(x0, y0, vx, vy, z0, vz):
+    T, S, V = 120.0, 9260.0, 900.0
+    knots = np.array([0.0, T])
+    t = np.linspace(0, T, 24001)
+    dx, dy, dz = x0 + vx * t, y0 + vy * t, z0 + vz * t
+    res = segment_conflicts(
+        np.array([[x0, x0 + vx * T]]), np.array([[y0, y0 + vy * T]]), np.array([[z0, z0 + vz * T]]),
+        knots, np.array([S]), np.array([V]),
+    )
+    d = np.hypot(dx, dy)
+    assert res["min_sep_m"][0] == pytest.approx(d.min(), abs=1.0 + 0.005 * math.hypot(vx, vy))  # sampling step 5 ms
+    k = np.argmin(d)
+    if d.min() > 1.0:
+        assert res["t_cpa_s"][0] == pytest.approx(t[k], abs=0.05 + 200.0 / max(math.hypot(vx, vy), 1e-3) ** 1)
+    both = (d < S) & (np.abs(dz) < V)
+    if both.sum() > 3:  # a conflict that lasts more than a sample
+        assert res["conflict"][0]
+        assert res["t_violation_s"][0] == pytest.approx(t[np.argmax(both)], abs=0.02)
+        assert res["min_vsep_ft"][0] == pytest.approx(np.abs(dz[both]).min(), abs=1.0)
+    if res["conflict"][0]:  # the reported violation time is where both separations are (just) lost
+        tv = res["t_violation_s"][0]
+        assert math.hypot(x0 + vx * tv, y0 + vy * tv) <= S + 1e-6 * S and abs(z0 + vz * tv) <= V + 1e-6
+    else:
+        assert not both.any()
+
+
+def test_piecewise_segments_equal_single_segment_for_linear_motion():
+    x0, y0, vx, vy = -30_000.0, 5_000.0, 400.0, -50.0
+    knots = np.linspace(0, 120, 25)
+    one = segment_conflicts(np.array([[x0, x0 + vx * 120]]), np.array([[y0, y0 + vy * 120]]), np.zeros((1, 2)),
+                            np.array([0.0, 120.0]), np.array([9260.0]), np.array([900.0]))
+    many = segment_conflicts((x0 + vx * knots)[None], (y0 + vy * knots)[None], np.zeros((1, 25)),
+                             knots, np.array([9260.0]), np.array([900.0]))
+    for key in ("t_violation_s", "t_cpa_s", "min_sep_m"):
+        assert one[key][0] == pytest.approx(many[key][0], abs=1e-6)
+
+
+# ------------------------------------------------------------------ STCA scenarios
+
+CONFLICTS = {
+    "head-on": [dict(id=1, x=-50e3, y=0, vx=240, vy=0), dict(id=2, x=50e3, y=500, vx=-240, vy=0)],
+    "crossing": [dict(id=1, x=-52e3, y=0, vx=235, vy=0), dict(id=2, x=0, y=-50e3, vx=0, vy=225)],
+    "overtaking": [dict(id=1, x=-60e3, y=0, vx=250, vy=0), dict(id=2, x=-20e3, y=500, vx=150, vy=0)],
+    "climbing through": [dict(id=1, x=-45e3, y=0, vx=230, vy=0, fl=110),
+                         dict(id=2, x=0, y=-45e3, vx=0, vy=230, fl=70, vr=1500)],
+}
+
+
+@pytest.mark.parametrize("name", sorted(CONFLICTS))
+def test_stca_conflicts_detected_with_a_minute_of_warning(name):
+    acs = CONFLICTS[name]
+    alerts = fly(acs, first_loss_s(acs) + 20, nets())
+    new = [a for a in alerts if a["status"] == "new"]
+    assert len(new) == 1 and new[0]["kind"] == "stca" and new[0]["track_ids"] == [1, 2]
+    warning = first_loss_s(acs) - new[0]["t"]
+    assert warning >= 60.0, warning
+    assert new[0]["min_sep_m"] < 5 * NM_M and new[0]["time_to_cpa_s"] > 0
+
+
+def test_parallel_tracks_6nm_apart_no_alert():
+    acs = [dict(id=1, x=-60e3, y=0, vx=240, vy=0), dict(id=2, x=60e3, y=6 * NM_M, vx=-240, vy=0)]
+    assert fly(acs, 300, nets()) == []
+
+
+def test_levelling_off_1000ft_apart_no_alert():
+    # A descends to FL110, B climbs to FL100; both level 60 s before they pass
+    acs = [dict(id=1, x=-60e3, y=0, vx=240, vy=0, fl=150, vr=-1500, level_at=110),
+           dict(id=2, x=60e3, y=500, vx=-240, vy=0, fl=60, vr=1500, level_at=100)]
+    assert fly(acs, 300, nets()) == []
+
+
+def test_selected_level_caps_the_vertical_prediction():
+    # B climbs at 1000 fpm towards FL100, A level at FL110; without the selected level a conflict
+    acs = [dict(id=1, x=-30e3, y=0, vx=240, vy=0, fl=110), dict(id=2, x=30e3, y=0, vx=-240, vy=0, fl=90, vr=1000)]
+    base = arrays([dict(id=a["id"], x=a["x"], y=a["y"], vx=a["vx"], vy=a["vy"], fl=a["fl"], vr=a.get("vr", 0))
+                   for a in acs])
+    n1 = nets(stca_confirm_periods=1, stca_confirm_periods_far=1)
+    assert n1.update(0.0, base)
+    base.selected_fl = np.array([np.nan, 100.0])
+    n2 = nets(stca_confirm_periods=1, stca_confirm_periods_far=1)
+    assert n2.update(0.0, base) == []
+
+
+def test_turn_prediction_warns_earlier_than_linear():
+    # B flies north, turning left at 3°/s towards A's track (head-on once the turn is done)
+    v, w = 230.0, math.radians(3.0)
+    a_row = dict(id=1, x=-30e3, y=0.0, vx=v, vy=0.0)
+    b_row = dict(id=2, x=30e3, y=-4390.0, vx=0.0, vy=v, ax=-v * w, ay=0.0)  # a = ω × v, left turn
+    tr = arrays([a_row, b_row])
+    turning = nets(stca_confirm_periods=1, stca_confirm_periods_far=1).update(0.0, tr)
+    assert [a["track_ids"] for a in turning] == [[1, 2]]
+    tr.ax_mps2[:] = 0.0  # same geometry without the turn: straight north, no conflict
+    assert nets(stca_confirm_periods=1, stca_confirm_periods_far=1).update(0.0, tr) == []
+
+
+def test_per_area_override_uses_3nm():
+    # 4 NM apart, parallel, same level: conflict with 5 NM, none inside a 3 NM TMA
+    rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=4 * NM_M, vx=200, vy=0)]
+    assert nets(stca_confirm_periods=1).update(0.0, arrays(rows))
+    lat0, lon0 = 47.0, 8.0
+    tma = dict(name="TMA", h_min_nm=3.0, v_min_ft=1000.0,
+               polygon_latlon_deg=[[lat0 - 0.5, lon0 - 0.5], [lat0 - 0.5, lon0 + 0.5], [lat0 + 0.5, lon0 + 0.5],
+                                   [lat0 + 0.5, lon0 - 0.5]])
+    assert nets(stca_confirm_periods=1, stca_overrides=[tma]).update(0.0, arrays(rows)) == []
+
+
+def test_current_proximity_alerts_at_once_and_mode_s_duplicates_are_skipped():
+    rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=1000, vx=200, vy=0)]
+    out = nets().update(0.0, arrays(rows))  # confirmation 2, but separation is already lost
+    assert [a["status"] for a in out] == ["new"] and out[0]["time_to_violation_s"] == 0.0
+    tr = arrays(rows)
+    tr.mode_s = np.array([0x3C0001, 0x3C0001])
+    assert nets().update(0.0, tr) == []
+
+
+def test_unconfirmed_and_unknown_level_tracks_are_not_eligible():
+    rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=1000, vx=200, vy=0, confirmed=False)]
+    assert nets().update(0.0, arrays(rows)) == []
+    tr = arrays([dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=1000, vx=200, vy=0)])
+    tr.fl[1] = np.nan
+    assert nets().update(0.0, tr) == []
+    assert nets(stca_unknown_fl="conflict").update(0.0, tr)
+
+
+# ------------------------------------------------------------------ life cycle
+
+
+def test_life_cycle_confirmation_new_ongoing_ended_and_stable_ids():
+    acs = CONFLICTS["head-on"]
+    net = nets()
+    alerts = fly(acs, 260, net)
+    statuses = [a["status"] for a in alerts]
+    assert statuses[0] == "new" and statuses[-1] == "ended" and set(statuses[1:-1]) == {"ongoing"}
+    assert len({a["alert_id"] for a in alerts}) == 1
+    # confirmation: the first hit period precedes the new alert (far conflicts need 4 periods)
+    assert net.counters["hits_stca"] > len([a for a in alerts if a["status"] != "ended"])
+    # a second conflict later gets a fresh id
+    again = fly(acs, 260, net, t0=1.8e9)
+    assert {a["alert_id"] for a in again} == {2}
+
+
+def test_single_period_nuisance_hit_is_suppressed_and_ended_when_track_disappears():
+    net = nets()
+    # 60 km head-on: violation predicted 106 s ahead, a "far" conflict (4 periods to confirm)
+    rows = [dict(id=1, x=-30e3, y=0, vx=240, vy=0), dict(id=2, x=30e3, y=0, vx=-240, vy=0)]
+    far = [dict(id=1, x=-30e3, y=0, vx=240, vy=0), dict(id=2, x=30e3, y=30e3, vx=-240, vy=0)]
+    assert net.update(0.0, arrays(rows)) == []  # one hit, not confirmed
+    assert net.update(4.0, arrays(far)) == []  # run broken
+    for k in range(2, 5):
+        assert net.update(4.0 * k, arrays(rows)) == []  # 3 consecutive hits: not yet
+    out = net.update(20.0, arrays(rows))
+    assert [a["status"] for a in out] == ["new"]
+    out = net.update(30.0, arrays(rows[:1]))  # track 2 gone
+    assert [a["status"] for a in out] == ["ended"]
+
+
+# ------------------------------------------------------------------ APW / MSAW
+
+
+def _areas_file(tmp_path: Path) -> Path:
+    p = tmp_path / "areas.geojson"
+    p.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"id": "R1", "lower_fl": 0, "upper_fl": 95},
+        "geometry": {"type": "Polygon", "coordinates": [[[8.1, 47.1], [8.3, 47.1], [8.3, 47.2], [8.1, 47.2],
+                                                         [8.1, 47.1]]]}}]}))
+    return p
+
+
+def test_apw_predicted_entry_and_inside(tmp_path):
+    net = nets(areas_file=_areas_file(tmp_path), apw_confirm_periods=1)
+    x0, y0 = PLANE.to_plane(47.15, 8.1)  # the western edge
+    rows = [dict(id=7, x=float(x0) - 10_000, y=float(y0), vx=200, vy=0, fl=80)]
+    out = net.update(0.0, arrays(rows))
+    assert len(out) == 1 and out[0]["kind"] == "apw" and out[0]["area_id"] == "R1"
+    assert out[0]["time_to_entry_s"] == pytest.approx(50.0, abs=2.5)
+    inside = [dict(id=8, x=float(x0) + 2000, y=float(y0), vx=200, vy=0, fl=80)]
+    out = nets(areas_file=_areas_file(tmp_path), apw_confirm_periods=1).update(0.0, arrays(inside))
+    assert out[0]["time_to_entry_s"] == 0.0
+    above = [dict(id=9, x=float(x0) + 2000, y=float(y0), vx=200, vy=0, fl=120)]
+    assert nets(areas_file=_areas_file(tmp_path), apw_confirm_periods=1).update(0.0, arrays(above)) == []
+
+
+def test_msaw_descent_towards_high_terrain_with_vertical_rate():
+    net = nets(msa_file=REPO / "deploy" / "msa-example.geojson", msaw_confirm_periods=1)
+    _, y_edge = PLANE.to_plane(46.75, 8.0)  # ALPS-EX1 (10,000 ft) begins south of here
+    x0 = 0.0
+    level = [dict(id=3, x=x0, y=float(y_edge) + 12_000, vx=0, vy=-150, fl=110)]
+    assert net.update(0.0, arrays(level)) == []  # 1,000 ft above the MSA: safe
+    desc = [dict(id=3, x=x0, y=float(y_edge) + 12_000, vx=0, vy=-150, fl=110, vr=-1500)]
+    out = nets(msa_file=REPO / "deploy" / "msa-example.geojson", msaw_confirm_periods=1).update(0.0, arrays(desc))
+    assert len(out) == 1 and out[0]["kind"] == "msaw" and out[0]["min_alt_ft"] == 10000.0
+    assert out[0]["time_to_violation_s"] == pytest.approx(80.0, abs=2.5)  # reaches the terrain at 80 s
+
+
+def test_msaw_grid_map(tmp_path):
+    p = tmp_path / "grid.json"
+    p.write_text(json.dumps({"type": "MsaGrid", "lat0_deg": 46.9, "lon0_deg": 7.9, "dlat_deg": 0.1,
+                             "dlon_deg": 0.1, "min_alt_ft": [[3000, 3000], [3000, 9000]]}))
+    net = nets(msa_file=p, msaw_confirm_periods=1)
+    x, y = PLANE.to_plane(47.05, 8.05)  # cell (1, 1): 9,000 ft
+    out = net.update(0.0, arrays([dict(id=1, x=float(x), y=float(y), vx=0, vy=0, fl=80)]))
+    assert out and out[0]["min_alt_ft"] == 9000.0 and out[0]["time_to_violation_s"] == 0.0
+
+
+def test_example_files_load():
+    assert [a.area_id for a in sn.load_areas(REPO / "deploy" / "areas-example.geojson", PLANE)] == ["LSR-EX1", "LSD-EX2"]
+    assert sn.load_msa(REPO / "deploy" / "msa-example.geojson", PLANE).max_alt_ft == 10000.0
+
+
+# ------------------------------------------------------------------ scale
+
+
+def test_4000_tracks_pruned_far_below_all_pairs():
+    rng = np.random.default_rng(3)
+    n = 4000
+    hd = rng.uniform(0, 2 * np.pi, n)
+    sp = rng.uniform(100, 250, n)
+    x, y = rng.uniform(-4e5, 4e5, n), rng.uniform(-4e5, 4e5, n)
+    lat, lon = PLANE.to_geodetic(x, y)
+    tr = TrackArrays(np.arange(n), np.ones(n, bool), x, y, sp * np.sin(hd), sp * np.cos(hd),
+                     rng.normal(0, 0.2, n), rng.normal(0, 0.2, n), rng.integers(50, 400, n).astype(float),
+                     rng.normal(0, 800, n), lat, lon)
+    net = nets()
+    out = net.update(0.0, tr)
+    assert 0 < net.last_candidate_pairs < 0.02 * n * (n - 1) / 2
+    for a in out:
+        Alert.model_validate(a)
+
+
+def test_pruning_loses_no_conflict():
+    # every pair flagged by an unpruned all-pairs evaluation is among the pruned hits
+    rng = np.random.default_rng(5)
+    n = 300
+    x, y = rng.uniform(-1e5, 1e5, n), rng.uniform(-1e5, 1e5, n)
+    hd, sp = rng.uniform(0, 2 * np.pi, n), rng.uniform(100, 300, n)
+    fl = rng.integers(300, 320, n).astype(float)
+    tr = TrackArrays(np.arange(n), np.ones(n, bool), x, y, sp * np.sin(hd), sp * np.cos(hd), np.zeros(n),
+                     np.zeros(n), fl, np.zeros(n), *PLANE.to_geodetic(x, y))
+    net = nets(stca_confirm_periods=1, stca_confirm_periods_far=1)
+    got = {tuple(a["track_ids"]) for a in net.update(0.0, tr)}
+    i, j = np.triu_indices(n, 1)
+    T = 120.0
+    res = segment_conflicts(
+        np.column_stack([x[j] - x[i], x[j] - x[i] + (tr.vx_mps[j] - tr.vx_mps[i]) * T]),
+        np.column_stack([y[j] - y[i], y[j] - y[i] + (tr.vy_mps[j] - tr.vy_mps[i]) * T]),
+        np.column_stack([(fl[j] - fl[i]) * 100] * 2), np.array([0.0, T]),
+        np.full(i.size, 5 * NM_M), np.full(i.size, 900.0),
+    )
+    expected = {(int(a), int(b)) for a, b in zip(i[res["conflict"]], j[res["conflict"]])}
+    assert expected and expected <= got
+
+
+# ------------------------------------------------------------------ hooks
+
+
+class _EP:
+    def __init__(self, name, group, obj):
+        self.name, self.group, self._obj = name, group, obj
+
+    def load(self):
+        return self._obj
+
+
+class _EPs(list):
+    def select(self, group):
+        return [e for e in self if e.group == group]
+
+
+received: list[dict] = []
+
+
+class _ExtraFunction:
+    def __init__(self, config, plane):
+        self.plane = plane
+
+    def update(self, t_s, tracks):
+        return [{"v": 1, "kind": "apw", "alert_id": 999, "t": t_s, "track_ids": [int(tracks.track_id[0])],
+                 "status": "new", "area_id": "SITE"}]
+
+
+def _raising(alert):
+    raise RuntimeError("consumer bug")
+
+
+def test_entry_point_hooks_receive_alerts_and_a_raising_hook_is_counted(monkeypatch):
+    received.clear()
+    eps = _EPs([
+        _EP("good", sn.CONSUMER_GROUP, received.append),
+        _EP("bad", sn.CONSUMER_GROUP, _raising),
+        _EP("extra", sn.FUNCTION_GROUP, _ExtraFunction),
+    ])
+    monkeypatch.setattr(metadata, "entry_points", lambda: eps)
+    hooks = load_hooks(SafetyNetsConfig(), PLANE)
+    assert [n for n, _ in hooks.consumers] == ["good", "bad"] and [n for n, _ in hooks.functions] == ["extra"]
+    net = SafetyNets(SafetyNetsConfig(), PLANE)  # discovers the hooks itself
+    rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=1000, vx=200, vy=0)]
+    out = net.update(0.0, arrays(rows))
+    assert {a["kind"] for a in out} == {"stca", "apw"}
+    assert received == out
+    assert net.hook_errors == {"bad": 2} and net.counters["hook_errors"] == 2
+    out2 = net.update(4.0, arrays(rows))  # still running
+    assert len(received) == len(out) + len(out2)
+
+
+def test_a_broken_entry_point_is_logged_not_fatal(monkeypatch):
+    class Broken:
+        def load(self):
+            raise ImportError("no such module")
+        name, group = "broken", sn.FUNCTION_GROUP
+
+    monkeypatch.setattr(metadata, "entry_points", lambda: _EPs([Broken()]))
+    hooks = load_hooks()
+    assert hooks.functions == [] and "broken" in next(iter(hooks.load_errors))
+
+
+def test_config_rejects_unknown_fields():
+    with pytest.raises(Exception):
+        SafetyNetsConfig(stca_h_min=5)
