@@ -1,0 +1,280 @@
+"""The daemon's I/O shell on Eclipse Zenoh (DESIGN.md §2): subscribe, decode, route, publish.
+
+Zenoh delivers samples on its own threads; the subscriber callbacks only put the raw
+payload on a bounded queue (blocking briefly when it is full, which pushes back on
+senders that publish with congestion control BLOCK). One processing thread decodes,
+validates, hands plots to the :class:`~radar_fusion.engine.Engine`, and publishes what
+the engine returns:
+
+    <prefix>/radar/*/plots   → Engine.ingest_plots     <prefix>/fusion/tracks        ← TrackBatch
+    <prefix>/radar/*/status  → Engine.ingest_status    <prefix>/fusion/alerts/<kind> ← Alert
+                                                       <prefix>/fusion/health        ← Health
+
+Nothing a sender does can stop the processing thread: every decode or validation
+failure becomes a counted rejection, visible on the health key and logged at a
+bounded rate.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import msgpack
+import zenoh
+
+from .config import BusConfig, Settings
+from .engine import Engine, PeriodOutput
+from .wire import Rejection, RadarStatus, decode_message, decode_plot_batch
+
+log = logging.getLogger("radar_fusion.bus")
+
+_zenoh_log_initialised = False
+
+
+def zenoh_config(
+    mode: str = "client",
+    listen: Optional[list[str]] = None,
+    connect: Optional[list[str]] = None,
+    multicast_scouting: bool = False,
+    config_file: Optional[str] = None,
+) -> zenoh.Config:
+    """A zenoh.Config for the given role; a JSON5 file (TLS, ACL) may provide the rest."""
+    cfg = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode))
+    if listen is not None:
+        cfg.insert_json5("listen/endpoints", json.dumps(listen))
+    if connect is not None:
+        cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    cfg.insert_json5("scouting/multicast/enabled", "true" if multicast_scouting else "false")
+    return cfg
+
+
+def open_session(cfg: zenoh.Config) -> zenoh.Session:
+    global _zenoh_log_initialised
+    if not _zenoh_log_initialised:
+        zenoh.init_log_from_env_or("error")
+        _zenoh_log_initialised = True
+    return zenoh.open(cfg)
+
+
+def client_config_for(bus: BusConfig) -> zenoh.Config:
+    """Config for a tool (replay, record, bridge) that joins the daemon described by ``bus``."""
+    endpoints = bus.connect if bus.mode == "client" else bus.listen
+    return zenoh_config("client", connect=list(endpoints), config_file=bus.zenoh_config_file)
+
+
+def reliable_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
+    """Publishers of plots must be reliable with congestion control BLOCK (DESIGN.md §3)."""
+    return session.declare_publisher(
+        key, reliability=zenoh.Reliability.RELIABLE, congestion_control=zenoh.CongestionControl.BLOCK
+    )
+
+
+class RateLimitedLog:
+    """Log a rejection at most once per interval per reason, with the count since."""
+
+    def __init__(self, interval_s: float = 10.0):
+        self.interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._suppressed: Counter = Counter()
+
+    def __call__(self, reason: str, detail: str) -> None:
+        now = time.monotonic()
+        if now - self._last.get(reason, -1e9) >= self.interval_s:
+            extra = f" (+{self._suppressed[reason]} more since last report)" if self._suppressed[reason] else ""
+            log.warning("rejected: %s: %s%s", reason, detail, extra)
+            self._last[reason] = now
+            self._suppressed[reason] = 0
+        else:
+            self._suppressed[reason] += 1
+
+
+class FusionDaemon:
+    """The fusion daemon: one Zenoh session, one engine, one processing thread."""
+
+    def __init__(self, settings: Settings, queue_size: int = 50_000, idle_flush_s: Optional[float] = None,
+                 base_dir: Optional[Path] = None):
+        from .safety_nets import SafetyNets
+
+        self.settings = settings
+        self.prefix = settings.bus.prefix
+        # base_dir: where the config file lives; relative areas/MSA file paths resolve there
+        self.engine = Engine(settings, safety_nets=SafetyNets.from_settings(settings, base_dir=base_dir))
+        self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self.stop_event = threading.Event()
+        self.stopped = threading.Event()
+        self.started_wall = time.time()
+        # No message for this long (wall clock): close the periods still buffered.
+        self.idle_flush_s = idle_flush_s or max(3.0 * settings.system.period_s, 10.0)
+        self.messages_received = 0
+        self.messages_processed = 0
+        self.batches_published = 0
+        self.overload = 0
+        self._log_rejection = RateLimitedLog()
+        self._session: Optional[zenoh.Session] = None
+        self._subs: list[Any] = []
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._thread: Optional[threading.Thread] = None
+        self.on_output: Optional[Callable[[PeriodOutput], None]] = None
+
+    # ------------------------------------------------------------- lifecycle
+    def start(self) -> "FusionDaemon":
+        bus = self.settings.bus
+        cfg = zenoh_config(bus.mode, bus.listen, bus.connect, bus.multicast_scouting, bus.zenoh_config_file)
+        self._session = open_session(cfg)
+        p = self.prefix
+        # One subscriber for plots and status: its callback sees a sender's messages in
+        # the order they were sent, so a north marker never overtakes the plots before it.
+        self._subs = [self._session.declare_subscriber(f"{p}/radar/*/*", self._on_sample)]
+        self._pubs["tracks"] = reliable_publisher(self._session, f"{p}/fusion/tracks")
+        self._pubs["health"] = self._session.declare_publisher(f"{p}/fusion/health")
+        for kind in ("stca", "apw", "msaw"):
+            self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
+        self._thread = threading.Thread(target=self._run, name="fusion-engine", daemon=True)
+        self._thread.start()
+        log.info("fusion daemon up: mode=%s listen=%s connect=%s prefix=%s", bus.mode, bus.listen, bus.connect, p)
+        return self
+
+    def stop(self, timeout_s: float = 30.0) -> None:
+        """Drain what was received, flush the open periods, publish them, close the session."""
+        self.stop_event.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        for sub in self._subs:
+            sub.undeclare()
+        self._subs = []
+        for pub in self._pubs.values():
+            pub.undeclare()
+        self._pubs = {}
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+        self.stopped.set()
+
+    def __enter__(self) -> "FusionDaemon":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ input
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Zenoh's thread: copy out and hand over, nothing else.
+        item = (str(sample.key_expr), sample.payload.to_bytes())
+        self.messages_received += 1
+        try:
+            self.queue.put(item, timeout=2.0)
+        except queue.Full:
+            self.overload += 1
+            self.engine.reject("overload")
+
+    def _handle(self, key: str, payload: bytes) -> None:
+        parts = key.split("/")
+        radar_id, kind = parts[-2], parts[-1]
+        max_bytes = self.settings.bus.max_payload_bytes
+        if kind == "plots":
+            decoded = decode_plot_batch(payload, max_bytes)
+            if isinstance(decoded, Rejection):
+                self._reject(decoded, radar_id)
+            elif decoded.radar_id != radar_id:
+                self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
+            else:
+                self.engine.ingest_plots(decoded)
+                for reason, n in decoded.rejected.items():
+                    self._log_rejection(reason, f"{n} plot(s) of {radar_id} seq {decoded.seq}")
+        elif kind == "status":
+            decoded = decode_message(payload, RadarStatus, max_bytes)
+            if isinstance(decoded, Rejection):
+                self._reject(decoded, radar_id)
+            elif decoded.radar_id != radar_id:
+                self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
+            else:
+                self.engine.ingest_status(decoded)
+        else:
+            self._reject(Rejection("schema", f"unknown key {key}"), radar_id)
+
+    def _reject(self, rejection: Rejection, radar_id: str) -> None:
+        if rejection.reason != "unknown_radar" and radar_id not in self.engine.radar_index:
+            rejection = Rejection("unknown_radar", radar_id)
+        self.engine.reject(rejection.reason, 1, radar_id)
+        self._log_rejection(rejection.reason, f"{radar_id}: {rejection.detail}")
+
+    # ------------------------------------------------------------- processing
+    def _run(self) -> None:
+        last_health = 0.0
+        last_message = time.monotonic()
+        flushed_since_message = True
+        while True:
+            stopping = self.stop_event.is_set()
+            try:
+                key, payload = self.queue.get(timeout=0.05)
+                self._process_safely(key, payload)
+                for _ in range(1000):  # drain a burst before polling the engine
+                    key, payload = self.queue.get_nowait()
+                    self._process_safely(key, payload)
+            except queue.Empty:
+                pass
+            got_any = self.messages_processed > 0 and time.monotonic() - last_message < 0.06
+            if got_any:
+                last_message = time.monotonic()
+                flushed_since_message = False
+            self._publish(self.engine.poll())
+            if not flushed_since_message and time.monotonic() - last_message > self.idle_flush_s:
+                self._publish(self.engine.flush())
+                flushed_since_message = True
+            now = time.monotonic()
+            if now - last_health >= self.settings.bus.health_period_s:
+                self.publish_health()
+                last_health = now
+            if stopping and self.queue.empty():
+                break
+        self._publish(self.engine.flush())
+        self.publish_health()
+
+    def _process_safely(self, key: str, payload: bytes) -> None:
+        try:
+            self._handle(key, payload)
+        except Exception:  # a bug must not take the daemon down; it is counted and logged
+            log.exception("internal error while processing %s", key)
+            self.engine.reject("internal_error")
+        self.messages_processed += 1
+        self._last_processed = time.monotonic()
+
+    def _publish(self, outputs: list[PeriodOutput]) -> None:
+        for out in outputs:
+            try:
+                self._pubs["tracks"].put(msgpack.packb(out.track_batch, use_bin_type=True))
+                for alert in out.alerts:
+                    self._pubs[alert["kind"]].put(msgpack.packb(alert, use_bin_type=True))
+                self.batches_published += 1
+                if self.on_output is not None:
+                    self.on_output(out)
+            except Exception:
+                log.exception("publishing period %s failed", out.period)
+                self.engine.counters["publish_errors"] += 1
+
+    def health_message(self) -> dict[str, Any]:
+        h = self.engine.health()
+        now = time.time()
+        newest = h.pop("newest_period_t")
+        h["counters"].update(
+            messages_received=self.messages_received,
+            messages_processed=self.messages_processed,
+            queue_depth=self.queue.qsize(),
+            batches_published=self.batches_published,
+        )
+        return {"v": 1, "t": now, "uptime_s": now - self.started_wall, **h, "lag_s": (now - newest) if newest else None}
+
+    def publish_health(self) -> None:
+        try:
+            self._pubs["health"].put(msgpack.packb(self.health_message(), use_bin_type=True))
+        except Exception:
+            log.exception("publishing health failed")
+
