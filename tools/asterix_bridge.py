@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import json
+import math
 import logging
 import queue
 import signal
@@ -149,9 +150,9 @@ class RecordingSink:
 # ============================================================================ asterix-in
 
 
-def _speed(text: str) -> Optional[float]:
+def _speed(text: str) -> float:
     if text == "max":
-        return None
+        return math.inf
     try:
         value = float(text)
     except ValueError:
@@ -278,7 +279,9 @@ def run_in(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:
             print(str(exc), file=sys.stderr)
             return 2
-        speed = args.speed if args.speed is not None or args.out else 1.0
+        speed = args.speed if args.speed is not None else (math.inf if args.out else 1.0)
+        if math.isinf(speed):
+            speed = None  # no pacing
     try:
         sink: Any = (
             RecordingSink(args.out, {"source": args.file or f"udp:{args.udp[0]}:{args.udp[1]}", "tool": "asterix-in"})

@@ -60,6 +60,7 @@ __all__ = [
     "iter_pcap_file",
     "iter_rply_file",
     "iter_file",
+    "guess_format",
     "sort_by_time",
     "AsterixToWire",
     "Cat062Encoder",
@@ -75,7 +76,6 @@ NM_TO_M = 1852.0
 KT_TO_MPS = NM_TO_M / 3600.0
 """One knot in metres per second."""
 SECONDS_PER_DAY = 86_400.0
-FT_TO_M = 0.3048
 
 #: Why something was skipped. Block-level reasons skip a whole data block, record-level
 #: reasons one record, file-level reasons one frame of a capture file.
