@@ -98,15 +98,16 @@ class TrackingConfig(_Section):
     max_speed_mps: float = Field(350.0, gt=0)
     confirm_updates: int = Field(3, ge=2, description="updates (M) needed to confirm a tentative track ...")
     confirm_window_s: float = Field(40.0, gt=0, description="... within this time from its first plot (N)")
-    coast_after_s: Optional[float] = Field(
-        None, gt=0, description="no update for this long: status coasting (default 1.5 longest rotation)"
+    coast_after_scans: float = Field(
+        1.5, gt=0, description="missed scans (of the track's own radars' revisit time) before status coasting"
     )
-    delete_tentative_after_s: Optional[float] = Field(
-        None, gt=0, description="a tentative track with no update for this long ends (default 1.5 longest rotation)"
+    delete_tentative_after_scans: float = Field(2.5, gt=0, description="missed scans that end a tentative track")
+    delete_after_scans: float = Field(
+        6.5, gt=0, description="missed scans that end a confirmed track (a run of 5 rejected wild plots survives)"
     )
-    delete_after_s: Optional[float] = Field(
-        None, gt=0, description="a confirmed track with no update for this long ends (default 3.5 longest rotations)"
-    )
+    coast_after_s: Optional[float] = Field(None, gt=0, description="fixed coasting time, instead of scans")
+    delete_tentative_after_s: Optional[float] = Field(None, gt=0, description="fixed time, instead of scans")
+    delete_after_s: Optional[float] = Field(None, gt=0, description="fixed time, instead of scans")
     assumed_altitude_ft: float = Field(10_000.0, description="height assumed for plots without Mode C")
     min_track_separation_m: float = Field(
         500.0, ge=0, description="a tentative track this close to a confirmed one with the same identity is dropped"

@@ -90,14 +90,17 @@ class Engine:
             alpha_per_s=trk.alpha_per_s or DEFAULT_ALPHA_PER_S, sigma_m_mps2=trk.sigma_m_mps2 or DEFAULT_SIGMA_M_MPS2
         )
         self.alt_filter = AltitudeFilter()
-        longest = settings.longest_rotation_s
         self.rules = LifeCycle(
             confirm_updates=trk.confirm_updates,
             confirm_window_s=trk.confirm_window_s,
-            coast_after_s=trk.coast_after_s or 1.5 * longest,
-            delete_tentative_after_s=trk.delete_tentative_after_s or 1.5 * longest,
-            delete_after_s=trk.delete_after_s or 3.5 * longest,
+            coast_after_scans=trk.coast_after_scans,
+            delete_tentative_after_scans=trk.delete_tentative_after_scans,
+            delete_after_scans=trk.delete_after_scans,
+            coast_after_s=trk.coast_after_s,
+            delete_tentative_after_s=trk.delete_tentative_after_s,
+            delete_after_s=trk.delete_after_s,
         )
+        self.rotation_s = np.array([r.rotation_period_s for r in settings.radars])
         self.clustering = ClusteringParams(
             gate_chi2=trk.gate_chi2, new_target_gate_m=trk.new_target_gate_m, max_speed_mps=trk.max_speed_mps
         )
@@ -251,21 +254,28 @@ class Engine:
         return outputs
 
     # ============================================================== the period
+    def _predict(self, x, P, alt_x, alt_P, dt_s, manoeuvre):
+        """Singer prediction (Shu eq. 8, 11) over per-track ``dt_s``, with raised process
+        noise for manoeuvring tracks: Q grows with σ_m² (Shu §4), so adding (k²−1)·Q gives
+        the prediction of a Singer model whose σ_m is k times larger."""
+        x, P = self.filter.predict(x, P, dt_s)
+        if manoeuvre.any():
+            q = self.filter.process_noise(np.broadcast_to(dt_s, manoeuvre.shape)[manoeuvre])
+            P[manoeuvre] += (self.manoeuvre_sigma_factor**2 - 1.0) * q
+        alt_x, alt_P = self.alt_filter.predict(alt_x, alt_P, dt_s)
+        return x, P, alt_x, alt_P
+
     def _process_period(self, period: int, t_ref_s: float, plots: PlotChunk) -> PeriodOutput:
+        """One period. Each track's state is kept at its own time (its latest update):
+        it is predicted to the period's reference time for association and for output,
+        and updated at the mean time of its own cluster's plots, so that a measurement is
+        never moved in time with the very velocity it is meant to correct."""
         t0 = time.perf_counter()
         tracks = self.tracks
-        # 1. Predict all tracks to the reference time (Shu eq. 8, 11).
-        if len(tracks):
-            dt_s = t_ref_s - self.track_t_s
-            tracks.x, tracks.P = self.filter.predict(tracks.x, tracks.P, dt_s)
-            man = tracks.manoeuvre
-            if man.any():
-                # Manoeuvring tracks: Q grows with σ_m² (Shu §4), so adding (k²−1)·Q gives
-                # the prediction of a Singer model whose σ_m is k times larger.
-                q = self.filter.process_noise(np.full(int(man.sum()), dt_s))
-                tracks.P[man] += (self.manoeuvre_sigma_factor**2 - 1.0) * q
-            tracks.alt_x, tracks.alt_P = self.alt_filter.predict(tracks.alt_x, tracks.alt_P, dt_s)
-        self.track_t_s = t_ref_s
+        # 1. Predict every track to the reference time: for association (Shu eq. 8, 11).
+        x_ref, P_ref, _, _ = self._predict(
+            tracks.x, tracks.P, tracks.alt_x, tracks.alt_P, t_ref_s - tracks.t_state_s, tracks.manoeuvre
+        )
         sources_mask = np.zeros(len(tracks), np.uint64)
         n_new = 0
 
@@ -274,7 +284,7 @@ class Engine:
             xy = np.stack([plots.x_m, plots.y_m], axis=1)
             res = cluster_plots(
                 xy, plots.cov_m2, plots.t_s, plots.radar, plots.mode_s, plots.mode3a,
-                tracks.position_m(), tracks.velocity_mps(), tracks.cov_pos_m2(), tracks.cov_vel(),
+                x_ref[:, [0, 3]], x_ref[:, [1, 4]], P_ref[:, [0, 3]][:, :, [0, 3]], P_ref[:, [1, 4]][:, :, [1, 4]],
                 tracks.mode_s, tracks.mode3a, t_ref_s, self.clustering,
             )
             n_clusters = len(res.cluster_track)
@@ -282,10 +292,22 @@ class Engine:
             self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())
             used = res.labels >= 0
             lab = res.labels[used]
-            # 3. Fuse each cluster (Shu eq. 5-6 or its full-covariance form).
-            z_m, R_m2, n_in = fuse_clusters(
-                res.labels, res.aligned_xy_m, res.aligned_cov_m2, n_clusters, self.settings.tracking.fusion_method
-            )
+            n_in = np.bincount(lab, minlength=n_clusters)
+            valid = n_in > 0
+            # 3. Each cluster's measurement time: the mean time of its plots. Plots are
+            #    aligned to it (a one-plot cluster needs no alignment at all) with the
+            #    track's velocity, or none for a new target (Shu §2, 时空对准).
+            t_c = np.bincount(lab, weights=plots.t_s[used], minlength=n_clusters) / np.maximum(n_in, 1)
+            row_of_plot = res.cluster_track[lab]
+            dt_p = t_c[lab] - plots.t_s[used]
+            # a padding row (-1) stands for "no track": zero velocity, wide velocity prior
+            v_pad = np.concatenate([x_ref[:, [1, 4]], np.zeros((1, 2))])
+            pvv_pad = np.concatenate([P_ref[:, [1, 4]][:, :, [1, 4]], self.one_plot_vel_var * np.eye(2)[None]])
+            v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
+            z_plot = xy[used] + v * dt_p[:, None]
+            R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
+            # 4. Fuse each cluster (Shu eq. 5-6 or its full-covariance form).
+            z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
             fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
             fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
             cluster_fl = np.where(fl_n > 0, fl_sum / np.maximum(fl_n, 1), np.nan)
@@ -293,29 +315,36 @@ class Engine:
             np.maximum.at(cluster_mode_s, lab, plots.mode_s[used])
             cluster_mode3a = np.full(n_clusters, -1, np.int64)
             np.maximum.at(cluster_mode3a, lab, plots.mode3a[used])
+            cluster_revisit_s = np.full(n_clusters, np.inf)
+            np.minimum.at(cluster_revisit_s, lab, self.rotation_s[plots.radar[used]])
             cluster_sources = np.zeros(n_clusters, np.uint64)
             np.bitwise_or.at(cluster_sources, lab, np.left_shift(np.uint64(1), plots.radar[used].astype(np.uint64)))
-            valid = n_in > 0
 
-            # 4a. Clusters of existing tracks: Kalman update, or two-point initiation (§4).
+            # 5a. Clusters of existing tracks: predict each to its cluster's time, then the
+            #     Kalman update (Shu eq. 7, 9, 10) or the two-point initiation (§4).
             matched = np.flatnonzero(valid & (res.cluster_track >= 0))
             rows = res.cluster_track[matched]
             if rows.size:
-                init = tracks.initiated[rows]
-                kf_rows, kf_cl = rows[init], matched[init]
-                if kf_rows.size:
-                    x, P, nu, S = self.filter.update(tracks.x[kf_rows], tracks.P[kf_rows], z_m[kf_cl], R_m2[kf_cl])
-                    tracks.x[kf_rows], tracks.P[kf_rows] = x, P
-                    self._detect_manoeuvres(kf_rows, nu, S)
-                tp_rows, tp_cl = rows[~init], matched[~init]
-                if tp_rows.size:
-                    dt_s = t_ref_s - tracks.first_t_s[tp_rows]
-                    x, P = self.filter.initiate(tracks.z1_m[tp_rows], tracks.R1_m2[tp_rows], z_m[tp_cl], R_m2[tp_cl], dt_s)
-                    tracks.x[tp_rows], tracks.P[tp_rows] = x, P
-                    tracks.initiated[tp_rows] = True
-                tracks.alt_x[rows], tracks.alt_P[rows] = self.alt_filter.update(
-                    tracks.alt_x[rows], tracks.alt_P[rows], cluster_fl[matched]
+                x_c, P_c, ax_c, aP_c = self._predict(
+                    tracks.x[rows], tracks.P[rows], tracks.alt_x[rows], tracks.alt_P[rows],
+                    t_c[matched] - tracks.t_state_s[rows], tracks.manoeuvre[rows],
                 )
+                init = tracks.initiated[rows]
+                if init.any():
+                    x, P, nu, S = self.filter.update(x_c[init], P_c[init], z_m[matched[init]], R_m2[matched[init]])
+                    x_c[init], P_c[init] = x, P
+                    self._detect_manoeuvres(rows[init], nu, S)
+                two = ~init
+                if two.any():
+                    x, P = self.filter.initiate(
+                        tracks.z1_m[rows[two]], tracks.R1_m2[rows[two]], z_m[matched[two]], R_m2[matched[two]],
+                        t_c[matched[two]] - tracks.t_state_s[rows[two]],
+                    )
+                    x_c[two], P_c[two] = x, P
+                    tracks.initiated[rows[two]] = True
+                tracks.x[rows], tracks.P[rows] = x_c, P_c
+                tracks.alt_x[rows], tracks.alt_P[rows] = self.alt_filter.update(ax_c, aP_c, cluster_fl[matched])
+                tracks.t_state_s[rows] = t_c[matched]
                 tracks.updates[rows] += 1
                 tracks.last_update_t_s[rows] = t_ref_s
                 ms = cluster_mode_s[matched]
@@ -323,8 +352,10 @@ class Engine:
                 m3 = cluster_mode3a[matched]
                 tracks.mode3a[rows] = np.where(m3 >= 0, m3, tracks.mode3a[rows])
                 sources_mask[rows] = cluster_sources[matched]
+                tracks.revisit_s[rows] = cluster_revisit_s[matched]
 
-            # 4b. Clusters no track claims: new tentative tracks (Shu §2 cases 1 and 3).
+            # 5b. Clusters no track claims: new tentative tracks (Shu §2 cases 1 and 3),
+            #     holding their one fused measurement and a wide velocity prior.
             new_cl = np.flatnonzero(valid & (res.cluster_track < 0))
             n_new = int(new_cl.size)
             if n_new:
@@ -337,22 +368,28 @@ class Engine:
                 P[:, 1, 1] = P[:, 4, 4] = self.one_plot_vel_var
                 P[:, 2, 2] = P[:, 5, 5] = self.filter.sigma_m_mps2**2
                 tracks.x[new], tracks.P[new] = x, P
+                tracks.t_state_s[new] = t_c[new_cl]
                 tracks.z1_m[new], tracks.R1_m2[new] = z_m[new_cl], R_m2[new_cl]
                 tracks.alt_x[new], tracks.alt_P[new] = self.alt_filter.initiate(cluster_fl[new_cl])
                 tracks.updates[new] = 1
                 tracks.first_t_s[new] = tracks.last_update_t_s[new] = t_ref_s
                 tracks.mode_s[new] = cluster_mode_s[new_cl]
                 tracks.mode3a[new] = cluster_mode3a[new_cl]
+                tracks.revisit_s[new] = cluster_revisit_s[new_cl]
                 sources_mask = np.concatenate([sources_mask, cluster_sources[new_cl]])
             self.counters["plots_fused"] += int(used.sum())
         tracks.sources = sources_mask
         self.counters["tracks_initiated"] += n_new
+        self.track_t_s = t_ref_s
 
-        # 5. Track life cycle: confirm, coast, end.
+        # 6. Track life cycle: confirm, coast, end.
         ended = apply_life_cycle(tracks, t_ref_s, self.rules)
         self.counters["tracks_ended"] += int(ended.size)
-        batch = self._track_batch(period, t_ref_s, ended)
-        alerts = self._safety_nets(t_ref_s) if self.safety_nets is not None else []
+        # 7. Output: every track predicted to the period's reference time.
+        out = self._predict(tracks.x, tracks.P, tracks.alt_x, tracks.alt_P, t_ref_s - tracks.t_state_s,
+                            tracks.manoeuvre)
+        batch = self._track_batch(period, t_ref_s, ended, *out)
+        alerts = self._safety_nets(t_ref_s, *out) if self.safety_nets is not None else []
         dt = time.perf_counter() - t0
         self.processing_s.append(dt)
         self.periods_closed += 1
@@ -377,12 +414,12 @@ class Engine:
         man = tr.manoeuvre[rows]
         tr.manoeuvre[rows] = np.where(man, avg > self.manoeuvre_off, avg > self.manoeuvre_on)
 
-    def _track_batch(self, period: int, t_ref_s: float, ended: np.ndarray) -> dict[str, Any]:
+    def _track_batch(self, period: int, t_ref_s: float, ended: np.ndarray, x, P, alt_x, alt_P) -> dict[str, Any]:
         tr = self.tracks
         n = len(tr)
-        lat, lon = self.plane.to_geodetic(tr.x[:, 0], tr.x[:, 3]) if n else (np.empty(0), np.empty(0))
-        fl = tr.alt_x[:, 0]
-        vrate_fpm = tr.alt_x[:, 1] * FT_PER_FL * 60.0
+        lat, lon = self.plane.to_geodetic(x[:, 0], x[:, 3]) if n else (np.empty(0), np.empty(0))
+        fl = alt_x[:, 0]
+        vrate_fpm = alt_x[:, 1] * FT_PER_FL * 60.0
         names = self.radar_ids
         src_cache: dict[int, list[str]] = {}
 
@@ -393,9 +430,9 @@ class Engine:
 
         cols = zip(
             tr.track_id.tolist(), tr.status.tolist(), lat.tolist(), lon.tolist(),
-            tr.x[:, 0].tolist(), tr.x[:, 3].tolist(), tr.x[:, 1].tolist(), tr.x[:, 4].tolist(),
-            tr.x[:, 2].tolist(), tr.x[:, 5].tolist(),
-            fl.tolist(), vrate_fpm.tolist(), tr.P[:, 0, 0].tolist(), tr.P[:, 0, 3].tolist(), tr.P[:, 3, 3].tolist(),
+            x[:, 0].tolist(), x[:, 3].tolist(), x[:, 1].tolist(), x[:, 4].tolist(),
+            x[:, 2].tolist(), x[:, 5].tolist(),
+            fl.tolist(), vrate_fpm.tolist(), P[:, 0, 0].tolist(), P[:, 0, 3].tolist(), P[:, 3, 3].tolist(),
             tr.sources.tolist(), tr.mode3a.tolist(), tr.mode_s.tolist(), tr.updates.tolist(), tr.first_t_s.tolist(),
         )
         tracks = [
@@ -410,16 +447,16 @@ class Engine:
         ]
         return {"v": 1, "t": t_ref_s, "period": period, "tracks": tracks, "ended": ended.tolist()}
 
-    def _safety_nets(self, t_ref_s: float) -> list[dict[str, Any]]:
+    def _safety_nets(self, t_ref_s: float, x, P, alt_x, alt_P) -> list[dict[str, Any]]:
         from .safety_nets import TrackArrays
 
         tr = self.tracks
-        lat, lon = self.plane.to_geodetic(tr.x[:, 0], tr.x[:, 3]) if len(tr) else (np.empty(0), np.empty(0))
+        lat, lon = self.plane.to_geodetic(x[:, 0], x[:, 3]) if len(tr) else (np.empty(0), np.empty(0))
         arrays = TrackArrays(
             track_id=tr.track_id, confirmed=tr.status != TENTATIVE,
-            x_m=tr.x[:, 0], y_m=tr.x[:, 3], vx_mps=tr.x[:, 1], vy_mps=tr.x[:, 4],
-            ax_mps2=tr.x[:, 2], ay_mps2=tr.x[:, 5], fl=tr.alt_x[:, 0],
-            vrate_fpm=tr.alt_x[:, 1] * FT_PER_FL * 60.0, lat_deg=lat, lon_deg=lon, mode_s=tr.mode_s,
+            x_m=x[:, 0], y_m=x[:, 3], vx_mps=x[:, 1], vy_mps=x[:, 4],
+            ax_mps2=x[:, 2], ay_mps2=x[:, 5], fl=alt_x[:, 0],
+            vrate_fpm=alt_x[:, 1] * FT_PER_FL * 60.0, lat_deg=lat, lon_deg=lon, mode_s=tr.mode_s,
         )
         return self.safety_nets.update(t_ref_s, arrays)
 

@@ -15,11 +15,11 @@ Life cycle
 * Confirmation (M of N): a tentative track with ``confirm_updates`` updates within
   ``confirm_window_s`` of its first plot becomes *confirmed*; one that fails to do so
   ends.
-* Coasting: a confirmed track with no update for ``coast_after_s`` is *coasting*
-  (predicted, not measured); an update makes it confirmed again.
-* Deletion: a tentative track with no update for ``delete_tentative_after_s``, or a
-  confirmed/coasting one with none for ``delete_after_s``, ends; its id is reported in
-  the batch's ``ended`` list and never reused.
+* Coasting: a confirmed track that missed ``coast_after_scans`` scans (of its own
+  revisit time) is *coasting* (predicted, not measured); an update confirms it again.
+* Deletion: a tentative track that missed ``delete_tentative_after_scans`` scans, or a
+  confirmed/coasting one that missed ``delete_after_scans``, ends; its id is reported
+  in the batch's ``ended`` list and never reused.
 * Contributing radars (主辅批): each update records the bit mask of radars whose plots
   formed the cluster, published as the track's ``sources``.
 """
@@ -36,17 +36,26 @@ STATUS_NAMES = ("tentative", "confirmed", "coasting")
 
 @dataclass(frozen=True)
 class LifeCycle:
+    """Life-cycle rules. Silence is measured in scans of the track's own revisit time
+    (the shortest rotation period among the radars of its latest update), so a track
+    seen by a 4 s radar and one seen only by a 12 s radar tolerate the same number of
+    missed scans; a fixed time in seconds may override each rule."""
+
     confirm_updates: int
     confirm_window_s: float
-    coast_after_s: float
-    delete_tentative_after_s: float
-    delete_after_s: float
+    coast_after_scans: float = 1.5
+    delete_tentative_after_scans: float = 2.5
+    delete_after_scans: float = 6.5
+    coast_after_s: float | None = None
+    delete_tentative_after_s: float | None = None
+    delete_after_s: float | None = None
 
 
 _FIELDS = {
     # name: (trailing shape, dtype, fill)
     "track_id": ((), np.int64, -1),
-    "x": ((6,), float, 0.0),
+    "x": ((6,), float, 0.0),  # Singer state at the track's own time t_state_s
+    "t_state_s": ((), float, np.nan),
     "P": ((6, 6), float, 0.0),
     "alt_x": ((2,), float, np.nan),
     "alt_P": ((2, 2), float, np.nan),
@@ -60,6 +69,7 @@ _FIELDS = {
     "mode_s": ((), np.int64, -1),
     "mode3a": ((), np.int64, -1),
     "sources": ((), np.uint64, 0),  # radars that contributed in the latest period (bit mask)
+    "revisit_s": ((), float, np.nan),  # shortest rotation among the radars of the latest update
     "nis_avg": ((), float, 2.0),  # fading average of the normalised innovation squared (2 dof)
     "manoeuvre": ((), bool, False),  # manoeuvre detected: process noise raised
 }
@@ -113,16 +123,22 @@ def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndar
     since_update = t_s - table.last_update_t_s
     age = t_s - table.first_t_s
     status = table.status
+    revisit = table.revisit_s
+
+    def limit(fixed_s: float | None, scans: float) -> np.ndarray | float:
+        return fixed_s if fixed_s is not None else scans * revisit
 
     confirm = (status == TENTATIVE) & (table.updates >= rules.confirm_updates) & (age <= rules.confirm_window_s)
     status[confirm] = CONFIRMED
     recovered = (status == COASTING) & (since_update <= 0.0)
     status[recovered] = CONFIRMED
-    status[(status == CONFIRMED) & (since_update > rules.coast_after_s)] = COASTING
+    status[(status == CONFIRMED) & (since_update > limit(rules.coast_after_s, rules.coast_after_scans))] = COASTING
 
-    end = ((status == TENTATIVE) & ((since_update > rules.delete_tentative_after_s) | (age > rules.confirm_window_s))) | (
-        (status != TENTATIVE) & (since_update > rules.delete_after_s)
-    )
+    end = (
+        (status == TENTATIVE)
+        & ((since_update > limit(rules.delete_tentative_after_s, rules.delete_tentative_after_scans))
+           | (age > rules.confirm_window_s))
+    ) | ((status != TENTATIVE) & (since_update > limit(rules.delete_after_s, rules.delete_after_scans)))
     ended = table.track_id[end].copy()
     if end.any():
         table.keep(~end)
