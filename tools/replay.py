@@ -95,3 +95,27 @@ def run(args: argparse.Namespace) -> int:
     for key in sorted(per_radar):
         print(f"  {prefix}/{key}: {per_radar[key]}")
     return 0
+
+
+def replay_into_engine(engine, records: Iterable[tuple[float, str, bytes]]) -> list:
+    """Feed (t_s, key, payload) messages to an Engine in process, decoding them as the
+    daemon does, polling after each; returns every PeriodOutput including the flush.
+    The same path as the bus minus Zenoh: for tests, experiments and benchmarks."""
+    from radar_fusion.wire import RadarStatus, Rejection, decode_message, decode_plot_batch
+
+    outputs = []
+    for _t_s, key, payload in records:
+        if key.endswith("/plots"):
+            decoded = decode_plot_batch(payload)
+            if isinstance(decoded, Rejection):
+                engine.reject(decoded.reason)
+                continue
+            engine.ingest_plots(decoded)
+        elif key.endswith("/status"):
+            decoded = decode_message(payload, RadarStatus)
+            if isinstance(decoded, Rejection):
+                engine.reject(decoded.reason)
+                continue
+            engine.ingest_status(decoded)
+        outputs += engine.poll()
+    return outputs + engine.flush()
