@@ -34,6 +34,8 @@ SUBCOMMANDS = {
                "subscribe to bus keys and write what arrives to a recording"),
     "evaluate": ("radar_fusion.tools.evaluate", "add_arguments", "run",
                  "score recorded tracks against truth (RMS, GOSPA, continuity) and plot them"),
+    "bench": ("radar_fusion.tools.bench", "add_arguments", "run",
+              "benchmark the engine (plots/s, period latency, memory) on growing scenarios"),
     "outliers": ("radar_fusion.tools.outlier_experiment", "add_arguments", "run",
                  "reproduce Hu 2013's wild-plot experiment: soft-weighted vs K-MODF vs 3-sigma gate"),
     "safety-eval": ("radar_fusion.tools.safety_eval", "add_arguments", "run",
