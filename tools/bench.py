@@ -184,31 +184,40 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     ingest_plots, ingest_status, poll = engine.ingest_plots, engine.ingest_status, engine.poll
     perf = time.perf_counter
     t_ingest = t_status = t_poll = 0.0
-    outputs = []
+    # Keep only each period's figures: holding every TrackBatch (thousands of dicts per
+    # period) would make Python's cyclic GC slower and slower and distort the timings.
+    periods: list[tuple[float, float, int, int]] = []  # (t_s, processing_ms, plots, tracks)
+
+    def keep(outs) -> None:
+        periods.extend((o.t_s, o.processing_s * 1e3, o.n_plots, len(o.track_batch["tracks"])) for o in outs)
+
     profiler = None
     if profile_top:
         import cProfile
 
         profiler = cProfile.Profile()
         profiler.enable()
-    t_start = perf()
     for kind, obj in events:
         if kind == 0:
             t0 = perf()
             ingest_plots(obj)
             t1 = perf()
-            outputs += poll()
+            outs = poll()
             t2 = perf()
             t_ingest += t1 - t0
             t_poll += t2 - t1
+            if outs:
+                keep(outs)
+                outs = None
         else:
             t0 = perf()
             ingest_status(obj)
             t_status += perf() - t0
     t0 = perf()
-    outputs += engine.flush()
+    outs = engine.flush()
     t_poll += perf() - t0
-    t_total = perf() - t_start
+    keep(outs)
+    t_total = t_ingest + t_status + t_poll  # engine calls only (the bookkeeping above is left out)
     if profiler is not None:
         profiler.disable()
 
@@ -217,10 +226,10 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     if peak_kb is None:
         peak_kb, peak_source = _maxrss_kb(), "ru_maxrss"
     warm_end = data["start_t_s"] + warmup_s
-    steady = [o.processing_s * 1e3 for o in outputs if o.t_s >= warm_end]
-    warm = [o.processing_s * 1e3 for o in outputs if o.t_s < warm_end]
-    plots_per_period = [o.n_plots for o in outputs if o.t_s >= warm_end]
-    tracks_per_period = [len(o.track_batch["tracks"]) for o in outputs if o.t_s >= warm_end]
+    steady = [p[1] for p in periods if p[0] >= warm_end]
+    warm = [p[1] for p in periods if p[0] < warm_end]
+    plots_per_period = [p[2] for p in periods if p[0] >= warm_end]
+    tracks_per_period = [p[3] for p in periods if p[0] >= warm_end]
     status = engine.tracks.status
     n_plots = data["n_plots"]
     result = {
@@ -233,9 +242,9 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
         "plots_per_s": n_plots / t_total if t_total > 0 else math.nan,
         "ingest_us_per_plot": 1e6 * t_ingest / max(n_plots, 1),
         "ingest_share": t_ingest / t_total if t_total > 0 else math.nan,
-        "periods": len(outputs),
+        "periods": len(periods),
         "periods_steady": len(steady),
-        "period_sum_ms": float(sum(o.processing_s for o in outputs) * 1e3),
+        "period_sum_ms": float(sum(p[1] for p in periods)),
         "steady_period_mean_ms": float(np.mean(steady)) if steady else math.nan,
         "p50_ms": _percentile(steady, 50),
         "p99_ms": _percentile(steady, 99),
