@@ -48,17 +48,9 @@ class Recorder:
 
 
 def run(args: argparse.Namespace) -> int:
-    from radar_fusion.bus import client_config_for, open_session, zenoh_config
-    from radar_fusion.config import load_settings
+    from radar_fusion.bus import open_session, tool_client_config
 
-    prefix = args.prefix
-    if args.config:
-        settings = load_settings(args.config)
-        cfg = client_config_for(settings.bus) if not args.connect else zenoh_config("client", connect=args.connect)
-        prefix = prefix or settings.bus.prefix
-    else:
-        cfg = zenoh_config("client", connect=args.connect or ["tcp/127.0.0.1:7447"])
-    prefix = prefix or "atc"
+    cfg, prefix = tool_client_config(args.config, args.connect, args.prefix)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

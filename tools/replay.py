@@ -70,18 +70,10 @@ def replay_records(session, records: Iterable[Record], prefix: str, speed: Optio
 
 
 def run(args: argparse.Namespace) -> int:
-    from radar_fusion.bus import client_config_for, open_session, zenoh_config
-    from radar_fusion.config import load_settings
+    from radar_fusion.bus import open_session, tool_client_config
 
     speed = parse_speed(args.speed)
-    prefix = args.prefix
-    if args.config:
-        settings = load_settings(args.config)
-        cfg = client_config_for(settings.bus) if not args.connect else zenoh_config("client", connect=args.connect)
-        prefix = prefix or settings.bus.prefix
-    else:
-        cfg = zenoh_config("client", connect=args.connect or ["tcp/127.0.0.1:7447"])
-    prefix = prefix or "atc"
+    cfg, prefix = tool_client_config(args.config, args.connect, args.prefix)
     total = sum(1 for _ in read_recording(args.file)) if sys.stderr.isatty() else 0
     session = open_session(cfg)
     try:

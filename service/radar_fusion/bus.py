@@ -70,6 +70,18 @@ def client_config_for(bus: BusConfig) -> zenoh.Config:
     return zenoh_config("client", connect=list(endpoints), config_file=bus.zenoh_config_file)
 
 
+def tool_client_config(config_path: Optional[str], connect: Optional[list[str]], prefix: Optional[str]):
+    """Session config and key prefix for a tool (replay, record): from the daemon's
+    config file if given, ``connect`` endpoints overriding; defaults tcp/127.0.0.1:7447, 'atc'."""
+    from .config import load_settings
+
+    if config_path:
+        settings = load_settings(config_path)
+        cfg = client_config_for(settings.bus) if not connect else zenoh_config("client", connect=connect)
+        return cfg, prefix or settings.bus.prefix
+    return zenoh_config("client", connect=connect or ["tcp/127.0.0.1:7447"]), prefix or "atc"
+
+
 def reliable_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
     """Publishers of plots must be reliable with congestion control BLOCK (DESIGN.md §3)."""
     return session.declare_publisher(

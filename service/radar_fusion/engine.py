@@ -34,7 +34,7 @@ from .coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, po
 from .fusion import fuse_clusters
 from .outliers import LiveOutlierGate
 from .period_buffer import PeriodBuffer, PlotChunk
-from .singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2, AltitudeFilter, SingerFilter
+from .singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2, AltitudeFilter, SingerFilter, inv_2x2
 from .track_management import (
     CONFIRMED,
     STATUS_NAMES,
@@ -42,6 +42,10 @@ from .track_management import (
     LifeCycle,
     TrackTable,
     apply_life_cycle,
+    cov_pos_m2,
+    cov_vel,
+    position_m,
+    velocity_mps,
 )
 from .wire import DecodedPlots, RadarStatus, mode_s_to_str
 
@@ -123,7 +127,7 @@ class Engine:
             n_radars=len(self.radar_ids),
         )
         self.tracks = TrackTable()
-        self.track_t_s: Optional[float] = None  # common time of all track states
+        self.track_t_s: Optional[float] = None  # reference time of the newest closed period
         self.radars = [RadarState() for _ in self.radar_ids]
         self.counters: Counter = Counter()
         self.rejected: Counter = Counter()
@@ -284,7 +288,7 @@ class Engine:
             xy = np.stack([plots.x_m, plots.y_m], axis=1)
             res = cluster_plots(
                 xy, plots.cov_m2, plots.t_s, plots.radar, plots.mode_s, plots.mode3a,
-                x_ref[:, [0, 3]], x_ref[:, [1, 4]], P_ref[:, [0, 3]][:, :, [0, 3]], P_ref[:, [1, 4]][:, :, [1, 4]],
+                position_m(x_ref), velocity_mps(x_ref), cov_pos_m2(P_ref), cov_vel(P_ref),
                 tracks.mode_s, tracks.mode3a, t_ref_s, self.clustering,
             )
             n_clusters = len(res.cluster_track)
@@ -301,8 +305,8 @@ class Engine:
             row_of_plot = res.cluster_track[lab]
             dt_p = t_c[lab] - plots.t_s[used]
             # a padding row (-1) stands for "no track": zero velocity, wide velocity prior
-            v_pad = np.concatenate([x_ref[:, [1, 4]], np.zeros((1, 2))])
-            pvv_pad = np.concatenate([P_ref[:, [1, 4]][:, :, [1, 4]], self.one_plot_vel_var * np.eye(2)[None]])
+            v_pad = np.concatenate([velocity_mps(x_ref), np.zeros((1, 2))])
+            pvv_pad = np.concatenate([cov_vel(P_ref), self.one_plot_vel_var * np.eye(2)[None]])
             v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
             z_plot = xy[used] + v * dt_p[:, None]
             R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
@@ -406,8 +410,7 @@ class Engine:
         then predicted with σ_m multiplied by ``manoeuvre_sigma_factor`` until the
         average falls below ``manoeuvre_off``.
         """
-        s_inv = np.linalg.inv(S)
-        nis = np.einsum("ni,nij,nj->n", nu, s_inv, nu)
+        nis = np.einsum("ni,nij,nj->n", nu, inv_2x2(S), nu)
         tr = self.tracks
         avg = self.nis_fading * tr.nis_avg[rows] + (1.0 - self.nis_fading) * nis
         tr.nis_avg[rows] = avg

@@ -35,21 +35,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .singer_filter import inv_2x2
+
 __all__ = ["fuse_clusters", "FUSION_METHODS"]
 
 FUSION_METHODS = ("scalar", "matrix")
-
-
-def _inv_2x2(m: np.ndarray) -> np.ndarray:
-    """Closed-form inverse of a stack of 2×2 matrices, (M,2,2) → (M,2,2)."""
-    a, b, c, d = m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1]
-    det = a * d - b * c
-    inv = np.empty_like(m)
-    inv[:, 0, 0] = d / det
-    inv[:, 0, 1] = -b / det
-    inv[:, 1, 0] = -c / det
-    inv[:, 1, 1] = a / det
-    return inv
 
 
 def _cluster_sum(labels: np.ndarray, values: np.ndarray, n_clusters: int) -> np.ndarray:
@@ -108,10 +98,10 @@ def fuse_clusters(labels, z_m, R, n_clusters: int, method: str = "scalar"):
             z_fused = _cluster_sum(lab, alpha[:, None] * z, n_clusters)  # eq. 5
             R_fused = _cluster_sum(lab, alpha[:, None, None] ** 2 * R, n_clusters)
         else:
-            R_inv = _inv_2x2(R)
+            R_inv = inv_2x2(R)
             info = _cluster_sum(lab, R_inv, n_clusters)  # Σ R_i⁻¹
             info_z = _cluster_sum(lab, np.einsum("mij,mj->mi", R_inv, z), n_clusters)
-            R_fused = _inv_2x2(info)
+            R_fused = inv_2x2(info)
             z_fused = np.einsum("kij,kj->ki", R_fused, info_z)
         R_fused = 0.5 * (R_fused + np.swapaxes(R_fused, 1, 2))
 

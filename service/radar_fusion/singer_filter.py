@@ -321,7 +321,7 @@ def two_point_initiation(z1_m, R1, z2_m, R2, dt_s, sigma_m_mps2):
     return x, P
 
 
-def _inv_2x2(m: np.ndarray) -> np.ndarray:
+def inv_2x2(m: np.ndarray) -> np.ndarray:
     """Closed-form inverse of a stack of 2×2 matrices, (N,2,2) → (N,2,2)."""
     a, b, c, d = m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1]
     det = a * d - b * c
@@ -425,7 +425,7 @@ class SingerFilter:
         R = np.asarray(R, dtype=float)
         nu, S = self.innovation(x_pred, P_pred, z, R)
         PHt = P_pred[:, :, POS_IDX]  # P Hᵀ, (N,6,2)
-        K = PHt @ _inv_2x2(S)  # eq. 9
+        K = PHt @ inv_2x2(S)  # eq. 9
         x = x_pred + np.einsum("nij,nj->ni", K, nu)  # eq. 7
         I_KH = np.broadcast_to(np.eye(STATE_DIM), P_pred.shape).copy()
         I_KH[:, :, POS_IDX] -= K  # I − K H: H only has ones at columns 0 and 3
@@ -439,7 +439,7 @@ class SingerFilter:
         e.g. ``scipy.stats.chi2.ppf(0.99, 2)`` ≈ 9.21.
         """
         nu, S = self.innovation(x_pred, P_pred, z, R)
-        return np.einsum("ni,nij,nj->n", nu, _inv_2x2(S), nu)
+        return np.einsum("ni,nij,nj->n", nu, inv_2x2(S), nu)
 
 
 # --- altitude ------------------------------------------------------------------------

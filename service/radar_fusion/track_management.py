@@ -104,18 +104,24 @@ class TrackTable:
             setattr(self, name, getattr(self, name)[mask])
         self.n = int(mask.sum())
 
-    # ---------------------------------------------------------------- queries
-    def velocity_mps(self) -> np.ndarray:
-        return self.x[:, [1, 4]]
 
-    def position_m(self) -> np.ndarray:
-        return self.x[:, [0, 3]]
 
-    def cov_pos_m2(self) -> np.ndarray:
-        return self.P[:, [0, 3]][:, :, [0, 3]]
 
-    def cov_vel(self) -> np.ndarray:
-        return self.P[:, [1, 4]][:, :, [1, 4]]
+# Slices of Singer states x (N,6) = [x, vx, ax, y, vy, ay] and covariances P (N,6,6).
+def position_m(x: np.ndarray) -> np.ndarray:
+    return x[:, [0, 3]]
+
+
+def velocity_mps(x: np.ndarray) -> np.ndarray:
+    return x[:, [1, 4]]
+
+
+def cov_pos_m2(P: np.ndarray) -> np.ndarray:
+    return P[:, [0, 3]][:, :, [0, 3]]
+
+
+def cov_vel(P: np.ndarray) -> np.ndarray:
+    return P[:, [1, 4]][:, :, [1, 4]]
 
 
 def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndarray:
