@@ -117,3 +117,32 @@ def test_hostile_payloads_are_counted_and_good_plots_still_track(scenario, free_
     truth = ev.load_truth(out / "truth.csv")
     scores = ev.evaluate(collector.batches, truth)
     assert scores.pos_rms_settled_m < 0.95 * plot_error_rms_m(simulation)
+
+
+def test_idle_daemon_flushes_the_open_periods_without_being_stopped(scenario, free_port):
+    """When the radars fall silent (end of a replay, a network cut), the periods still
+    buffered are closed after idle_flush_s of wall-clock silence, not only at shutdown."""
+    from radar_fusion.bus import FusionDaemon
+    from radar_fusion.tools.recording import read_recording
+    from radar_fusion.tools.replay import replay_records
+
+    out, _ = scenario
+    settings = settings_on_port(out / "config.toml", free_port)
+    daemon = FusionDaemon(settings, idle_flush_s=0.5).start()
+    session = open_session(zenoh_config("client", connect=list(settings.bus.listen)))
+    collector = TrackCollector(session, settings.bus.prefix)
+    try:
+        time.sleep(0.3)
+        records = list(read_recording(out / "plots.rec"))[:400]
+        sent = sum(replay_records(session, records, settings.bus.prefix, speed=None).values())
+        assert wait_until(lambda: daemon.messages_processed >= sent, 30)
+        before_flush = daemon.engine.buffer.buffered_plots
+        assert before_flush > 0  # the newest periods wait for watermarks that never come
+        assert wait_until(lambda: daemon.engine.buffer.buffered_plots == 0, 10)
+        assert wait_until(lambda: len(collector.batches) >= daemon.batches_published, 10)
+        last_plot_t = max(r.t_s for r in records)
+        assert collector.batches[-1]["t"] >= last_plot_t - settings.system.period_s
+    finally:
+        daemon.stop()
+        collector.close()
+        session.close()

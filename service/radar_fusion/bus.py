@@ -129,6 +129,7 @@ class FusionDaemon:
         self.messages_processed = 0
         self.batches_published = 0
         self.overload = 0
+        self._last_processed = time.monotonic()
         self._log_rejection = RateLimitedLog()
         self._session: Optional[zenoh.Session] = None
         self._subs: list[Any] = []
@@ -221,8 +222,7 @@ class FusionDaemon:
     # ------------------------------------------------------------- processing
     def _run(self) -> None:
         last_health = 0.0
-        last_message = time.monotonic()
-        flushed_since_message = True
+        processed_at_flush = 0  # messages_processed when the open periods were last flushed
         while True:
             stopping = self.stop_event.is_set()
             try:
@@ -233,14 +233,11 @@ class FusionDaemon:
                     self._process_safely(key, payload)
             except queue.Empty:
                 pass
-            got_any = self.messages_processed > 0 and time.monotonic() - last_message < 0.06
-            if got_any:
-                last_message = time.monotonic()
-                flushed_since_message = False
             self._publish(self.engine.poll())
-            if not flushed_since_message and time.monotonic() - last_message > self.idle_flush_s:
+            idle_s = time.monotonic() - self._last_processed
+            if self.messages_processed > processed_at_flush and idle_s > self.idle_flush_s:
                 self._publish(self.engine.flush())
-                flushed_since_message = True
+                processed_at_flush = self.messages_processed
             now = time.monotonic()
             if now - last_health >= self.settings.bus.health_period_s:
                 self.publish_health()
