@@ -472,3 +472,18 @@ def test_vectorised_10000_plots_5_radars_equals_per_plot_loop():
         )
         assert abs(xr[0] - x[i]) < 1e-3 and abs(yr[0] - y[i]) < 1e-3 and abs(gr[0] - ground[i]) < 1e-3
     np.testing.assert_allclose(r2[valid], rho[valid], atol=1e-3)
+
+
+def test_meridian_factors_match_proj_get_factors():
+    """The one-step conformal derivative agrees with PROJ's own numerical factors
+    (an independent computation) across a 600 km plane, also near the pole."""
+    rng = np.random.default_rng(3)
+    for lat0, lon0 in [(45.0, 15.0), (-33.9, 151.2), (88.5, 0.0)]:
+        plane = SystemPlane(lat0, lon0)
+        lat = np.clip(lat0 + rng.uniform(-3.0, 3.0, 500), -89.5, 89.95)
+        lon = lon0 + rng.uniform(-4.0, 4.0, 500)
+        x_m, y_m = plane.to_plane(lat, lon)
+        conv_deg, k = plane.meridian_factors(lat, lon, x_m, y_m)
+        f = plane.proj.get_factors(lon, lat)
+        np.testing.assert_allclose(k, f.meridional_scale, rtol=2e-6)
+        np.testing.assert_allclose(conv_deg, f.meridian_convergence, atol=2e-4)

@@ -104,3 +104,19 @@ def test_flush_closes_what_is_buffered():
     out = eng.flush()
     assert [o.t_s for o in out] == [T0 + 4.0, T0 + 8.0, T0 + 12.0]
     assert sum(o.n_plots for o in out) == 3 and eng.buffer.buffered_plots == 0
+
+
+def test_per_radar_buffer_limit_refuses_and_counts_the_excess():
+    """Bounded memory: radar b holds the periods open, radar a floods; beyond its limit a's
+    plots are refused as buffer_full (the earliest kept), and b's plots still get in."""
+    eng = Engine(settings(max_buffered_plots_per_radar=5))
+    eng.ingest_plots(plots("b", 1, T0 + 0.5))
+    assert eng.ingest_plots(plots("a", 1, T0 + 1.0 + 0.1 * np.arange(8)[::-1])) == 5
+    assert eng.rejected["buffer_full"] == 3
+    assert eng.health()["radars"]["a"]["rejected"] == {"buffer_full": 3}
+    assert eng.ingest_plots(plots("a", 2, T0 + 2.0)) == 0 and eng.rejected["buffer_full"] == 4
+    assert eng.ingest_plots(plots("b", 2, T0 + 1.5)) == 1
+    out = eng.flush()
+    kept = sum(o.n_plots for o in out)
+    assert kept == 7  # 5 of a, 2 of b
+    assert eng.buffer.buffered_plots == 0 and eng.buffer.room(0) == 5  # room again after the periods closed

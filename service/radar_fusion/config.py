@@ -43,6 +43,9 @@ class SystemConfig(_Section):
     max_future_s: float = Field(
         60.0, gt=0, description="plots this far ahead of the newest watermark are refused as implausible"
     )
+    max_buffered_plots_per_radar: int = Field(
+        200_000, gt=0, description="plots of one radar that may wait for open periods; beyond, refused as buffer_full"
+    )
 
 
 class BusConfig(_Section):

@@ -176,10 +176,39 @@ def _q_closed(ij: tuple[int, int], x: np.ndarray) -> np.ndarray:
     return num / (2 * x ** _Q_POWER[ij])
 
 
-def _g(ij: tuple[int, int], x: np.ndarray) -> np.ndarray:
+_Q_KEYS = tuple(_Q_NUMERATORS)
+#: the six series as one (terms, 6) matrix: g(x) for every q_ij = [1, x, x², …] @ this
+_Q_SERIES_MATRIX = np.stack([_Q_SERIES[ij] for ij in _Q_KEYS], axis=1)
+
+
+def _g_all(x: np.ndarray) -> np.ndarray:
+    """g_ij(x) for the six q_ij, (N, 6) in the order of ``_Q_KEYS``: the Taylor series
+    for x below the switch (one matrix product over powers of x), the closed forms above."""
+    out = np.empty((x.size, len(_Q_KEYS)))
     small = x < _SERIES_SWITCH_AT
-    x_big = np.where(small, 1.0, x)  # keep the closed form away from 0/0
-    return np.where(small, _horner(_Q_SERIES[ij], x), _q_closed(ij, x_big))
+    if small.all():
+        out[:] = (_Q_SERIES_MATRIX.T @ _powers(x)).T
+        return out
+    if small.any():
+        out[small] = (_Q_SERIES_MATRIX.T @ _powers(x[small])).T
+    big = ~small
+    for k, ij in enumerate(_Q_KEYS):
+        out[big, k] = _q_closed(ij, x[big])
+    return out
+
+
+def _powers(x: np.ndarray) -> np.ndarray:
+    """[1, x, x², …, x^(terms−1)] per element, (terms, N)."""
+    v = np.empty((_SERIES_TERMS, x.size))
+    v[0] = 1.0
+    for k in range(1, _SERIES_TERMS):
+        np.multiply(v[k - 1], x, out=v[k])
+    return v
+
+
+def _g(ij: tuple[int, int], x: np.ndarray) -> np.ndarray:
+    """g_ij(x) for one element of Q (see :func:`_g_all`)."""
+    return _g_all(np.atleast_1d(np.asarray(x, dtype=float)))[:, _Q_KEYS.index(ij)]
 
 
 def _as_tracks(*arrays) -> list[np.ndarray]:
@@ -214,19 +243,26 @@ def singer_transition(dt_s, alpha_per_s) -> np.ndarray:
     dt_s, alpha_per_s = _as_tracks(dt_s, alpha_per_s)
     if np.any(alpha_per_s < 0):
         raise ValueError("alpha_per_s must be >= 0")
+    phi02, phi12, phi22 = _transition_terms(dt_s, alpha_per_s)
+    b = np.zeros((dt_s.size, 3, 3))
+    b[:, 0, 0] = b[:, 1, 1] = 1.0
+    b[:, 0, 1] = dt_s
+    b[:, 0, 2] = phi02
+    b[:, 1, 2] = phi12
+    b[:, 2, 2] = phi22
+    return _block_diag2(b)
+
+
+def _transition_terms(dt_s: np.ndarray, alpha_per_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The entries of Φ's per-axis block that depend on α: Φ13 = T² h2(αT),
+    Φ23 = T h1(αT), Φ33 = e^{−αT} (1-based, Shu eq. 12 corrected)."""
     x = alpha_per_s * dt_s
     small = x < _SERIES_SWITCH_AT
     x_big = np.where(small, 1.0, x)
     h2 = np.where(small, _horner(_H2_SERIES, x), (x_big - 1.0 + np.exp(-x_big)) / x_big**2)
     # (1 − e^{−x})/x via expm1 is accurate for every x > 0; limit 1 at x = 0
     h1 = np.where(x > 0, -np.expm1(-x) / np.where(x > 0, x, 1.0), 1.0)
-    b = np.zeros((dt_s.size, 3, 3))
-    b[:, 0, 0] = b[:, 1, 1] = 1.0
-    b[:, 0, 1] = dt_s
-    b[:, 0, 2] = dt_s**2 * h2
-    b[:, 1, 2] = dt_s * h1
-    b[:, 2, 2] = np.exp(-x)
-    return _block_diag2(b)
+    return dt_s**2 * h2, dt_s * h1, np.exp(-x)
 
 
 def singer_transition_printed(dt_s, alpha_per_s) -> np.ndarray:
@@ -257,12 +293,19 @@ def singer_process_noise(dt_s, alpha_per_s, sigma_m_mps2) -> np.ndarray:
     dt_s, alpha_per_s, sigma_m_mps2 = _as_tracks(dt_s, alpha_per_s, sigma_m_mps2)
     if np.any(alpha_per_s < 0) or np.any(dt_s < 0):
         raise ValueError("alpha_per_s and dt_s must be >= 0")
+    q = _process_noise_terms(dt_s, alpha_per_s, sigma_m_mps2)
+    b = np.empty((dt_s.size, 3, 3))
+    for k, (i, j) in enumerate(_Q_KEYS):  # six matrix elements, not tracks
+        b[:, i, j] = b[:, j, i] = q[:, k]
+    return _block_diag2(b)
+
+
+def _process_noise_terms(dt_s: np.ndarray, alpha_per_s: np.ndarray, sigma_m_mps2: np.ndarray) -> np.ndarray:
+    """The six distinct entries q_ij of Q's per-axis block, (N, 6) in ``_Q_KEYS`` order."""
     x = alpha_per_s * dt_s
     q_c = 2.0 * alpha_per_s * sigma_m_mps2**2
-    b = np.empty((dt_s.size, 3, 3))
-    for (i, j), p in _Q_POWER.items():  # six matrix elements, not tracks
-        b[:, i, j] = b[:, j, i] = q_c * dt_s**p * _g((i, j), x)
-    return _block_diag2(b)
+    powers = np.array([_Q_POWER[ij] for ij in _Q_KEYS])
+    return (q_c * _g_all(x).T * dt_s ** powers[:, None]).T
 
 
 def two_point_initiation(z1_m, R1, z2_m, R2, dt_s, sigma_m_mps2):
@@ -395,10 +438,34 @@ class SingerFilter:
         """
         x = np.asarray(x, dtype=float)
         P = np.asarray(P, dtype=float)
-        dt_s = np.broadcast_to(np.asarray(dt_s, dtype=float), (x.shape[0],))
-        phi = self.transition(dt_s)
-        x_pred = np.einsum("nij,nj->ni", phi, x)
-        P_pred = phi @ P @ np.swapaxes(phi, 1, 2) + self.process_noise(dt_s)
+        n = x.shape[0]
+        dt_s = np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
+        alpha = np.full(n, self.alpha_per_s)
+        # Φ = diag(B, B) with the same upper-triangular per-axis block
+        # B = [[1, T, f02], [0, 1, f12], [0, 0, f22]] for x and for y (eq. 12): Φ·v and
+        # Φ·P·Φᵀ are written out per block row/column instead of 6×6 matrix products.
+        f02, f12, f22 = _transition_terms(dt_s, alpha)
+        t = dt_s[:, None]
+        x_pred = np.empty_like(x)
+        pos, vel, acc = x[:, 0::3], x[:, 1::3], x[:, 2::3]  # (N, 2): [x-axis, y-axis]
+        x_pred[:, 0::3] = pos + t * vel + f02[:, None] * acc
+        x_pred[:, 1::3] = vel + f12[:, None] * acc
+        x_pred[:, 2::3] = f22[:, None] * acc
+        t, f02, f12, f22 = (a[:, None, None] for a in (dt_s, f02, f12, f22))
+        L = np.empty_like(P)  # Φ·P: rows 0,3 / 1,4 / 2,5
+        L[:, 0::3] = P[:, 0::3] + t * P[:, 1::3] + f02 * P[:, 2::3]
+        L[:, 1::3] = P[:, 1::3] + f12 * P[:, 2::3]
+        L[:, 2::3] = f22 * P[:, 2::3]
+        P_pred = np.empty_like(P)  # (Φ·P)·Φᵀ: the same on the columns
+        P_pred[:, :, 0::3] = L[:, :, 0::3] + t * L[:, :, 1::3] + f02 * L[:, :, 2::3]
+        P_pred[:, :, 1::3] = L[:, :, 1::3] + f12 * L[:, :, 2::3]
+        P_pred[:, :, 2::3] = f22 * L[:, :, 2::3]
+        q = _process_noise_terms(dt_s, alpha, np.full(n, self.sigma_m_mps2))  # eq. 11's Q, per-axis block
+        for k, (i, j) in enumerate(_Q_KEYS):
+            for axis in (0, 3):
+                P_pred[:, axis + i, axis + j] += q[:, k]
+                if i != j:
+                    P_pred[:, axis + j, axis + i] += q[:, k]
         return x_pred, _sym(P_pred)
 
     @staticmethod

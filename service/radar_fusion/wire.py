@@ -38,6 +38,7 @@ REJECTION_REASONS = (
     "plot_beyond_max_range",  # range beyond the radar's configured instrumented range
     "plot_late",  # plot for a period that has already been closed
     "plot_future",  # plot time implausibly far ahead of the radar's watermark
+    "buffer_full",  # the radar already has its limit of plots waiting for open periods
 )
 
 MODE_S_PATTERN = r"^[0-9A-Fa-f]{6}$"
@@ -149,6 +150,7 @@ class RadarHealth(BaseModel):
     last_seq: Optional[int] = None
     seq_gaps: int = 0
     rejected: dict[str, int] = Field(default_factory=dict)
+    wild: int = Field(0, description="plots dropped by the live wild-plot gate (counted apart from rejections)")
 
 
 class Health(_Message):
