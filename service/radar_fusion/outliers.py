@@ -484,7 +484,10 @@ class LiveOutlierGate:
         self.rejected = 0
         self.relocked = 0
         self.evicted = 0
-        self._rows: dict[int, int] = {}
+        # key → row index as two aligned sorted arrays: one vectorised searchsorted per
+        # batch instead of a dict lookup per key
+        self._skeys = np.empty(0, dtype=np.int64)
+        self._srows = np.empty(0, dtype=np.int64)
         self._free: list[int] = []
         self._last_sweep_t = -np.inf
         self._alloc(min(1024, self.max_keys))
@@ -511,7 +514,7 @@ class LiveOutlierGate:
     @property
     def n_keys(self) -> int:
         """Number of keys currently held."""
-        return len(self._rows)
+        return int(self._skeys.size)
 
     @property
     def capacity(self) -> int:
@@ -525,9 +528,9 @@ class LiveOutlierGate:
                                       self._count, self._head, self._npend, self._last_t, self._row_key))
 
     def _evict_rows(self, rows: np.ndarray) -> None:
-        for r in rows.tolist():
-            del self._rows[int(self._row_key[r])]
-            self._free.append(r)
+        gone = np.isin(self._skeys, self._row_key[rows])
+        self._skeys, self._srows = self._skeys[~gone], self._srows[~gone]
+        self._free.extend(rows.tolist())
         self._row_key[rows] = -1
         self._count[rows] = 0
         self._npend[rows] = 0
@@ -541,13 +544,17 @@ class LiveOutlierGate:
         self._last_sweep_t = t_now
 
     def _rows_for(self, ukeys: np.ndarray, t_now: float) -> np.ndarray:
-        rows = np.fromiter((self._rows.get(k, -1) for k in ukeys.tolist()), dtype=np.int64, count=ukeys.size)
+        rows = np.full(ukeys.size, -1, dtype=np.int64)
+        if self._skeys.size:
+            pos = np.minimum(np.searchsorted(self._skeys, ukeys), self._skeys.size - 1)
+            found = self._skeys[pos] == ukeys
+            rows[found] = self._srows[pos[found]]
         new = np.flatnonzero(rows < 0)
         if new.size == 0:
             return rows
         if new.size > len(self._free) and self._cap < self.max_keys:
             cap = self._cap
-            while cap - len(self._rows) < new.size and cap < self.max_keys:
+            while cap - self._skeys.size < new.size and cap < self.max_keys:
                 cap = min(2 * cap, self.max_keys)
             self._alloc(cap)
         if new.size > len(self._free):
@@ -560,12 +567,16 @@ class LiveOutlierGate:
             oldest = held[np.argpartition(self._last_t[held], need - 1)[:need]] if need else held[:0]
             self._evict_rows(oldest)
         n_new = min(new.size, len(self._free))
-        for i in new[:n_new].tolist():
-            r = self._free.pop()
-            key = int(ukeys[i])
-            self._rows[key] = r
-            self._row_key[r] = key
-            rows[i] = r
+        if n_new:
+            new = new[:n_new]
+            got = np.array([self._free.pop() for _ in range(n_new)], dtype=np.int64)
+            new_keys = ukeys[new]
+            self._row_key[got] = new_keys
+            rows[new] = got
+            order = np.argsort(new_keys)
+            at = np.searchsorted(self._skeys, new_keys[order])
+            self._skeys = np.insert(self._skeys, at, new_keys[order])
+            self._srows = np.insert(self._srows, at, got[order])
         return rows  # keys beyond max_keys keep row -1: they are accepted untracked
 
     # -- decision ------------------------------------------------------------------
@@ -637,8 +648,10 @@ class LiveOutlierGate:
             # for 2-D Gaussian residuals E[r^2] = median(r^2) / ln 2; m/(m-2) for the fit.
             rx = wx - (xbar[:, None] + vx[:, None] * dtc)
             ry = wy - (ybar[:, None] + vy[:, None] * dtc)
-            r2 = np.where(valid, rx * rx + ry * ry, np.nan)
-            var_fit = np.nanmedian(r2, axis=1) / np.log(2.0) * m / np.maximum(m - 2.0, 1.0)
+            r2 = np.sort(np.where(valid, rx * rx + ry * ry, np.inf), axis=1)  # the window's m first
+            mi = count[gi, None]
+            median = 0.5 * (np.take_along_axis(r2, (mi - 1) // 2, 1) + np.take_along_axis(r2, mi // 2, 1))[:, 0]
+            var_fit = median / np.log(2.0) * m / np.maximum(m - 2.0, 1.0)
             # Past plots carried forward to the new time: p_j + v * (t - t_j) = p_j - v * dt_j.
             ex = wx - vx[:, None] * dt
             ey = wy - vy[:, None] * dt
