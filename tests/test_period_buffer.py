@@ -120,3 +120,19 @@ def test_per_radar_buffer_limit_refuses_and_counts_the_excess():
     kept = sum(o.n_plots for o in out)
     assert kept == 7  # 5 of a, 2 of b
     assert eng.buffer.buffered_plots == 0 and eng.buffer.room(0) == 5  # room again after the periods closed
+
+
+def test_a_radar_back_from_a_long_outage_is_accepted_and_a_jump_is_not():
+    eng = Engine(settings())
+    for k in range(1, 11):  # both radars every 4 s; a falls silent after T0+16
+        if k <= 4:
+            eng.ingest_plots(plots("a", k, T0 + 4.0 * k))
+        eng.ingest_plots(plots("b", k, T0 + 4.0 * k + 0.5))
+    assert eng.ingest_plots(plots("a", 5, T0 + 40.0)) == 1  # in step with b again: accepted at once
+    assert eng.ingest_plots(plots("b", 11, T0 + 90.0)) == 0  # b jumps 50 s: refused
+    assert eng.rejected == {"plot_future": 1}
+    # A single radar back after a longer outage than the limit: re-locked after 8 batches.
+    solo = Engine(settings())
+    solo.ingest_plots(plots("a", 1, T0 + 1.0))
+    accepted = [solo.ingest_plots(plots("a", k, T0 + 100.0 + 0.5 * k)) for k in range(2, 12)]
+    assert accepted == [0] * 8 + [1, 1] and solo.counters["radar_time_relocks"] == 1

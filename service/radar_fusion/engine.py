@@ -57,6 +57,9 @@ from .track_management import (
 from .wire import DecodedPlots, RadarStatus, mode_s_to_str
 
 FT_PER_FL = 100.0
+#: consecutive batches of a radar refused whole as too far in the future after which its
+#: new time base is accepted (a radar back from an outage longer than the future limit)
+FUTURE_RELOCK_BATCHES = 8
 # wire.Track fields in the order _track_batch builds them
 TRACK_KEYS = ("track_id", "t", "status", "lat_deg", "lon_deg", "x_m", "y_m", "vx_mps", "vy_mps", "fl", "cov_xy",
               "sources", "mode3a", "mode_s", "updates", "age_s", "vrate_fpm", "ax_mps2", "ay_mps2")
@@ -187,6 +190,7 @@ class RadarState:
     rejected: Counter = field(default_factory=Counter)
     rotation_period_s: Optional[float] = None
     wild: int = 0
+    future_streak: int = 0  # consecutive batches refused whole as plot_future
 
 
 class Engine:
@@ -267,14 +271,32 @@ class Engine:
         if i is None:
             self.reject("unknown_radar")
             return
-        wm = self.buffer.watermark_s
-        if np.isfinite(wm[i]) and status.t > wm[i] + self.settings.system.max_future_s:
-            self.reject("plot_future", radar_id=status.radar_id)
+        radar = self.radars[i]
+        if status.t > self._future_limit_s(i) and radar.future_streak < FUTURE_RELOCK_BATCHES:
+            self.reject("status_future", radar_id=status.radar_id)
+            radar.future_streak += 1
             return
+        radar.future_streak = 0
         self.counters["status_messages"] += 1
         if status.rotation_period_s is not None:
             self.radars[i].rotation_period_s = status.rotation_period_s
         self.buffer.advance_watermark(i, status.t)
+
+    def _future_limit_s(self, i: int) -> float:
+        """Latest plausible event time from radar ``i``; later is refused as
+        ``plot_future``. A clock jump or a forged time must not push a watermark ahead:
+        beyond ``radar_timeout_s`` past the others it would make them all look silent,
+        close every period on this radar alone and turn their good plots late.
+
+        The limit is the newest watermark of all radars (this one included) plus
+        min(max_future_s, radar_timeout_s): a radar's time advances by about a rotation
+        per rotation, and one back from an outage is in step with the others again. A
+        radar with no other radar to follow that comes back after a longer outage is
+        re-locked by :meth:`ingest_plots` after ``FUTURE_RELOCK_BATCHES`` batches.
+        """
+        sysc = self.settings.system
+        newest = float(self.buffer.watermark_s.max())
+        return newest + min(sysc.max_future_s, sysc.radar_timeout_s) if math.isfinite(newest) else math.inf
 
     def ingest_plots(self, batch: DecodedPlots) -> int:
         """Check, gate, convert and buffer one radar's batch; returns plots accepted."""
@@ -308,11 +330,20 @@ class Engine:
         buf = self.buffer
         t_s, range_m = batch.t_s, batch.range_m
         t_min_s, t_max_s = float(t_s.min()), float(t_s.max())
-        closed_s, wm = buf.closed_until_s, buf.watermark_s[i]
-        future_s = wm + self.settings.system.max_future_s if math.isfinite(wm) else math.inf
+        closed_s, future_s = buf.closed_until_s, self._future_limit_s(i)
+        if not math.isfinite(buf.watermark_s[i]):  # a first batch: also against its own start
+            sysc = self.settings.system
+            future_s = min(future_s, t_min_s + min(sysc.max_future_s, sysc.radar_timeout_s))
+        if radar.future_streak >= FUTURE_RELOCK_BATCHES:
+            # This radar's time has stayed ahead, consistently: it came back after an
+            # outage (or its clock was set right); follow it from this batch on.
+            future_s = math.inf
+            radar.future_streak = 0
+            self.counters["radar_time_relocks"] += 1
         if t_min_s >= closed_s and t_max_s <= future_s and float(range_m.max()) <= self.max_range_m[i]:
             idx = slice(None)  # the usual case: the whole batch is good (no copies)
             n_ok = n_in
+            radar.future_streak = 0
         else:
             keep = range_m <= self.max_range_m[i]
             self.reject("plot_beyond_max_range", n_in - int(keep.sum()), batch.radar_id)
@@ -324,6 +355,7 @@ class Engine:
             keep &= ~future
             idx = np.flatnonzero(keep)
             n_ok = int(idx.size)
+            radar.future_streak = radar.future_streak + 1 if n_ok == 0 and future.any() else 0
             if n_ok == 0:
                 return 0
             t_min_s, t_max_s = float(t_s[idx].min()), float(t_s[idx].max())
@@ -332,6 +364,7 @@ class Engine:
             # Bounded memory: a radar far ahead of the others (or flooding) may not fill
             # the buffer without limit. The earliest plots are kept.
             self.reject("buffer_full", n_ok - max(room, 0), batch.radar_id)
+            buf.advance_watermark(i, t_max_s)  # valid plots: the radar's time has moved on
             if room <= 0:
                 return 0
             idx = (np.arange(n_in) if isinstance(idx, slice) else idx)[np.argsort(t_s[idx], kind="stable")[:room]]

@@ -147,7 +147,16 @@ class PeriodBuffer:
         return k, end_s, plots
 
     def skip_empty_to_data(self) -> None:
-        """Jump over periods that hold no plot (used when no track needs coasting)."""
-        if self.next_period is None or not self._chunks:
+        """Jump over periods that hold no plot (used when no track needs coasting): to
+        the first buffered plot, or with nothing buffered as far as the watermarks allow
+        (so a watermark that jumps far ahead does not close empty periods one by one)."""
+        if self.next_period is None:
             return
-        self.next_period = max(self.next_period, int(math.floor(self._min_t_s / self.period_s)))
+        if self._chunks:
+            first = int(math.floor(self._min_t_s / self.period_s))
+        else:
+            until_s = self.closable_until_s()
+            if not math.isfinite(until_s):
+                return
+            first = int(math.floor(until_s / self.period_s))
+        self.next_period = max(self.next_period, first)

@@ -39,6 +39,7 @@ REJECTION_REASONS = (
     "plot_late",  # plot for a period that has already been closed
     "plot_future",  # plot time implausibly far ahead of the radar's watermark
     "buffer_full",  # the radar already has its limit of plots waiting for open periods
+    "status_future",  # a radar status time implausibly far ahead of every radar's watermark
 )
 
 MODE_S_PATTERN = r"^[0-9A-Fa-f]{6}$"
