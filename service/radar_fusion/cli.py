@@ -38,6 +38,8 @@ SUBCOMMANDS = {
               "benchmark the engine (plots/s, period latency, memory) on growing scenarios"),
     "outliers": ("radar_fusion.tools.outlier_experiment", "add_arguments", "run",
                  "reproduce Hu 2013's wild-plot experiment: soft-weighted vs K-MODF vs 3-sigma gate"),
+    "clean": ("radar_fusion.tools.clean", "add_arguments", "run",
+              "remove wild plots from a recording per radar track (Hu 2013); write it and a report"),
     "safety-eval": ("radar_fusion.tools.safety_eval", "add_arguments", "run",
                     "evaluate STCA / APW / MSAW on scenarios with and without conflicts"),
     "asterix-in": ("radar_fusion.tools.asterix_bridge", "add_arguments_in", "run_in",
