@@ -26,24 +26,46 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 class Recorder:
-    """Subscribes to keys on a session and writes every sample to a RecordingWriter."""
+    """Subscribes to keys on a session and writes every sample to a RecordingWriter.
+
+    The callbacks run on Zenoh's receiving thread (not a thread per subscriber), so
+    samples are written in the order they arrived even across several key expressions;
+    a sample that matches more than one of them is written once.
+    """
 
     def __init__(self, session, writer: RecordingWriter, prefix: str, keys: list[str]):
+        import zenoh
+
         self.writer = writer
         self.prefix = prefix
         self._lock = threading.Lock()
-        self._subs = [session.declare_subscriber(f"{prefix}/{k}", self._on_sample) for k in keys]
+        self._closed = False
+        exprs = [zenoh.KeyExpr(f"{prefix}/{k}") for k in keys]
+        self._subs = [
+            session.declare_subscriber(expr, zenoh.handlers.Callback(self._callback(exprs[:m]), indirect=False))
+            for m, expr in enumerate(exprs)
+        ]
+
+    def _callback(self, earlier: list):
+        def on_sample(sample) -> None:
+            if not any(e.includes(sample.key_expr) for e in earlier):  # else an earlier subscriber has it
+                self._on_sample(sample)
+
+        return on_sample
 
     def _on_sample(self, sample) -> None:
         key = str(sample.key_expr)
         rel = key[len(self.prefix) + 1:] if key.startswith(self.prefix + "/") else key
+        payload = sample.payload.to_bytes()
         with self._lock:
-            self.writer.write(time.time(), rel, sample.payload.to_bytes())
+            if not self._closed:  # Zenoh may still deliver a sample while we close
+                self.writer.write(time.time(), rel, payload)
 
     def close(self) -> None:
         for sub in self._subs:
             sub.undeclare()
         with self._lock:
+            self._closed = True
             self.writer.close()
 
 

@@ -3,8 +3,10 @@
 Zenoh delivers samples on its own threads; the subscriber callbacks only put the raw
 payload on a bounded queue (blocking briefly when it is full, which pushes back on
 senders that publish with congestion control BLOCK). One processing thread decodes,
-validates, hands plots to the :class:`~radar_fusion.engine.Engine`, and publishes what
-the engine returns:
+validates, hands plots to the :class:`~radar_fusion.engine.Engine` and closes periods;
+one publishing thread sends what the engine returns and the health snapshots, so that
+a consumer that stalls its link (Zenoh then blocks every put towards it, for up to its
+``wait_before_close``) never holds up ingest or period processing:
 
     <prefix>/radar/*/plots   → Engine.ingest_plots     <prefix>/fusion/tracks        ← TrackBatch
     <prefix>/radar/*/status  → Engine.ingest_status    <prefix>/fusion/alerts/<kind> ← Alert
@@ -22,15 +24,17 @@ import logging
 import queue
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 import msgpack
+import numpy as np
 import zenoh
 
 from .config import BusConfig, Settings
 from .engine import Engine, PeriodOutput
+from .metrics import DaemonMetrics
 from .wire import Rejection, RadarStatus, decode_message, decode_plot_batch
 
 log = logging.getLogger("radar_fusion.bus")
@@ -108,11 +112,56 @@ class RateLimitedLog:
             self._suppressed[reason] += 1
 
 
+class ClockCheck:
+    """Each radar's clock against the other radars', in event time only (no wall clock,
+    so a replay at any speed gives the same estimates).
+
+    When a message of radar i arrives with time t (its newest plot, or its status time),
+    each other radar j that has sent something since i's previous message gives a sample
+    s_ij = t − w_j, w_j being j's watermark. With true clocks and time-ordered delivery,
+    s_ij is a fraction of a batch interval; clock offsets δ add δ_i − δ_j. The pair
+    offset D_ij = (median s_ij − median s_ji) / 2 cancels the lag common to both
+    directions, and radar i's offset is the median of {0} ∪ {D_ij over j}: with three or
+    more radars one wrong clock is blamed on its own radar; with two, the offset is split
+    between them. A transport delay of one radar's feed shows the same way as its clock
+    running behind. A silent radar gives no samples (its watermark does not move).
+    """
+
+    def __init__(self, n_radars: int, window: int = 64, min_samples: int = 8):
+        self.n = n_radars
+        self.min_samples = min_samples
+        self._samples = [[deque(maxlen=window) for _ in range(n_radars)] for _ in range(n_radars)]
+        self._seen_wm_s = np.full((n_radars, n_radars), -np.inf)
+        self._not_self = ~np.eye(n_radars, dtype=bool)
+
+    def observe(self, radar: int, t_s: float, watermark_s: np.ndarray) -> None:
+        """A message of ``radar`` stamped ``t_s``; ``watermark_s``: every radar's watermark before it."""
+        moved = (watermark_s > self._seen_wm_s[radar]) & self._not_self[radar]
+        for j in np.flatnonzero(moved).tolist():
+            self._samples[radar][j].append(t_s - float(watermark_s[j]))
+        self._seen_wm_s[radar, moved] = watermark_s[moved]
+
+    def offsets_s(self) -> list[Optional[float]]:
+        """Estimated clock offset of each radar in seconds (None: not enough data yet)."""
+        med = np.full((self.n, self.n), np.nan)
+        for i in range(self.n):
+            for j in range(self.n):
+                if len(self._samples[i][j]) >= self.min_samples:
+                    med[i, j] = float(np.median(self._samples[i][j]))
+        pair = (med - med.T) / 2.0
+        out: list[Optional[float]] = []
+        for i in range(self.n):
+            d = pair[i][self._not_self[i] & np.isfinite(pair[i])]
+            out.append(float(np.median(np.concatenate([[0.0], d]))) if d.size else None)
+        return out
+
+
 class FusionDaemon:
-    """The fusion daemon: one Zenoh session, one engine, one processing thread."""
+    """The fusion daemon: one Zenoh session, one engine, a processing and a publishing thread."""
 
     def __init__(self, settings: Settings, queue_size: int = 50_000, idle_flush_s: Optional[float] = None,
-                 base_dir: Optional[Path] = None):
+                 base_dir: Optional[Path] = None, outbox_size: int = 1024,
+                 clock_offset_limit_s: Optional[float] = None):
         from .safety_nets import SafetyNets
 
         self.settings = settings
@@ -129,18 +178,30 @@ class FusionDaemon:
         self.messages_processed = 0
         self.batches_published = 0
         self.overload = 0
+        # Outputs wait here for the publishing thread; when it is full the oldest is dropped.
+        self.outbox: queue.Queue = queue.Queue(maxsize=outbox_size)
+        self.outputs_dropped = 0
+        self.publish_errors = 0
+        self.clock = ClockCheck(len(self.engine.radar_ids))
+        # |estimated offset| above this marks a radar's clock suspect on the health key
+        self.clock_offset_limit_s = clock_offset_limit_s or getattr(settings.system, "clock_offset_limit_s", 2.0)
+        self.clock_offsets_s: list[Optional[float]] = [None] * len(self.engine.radar_ids)
+        self._health_pending = False  # a periodic health snapshot waits in the outbox
         self._last_processed = time.monotonic()
         self._log_rejection = RateLimitedLog()
         self._session: Optional[zenoh.Session] = None
         self._subs: list[Any] = []
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._thread: Optional[threading.Thread] = None
+        self._publisher: Optional[threading.Thread] = None
         self.on_output: Optional[Callable[[PeriodOutput], None]] = None
+        self.metrics = DaemonMetrics(settings.metrics.listen)  # private registry; served when listen is set
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> "FusionDaemon":
         bus = self.settings.bus
         cfg = zenoh_config(bus.mode, bus.listen, bus.connect, bus.multicast_scouting, bus.zenoh_config_file)
+        self.metrics.start()
         self._session = open_session(cfg)
         p = self.prefix
         # One subscriber for plots and status: its callback sees a sender's messages in
@@ -150,6 +211,8 @@ class FusionDaemon:
         self._pubs["health"] = self._session.declare_publisher(f"{p}/fusion/health")
         for kind in ("stca", "apw", "msaw"):
             self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
+        self._publisher = threading.Thread(target=self._publish_loop, name="fusion-publish", daemon=True)
+        self._publisher.start()
         self._thread = threading.Thread(target=self._run, name="fusion-engine", daemon=True)
         self._thread.start()
         log.info("fusion daemon up: mode=%s listen=%s connect=%s prefix=%s", bus.mode, bus.listen, bus.connect, p)
@@ -160,6 +223,12 @@ class FusionDaemon:
         self.stop_event.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
+        if self._publisher is not None:
+            try:
+                self.outbox.put(None, timeout=timeout_s)  # after the last batches and the final health
+            except queue.Full:
+                log.error("publishing thread stuck; %d outputs not sent", self.outbox.qsize())
+            self._publisher.join(timeout_s)
         for sub in self._subs:
             sub.undeclare()
         self._subs = []
@@ -169,6 +238,7 @@ class FusionDaemon:
         if self._session is not None:
             self._session.close()
             self._session = None
+        self.metrics.close()
         self.stopped.set()
 
     def __enter__(self) -> "FusionDaemon":
@@ -180,7 +250,7 @@ class FusionDaemon:
     # ------------------------------------------------------------------ input
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Zenoh's thread: copy out and hand over, nothing else.
-        item = (str(sample.key_expr), sample.payload.to_bytes())
+        item = (str(sample.key_expr), sample.payload.to_bytes(), time.monotonic())
         self.messages_received += 1
         try:
             self.queue.put(item, timeout=2.0)
@@ -199,6 +269,9 @@ class FusionDaemon:
             elif decoded.radar_id != radar_id:
                 self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
             else:
+                i = self.engine.radar_index.get(radar_id)
+                if i is not None and len(decoded):
+                    self.clock.observe(i, float(decoded.t_s.max()), self.engine.buffer.watermark_s)
                 self.engine.ingest_plots(decoded)
                 for reason, n in decoded.rejected.items():
                     self._log_rejection(reason, f"{n} plot(s) of {radar_id} seq {decoded.seq}")
@@ -209,6 +282,9 @@ class FusionDaemon:
             elif decoded.radar_id != radar_id:
                 self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
             else:
+                i = self.engine.radar_index.get(radar_id)
+                if i is not None:
+                    self.clock.observe(i, decoded.t, self.engine.buffer.watermark_s)
                 self.engine.ingest_status(decoded)
         else:
             self._reject(Rejection("schema", f"unknown key {key}"), radar_id)
@@ -226,11 +302,11 @@ class FusionDaemon:
         while True:
             stopping = self.stop_event.is_set()
             try:
-                key, payload = self.queue.get(timeout=0.05)
-                self._process_safely(key, payload)
+                key, payload, arrived_s = self.queue.get(timeout=0.05)
+                self._process_safely(key, payload, arrived_s)
                 for _ in range(1000):  # drain a burst before polling the engine
-                    key, payload = self.queue.get_nowait()
-                    self._process_safely(key, payload)
+                    key, payload, arrived_s = self.queue.get_nowait()
+                    self._process_safely(key, payload, arrived_s)
             except queue.Empty:
                 pass
             self._publish(self.engine.poll())
@@ -240,14 +316,18 @@ class FusionDaemon:
                 processed_at_flush = self.messages_processed
             now = time.monotonic()
             if now - last_health >= self.settings.bus.health_period_s:
-                self.publish_health()
+                self._check_clocks()
+                if not self._health_pending:  # one at a time while the publisher is held up
+                    self._health_pending = True
+                    self._emit(("health", self.health_message()))
                 last_health = now
             if stopping and self.queue.empty():
                 break
         self._publish(self.engine.flush())
-        self.publish_health()
+        self._check_clocks()
+        self._emit(("health", self.health_message()))  # the final health, after the last batches
 
-    def _process_safely(self, key: str, payload: bytes) -> None:
+    def _process_safely(self, key: str, payload: bytes, arrived_s: Optional[float] = None) -> None:
         try:
             self._handle(key, payload)
         except Exception:  # a bug must not take the daemon down; it is counted and logged
@@ -255,9 +335,52 @@ class FusionDaemon:
             self.engine.reject("internal_error")
         self.messages_processed += 1
         self._last_processed = time.monotonic()
+        if arrived_s is not None:  # monotonic time the Zenoh callback queued it
+            self.metrics.observe_ingest(self._last_processed - arrived_s)
 
+    def _check_clocks(self) -> None:
+        offsets = self.clock.offsets_s()
+        for rid, old, new in zip(self.engine.radar_ids, self.clock_offsets_s, offsets):
+            was = old is not None and abs(old) > self.clock_offset_limit_s
+            now = new is not None and abs(new) > self.clock_offset_limit_s
+            if now and not was:
+                log.warning("radar %s: clock offset %.1f s against the other radars (limit %.1f s)",
+                            rid, new, self.clock_offset_limit_s)
+            elif was and not now:
+                log.info("radar %s: clock back within %.1f s of the other radars", rid, self.clock_offset_limit_s)
+        self.clock_offsets_s = offsets
+
+    # ------------------------------------------------------------- publishing
     def _publish(self, outputs: list[PeriodOutput]) -> None:
         for out in outputs:
+            self.metrics.observe_period(out.processing_s)
+            self._emit(out)
+
+    def _emit(self, item: Any) -> None:
+        """Hand an output to the publishing thread; never waits (drops the oldest when full)."""
+        try:
+            self.outbox.put_nowait(item)
+        except queue.Full:
+            try:
+                dropped = self.outbox.get_nowait()
+                if isinstance(dropped, tuple):  # a health snapshot: a newer one will follow
+                    self._health_pending = False
+                else:
+                    self.outputs_dropped += 1
+            except queue.Empty:
+                pass
+            self.outbox.put_nowait(item)
+
+    def _publish_loop(self) -> None:
+        while True:
+            item = self.outbox.get()
+            if item is None:
+                return
+            if isinstance(item, tuple):  # ("health", snapshot taken by the processing thread)
+                self._health_pending = False
+                self.publish_health(item[1])
+                continue
+            out: PeriodOutput = item
             try:
                 self._pubs["tracks"].put(msgpack.packb(out.track_batch, use_bin_type=True))
                 for alert in out.alerts:
@@ -267,7 +390,7 @@ class FusionDaemon:
                     self.on_output(out)
             except Exception:
                 log.exception("publishing period %s failed", out.period)
-                self.engine.counters["publish_errors"] += 1
+                self.publish_errors += 1
 
     def health_message(self) -> dict[str, Any]:
         h = self.engine.health()
@@ -278,12 +401,28 @@ class FusionDaemon:
             messages_processed=self.messages_processed,
             queue_depth=self.queue.qsize(),
             batches_published=self.batches_published,
+            outbox_depth=self.outbox.qsize(),
+            outputs_dropped=self.outputs_dropped,
+            publish_errors=self.publish_errors,
         )
+        for rid, offset_s in zip(self.engine.radar_ids, self.clock_offsets_s):
+            h["radars"][rid]["clock_offset_s"] = offset_s
+            h["radars"][rid]["clock_suspect"] = offset_s is not None and abs(offset_s) > self.clock_offset_limit_s
         return {"v": 1, "t": now, "uptime_s": now - self.started_wall, **h, "lag_s": (now - newest) if newest else None}
 
-    def publish_health(self) -> None:
+    def publish_health(self, health: Optional[dict[str, Any]] = None) -> None:
+        """Publish a health message: ``health`` (a snapshot), or one built now. Its
+        publication counters are those of the moment it goes out."""
         try:
-            self._pubs["health"].put(msgpack.packb(self.health_message(), use_bin_type=True))
+            health = self.health_message() if health is None else health
+            health["counters"].update(
+                batches_published=self.batches_published,
+                outbox_depth=self.outbox.qsize(),
+                outputs_dropped=self.outputs_dropped,
+                publish_errors=self.publish_errors,
+            )
+            self.metrics.update_health(health)
+            self._pubs["health"].put(msgpack.packb(health, use_bin_type=True))
         except Exception:
             log.exception("publishing health failed")
 

@@ -6,6 +6,7 @@
     [tracking] Singer filter, gates and track life-cycle parameters (all defaulted)
     [outliers] live wild-plot gate (Hu 2013) parameters (all defaulted)
     [safety_nets] STCA / APW / MSAW parameters (all defaulted)
+    [metrics]  listen = "127.0.0.1:9108": Prometheus endpoint (off when absent)
 
 Environment overrides use the prefix ``RADAR_FUSION_`` and ``__`` between levels, e.g.
 ``RADAR_FUSION_BUS__MODE=client``. A bad file or value raises :class:`ConfigError`,
@@ -58,6 +59,13 @@ class BusConfig(_Section):
     multicast_scouting: bool = False
     zenoh_config_file: Optional[str] = Field(
         None, description="optional zenoh JSON5 config (TLS, access control); listen/connect/mode still apply"
+    )
+
+
+class MetricsConfig(_Section):
+    listen: Optional[str] = Field(
+        None, pattern=r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]*):[0-9]{1,5}$",
+        description="HOST:PORT of the Prometheus /metrics endpoint, e.g. 127.0.0.1:9108; off when absent",
     )
 
 
@@ -137,6 +145,7 @@ class Settings(BaseSettings):
     radars: list[RadarConfig] = Field(min_length=1)
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
     outliers: OutlierConfig = Field(default_factory=OutlierConfig)
+    metrics: MetricsConfig = Field(default_factory=MetricsConfig)
     safety_nets: dict[str, Any] = Field(default_factory=dict)
 
     @classmethod

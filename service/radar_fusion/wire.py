@@ -40,6 +40,8 @@ REJECTION_REASONS = (
     "plot_future",  # plot time implausibly far ahead of the radar's watermark
     "buffer_full",  # the radar already has its limit of plots waiting for open periods
     "status_future",  # a radar status time implausibly far ahead of every radar's watermark
+    "overload",  # the daemon's input queue was full: the message was dropped unprocessed
+    "internal_error",  # processing the message raised (a bug): it was dropped, the daemon went on
 )
 
 MODE_S_PATTERN = r"^[0-9A-Fa-f]{6}$"
@@ -152,6 +154,10 @@ class RadarHealth(BaseModel):
     seq_gaps: int = 0
     rejected: dict[str, int] = Field(default_factory=dict)
     wild: int = Field(0, description="plots dropped by the live wild-plot gate (counted apart from rejections)")
+    clock_offset_s: Optional[float] = Field(
+        None, description="estimated clock offset against the other radars (event time), seconds; None: too few data"
+    )
+    clock_suspect: bool = Field(False, description="|clock_offset_s| is above the daemon's limit")
 
 
 class Health(_Message):
@@ -274,6 +280,8 @@ def decode_plot_batch(payload: bytes, max_bytes: int = 4 << 20) -> DecodedPlots 
         return Rejection("schema", exc.errors()[0]["msg"])
     if not isinstance(plots, list):
         return Rejection("schema", "plots is not a list")
+    if len(plots) > MAX_PLOTS_PER_BATCH:
+        return Rejection("schema", f"more than {MAX_PLOTS_PER_BATCH} plots in one batch")
     rejected: dict[str, int] = {}
     try:
         good = _PLOT_LIST.validate_python(plots)
