@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 
-.PHONY: run test bench clean
+.PHONY: run test bench report clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +21,9 @@ test: $(VENV)/.installed
 
 bench: $(VENV)/.installed
 	$(BIN)/radar-fusion bench
+
+report: $(VENV)/.installed
+	$(BIN)/radar-fusion bench --report reports/bench
 
 clean:
 	rm -rf $(VENV) out reports .pytest_cache

@@ -1,0 +1,147 @@
+"""The Stone Soup reference tracker and the side-by-side benchmark (issue 7)."""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stonesoup")
+
+from radar_fusion import config  # noqa: E402
+from radar_fusion.tools import baseline_stonesoup as bs  # noqa: E402
+from radar_fusion.tools import bench  # noqa: E402
+from radar_fusion.tools import simulate as sm  # noqa: E402
+
+
+def _small_case(n_aircraft: int = 8, n_radars: int = 3, duration_s: float = 48.0, seed: int = 3):
+    scenario = sm.scenario_for_benchmark(n_aircraft, n_radars, duration_s, seed)
+    sim = sm.simulate(scenario, encode=False)
+    settings = config.settings_from_dict(tomllib.loads(sm.config_toml(scenario)))
+    return scenario, sim, settings
+
+
+@pytest.fixture(scope="module")
+def case():
+    return _small_case(n_aircraft=6, duration_s=40.0)
+
+
+def test_steps_are_time_ordered_single_radar_and_within_periods(case):
+    _scenario, sim, settings = case
+    plots = bs.convert_plots(settings, [c.to_decoded() for c in sim.plot_columns])
+    assert plots.t_s.size == sum(len(c) for c in sim.plot_columns)  # all inside range, all valid
+    assert np.all(np.diff(plots.t_s) >= 0)
+    rotation = np.array([r.rotation_period_s for r in settings.radars])
+    steps = bs.time_ordered_steps(plots, rotation, settings.system.period_s)
+    assert steps[0][0] == 0 and steps[-1][1] == plots.t_s.size
+    assert all(a[1] == b[0] for a, b in zip(steps, steps[1:]))  # contiguous cover
+    period = np.floor(plots.t_s / settings.system.period_s)
+    for s, e in steps:
+        assert np.unique(plots.radar[s:e]).size == 1
+        assert np.unique(period[s:e]).size == 1
+        assert plots.t_s[e - 1] - plots.t_s[s] <= 0.25 * rotation[plots.radar[s]]
+
+
+def test_plots_beyond_max_range_are_dropped_as_the_engine_does(case):
+    _scenario, sim, settings = case
+    batch = next(c for c in sim.plot_columns if len(c) >= 2).to_decoded()
+    radar = next(r for r in settings.radars if r.id == batch.radar_id)
+    batch.range_m[0] = radar.max_range_m + 1.0
+    plots = bs.convert_plots(settings, [batch])
+    assert plots.n_offered == len(batch)
+    assert plots.t_s.size == len(batch) - 1
+    assert batch.t_s[0] not in plots.t_s or np.count_nonzero(batch.t_s == batch.t_s[0]) > 1
+
+
+def test_stonesoup_tracks_a_small_scenario(case):
+    scenario, sim, settings = case
+    run = bs.run_stonesoup(settings, [c.to_decoded() for c in sim.plot_columns])
+    assert run.completed and run.plots_processed == run.plots_used > 0
+    assert run.batches, "no track batches emitted"
+    period_s = settings.system.period_s
+    assert all(abs(b["t"] / period_s - round(b["t"] / period_s)) < 1e-9 for b in run.batches)
+    # Independent check against the exact truth (not tools/evaluate.py): at the last
+    # batches every aircraft in coverage has a confirmed track near it, and the matched
+    # position error is of the order of the plot noise (50-80 m range, 0.04-0.1° azimuth).
+    errors = []
+    for batch in run.batches[-3:]:
+        tracks = [t for t in batch["tracks"] if t["status"] == "confirmed"]
+        assert tracks
+        xy = np.array([[t["x_m"], t["y_m"]] for t in tracks])
+        truth = sim.truth_at(np.arange(len(scenario.targets)), np.full(len(scenario.targets), batch["t"]))
+        for k in range(len(scenario.targets)):
+            if not truth["active"][k]:
+                continue
+            d = np.hypot(xy[:, 0] - truth["x_m"][k], xy[:, 1] - truth["y_m"][k]).min()
+            errors.append(d)
+    errors = np.asarray(errors)
+    assert errors.size >= 2 * len(scenario.targets)
+    assert np.mean(errors < 1000.0) >= 0.9, errors
+    rms = math.sqrt(np.mean(errors[errors < 1000.0] ** 2))
+    assert 5.0 < rms < 300.0, rms
+
+
+def test_time_budget_stops_the_run_early(case):
+    _scenario, sim, settings = case
+    run = bs.run_stonesoup(settings, [c.to_decoded() for c in sim.plot_columns], time_budget_s=0.0)
+    assert not run.completed
+    assert 0 < run.plots_processed < run.plots_used
+
+
+def test_pcrb_is_a_floor_that_falls_with_more_radars():
+    floors = {}
+    for radars in (1, 3):
+        _scenario, sim, settings = _small_case(n_aircraft=6, n_radars=radars, duration_s=60.0, seed=5)
+        floors[radars] = bench.measurement_floor(sim, settings, settle_s=20.0)
+    for f in floors.values():
+        assert f["pcrb_points"] > 0 and f["pcrb_pos_rms_m"] > 0.0
+        # simulated noise without gross errors matches what the covariances predict (biases add a little)
+        assert 0.8 * f["noise_model_rms_m"] < f["noise_rms_m"] < 1.6 * f["noise_model_rms_m"]
+    # With one 4 s radar the Singer model's prediction to the period time can exceed one
+    # plot's error; three radars' plots bring the floor well below it.
+    assert floors[3]["pcrb_pos_rms_m"] < 0.8 * floors[3]["noise_model_rms_m"]
+    assert floors[3]["pcrb_pos_rms_m"] < 0.8 * floors[1]["pcrb_pos_rms_m"]
+
+
+def test_accuracy_job_scores_ours_and_each_radar_alone(tmp_path):
+    case = {"kind": "benchmark", "aircraft": 6, "radars": 2, "duration_s": 40.0}
+    info = bench.simulate_case(case, 4, str(tmp_path), settle_s=10.0)
+    assert info["plots"] > 0 and info["radars"] == 2
+    assert 0 < info["pcrb_pos_rms_m"] < info["noise_rms_m"]
+    acc = bench.run_accuracy(str(tmp_path), settle_s=10.0)
+    ours = acc["ours"]
+    assert set(acc["single"]) == {"r00", "r01"}
+    assert acc["best_single_radar"] in acc["single"]
+    assert ours["n_displayed_tracks"] >= 6 and ours["completeness_mean"] > 0.5
+    assert 10.0 < ours["pos_rms_m"] < 300.0
+    # GOSPA after the settling time leaves out the track-initiation periods
+    assert ours["gospa_settled_mean_m"] <= ours["gospa_mean_m"]
+    same = acc["same_aircraft"]
+    assert same["aircraft"] > 0 and same["fused_m"] > 0 and same["single_m"] > 0
+
+
+def test_bench_side_by_side_end_to_end(tmp_path, capsys):
+    report = tmp_path / "report"
+    rc = bench.main([
+        "--report", str(report), "--sizes", "6x2", "--duration-s", "20", "--warmup-s", "6", "--settle-s", "8",
+        "--no-adsb", "--no-accuracy", "--latency-speed", "0", "--bus-timeout-s", "60",
+    ])  # fmt: skip
+    assert rc == 0
+    for name in ("report.md", "summary.md", "results.json", "throughput.png"):
+        assert (report / name).stat().st_size > 0, name
+    results = json.loads((report / "results.json").read_text())
+    (row,) = results["rows"]
+    assert row["engine"]["plots_per_s"] > 0
+    assert row["bus"]["completed"] and row["bus"]["plots_per_s"] > 0
+    assert row["bus"]["plots"] == row["sim"]["plots"]
+    assert row["bus"]["e2e_periods"] > 0 and 0 < row["bus"]["e2e_p50_ms"] < 5000
+    assert "bus_paced" not in row  # --latency-speed 0
+    assert row["reference"]["completed"] and row["reference"]["plots_per_s"] > 0
+    assert row["reference"]["scores"]["n_displayed_tracks"] > 0
+    assert "accuracy" not in row  # --no-accuracy
+    md = (report / "report.md").read_text()
+    assert "Stone Soup" in md and "| 6×2 |" in md
+    assert "engine / Stone Soup" in capsys.readouterr().out
