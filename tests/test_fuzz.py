@@ -1,0 +1,520 @@
+"""Hostile input (issue 8, item 1): the decoder, the engine's ingest and the daemon on a
+real Zenoh bus are fed garbage bytes, truncated and bit-flipped msgpack, wrong types,
+huge arrays, NaN/inf, negative ranges, azimuths outside [0, 360), times far in the past
+or future, unknown radar ids, duplicate and out-of-order sequence numbers, oversize
+payloads. Properties: nothing raises, every rejection is counted by a reason of
+``wire.REJECTION_REASONS``, one bad plot never spoils the good plots of its batch, the
+per-radar buffer is bounded, and good traffic sent after the hostile traffic still gives
+accurate tracks. Run with ``-s`` to see how many inputs were tried."""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import random
+import time
+import tomllib
+from collections import Counter
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from radar_fusion import wire
+from radar_fusion.bus import FusionDaemon, open_session, reliable_publisher, zenoh_config
+from radar_fusion.config import settings_from_dict
+from radar_fusion.engine import Engine
+from radar_fusion.tools import evaluate as ev
+from radar_fusion.tools import simulate as sim
+from radar_fusion.tools.demo import TrackCollector, wait_until
+from radar_fusion.tools.replay import replay_into_engine
+
+REASONS = set(wire.REJECTION_REASONS)
+INPUTS: Counter = Counter()  # hostile messages tried, per kind; printed when the module ends
+SKIPPED_VALID = [0]  # bus run: mutations that decoded as valid new data, not sent
+# FUZZ_EXAMPLES=5000 pytest -s tests/test_fuzz.py: a longer run than the default one
+FUZZ = settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", "150")), deadline=None,
+                suppress_health_check=[HealthCheck.too_slow], derandomize=True)
+SCENARIO = sim.preset("demo", seed=5, duration_s=120.0)
+SIMULATION = sim.simulate(SCENARIO)
+CONFIG = tomllib.loads(sim.config_toml(SCENARIO))
+RADAR_IDS = [r["id"] for r in CONFIG["radars"]]
+T0 = SCENARIO.start_t_s
+
+
+@pytest.fixture(scope="module", autouse=True)
+def report_inputs():
+    yield
+    detail = ", ".join(f"{name} {n}" for name, n in sorted(INPUTS.items()))
+    print(f"\nhostile inputs tried: {sum(INPUTS.values())} ({detail}; bus mutations skipped as valid: "
+          f"{SKIPPED_VALID[0]})")
+
+
+def good_plot(t_s=T0 + 10.0, range_m=120_000.0, azimuth_deg=45.0):
+    return {"t": t_s, "range_m": range_m, "azimuth_deg": azimuth_deg, "fl": 350.0, "mode3a": 0o1234,
+            "mode_s": "4CA1F3", "track_no": 17, "kind": "cmb"}
+
+
+def check_decoded(d) -> None:
+    """What any decoder result must satisfy: a counted reason, or plots inside the contract."""
+    if isinstance(d, wire.Rejection):
+        assert d.reason in REASONS
+        return
+    assert set(d.rejected) <= REASONS and all(n > 0 for n in d.rejected.values())
+    n = len(d)
+    for col in (d.range_m, d.azimuth_deg, d.fl, d.mode3a, d.mode_s, d.track_no, d.kind):
+        assert col.shape == (n,)
+    assert np.isfinite(d.t_s).all() and np.isfinite(d.range_m).all() and np.isfinite(d.azimuth_deg).all()
+    assert ((d.t_s > 0) & (d.t_s < 1e10)).all()
+    assert ((d.range_m >= 0) & (d.azimuth_deg >= 0) & (d.azimuth_deg < 360)).all()
+    assert (np.isnan(d.fl) | ((d.fl >= -20) & (d.fl <= 1300))).all()
+    assert ((d.mode3a >= -1) & (d.mode3a <= 0o7777)).all() and ((d.mode_s >= -1) & (d.mode_s < 1 << 24)).all()
+
+
+# ------------------------------------------------------------------ hostile values
+FLOATS = st.floats(allow_nan=True, allow_infinity=True)
+SCALARS = st.one_of(
+    st.none(), st.booleans(), st.integers(-(2**63), 2**64 - 1), FLOATS, st.text(max_size=12), st.binary(max_size=12)
+)
+ANY = st.recursive(
+    SCALARS, lambda kids: st.one_of(st.lists(kids, max_size=4), st.dictionaries(st.text(max_size=8), kids, max_size=4)),
+    max_leaves=12,
+)
+PLOT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind")
+HOSTILE_PLOT = st.one_of(
+    ANY,
+    st.dictionaries(st.sampled_from(PLOT_FIELDS), st.one_of(SCALARS, ANY), max_size=8),
+    st.builds(lambda base, k, v: {**base, k: v}, st.just(good_plot()), st.sampled_from(PLOT_FIELDS), SCALARS),
+)
+HOSTILE_BATCH = st.fixed_dictionaries(
+    {},
+    optional={
+        "v": st.one_of(st.just(1), SCALARS),
+        "radar_id": st.one_of(st.sampled_from(RADAR_IDS + ["intruder", "r 1", ""]), SCALARS),
+        "seq": st.one_of(st.integers(0, 50), SCALARS),
+        "plots": st.one_of(st.lists(st.one_of(st.just(good_plot()), HOSTILE_PLOT), max_size=12), ANY),
+        "extra": ANY,
+    },
+)
+
+
+def pack(obj) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+@FUZZ
+@given(st.binary(max_size=600))
+def test_arbitrary_bytes_are_rejected_by_reason_never_raised(payload):
+    INPUTS["decoder: random bytes"] += 1
+    check_decoded(wire.decode_plot_batch(payload))
+    status = wire.decode_message(payload, wire.RadarStatus)
+    assert isinstance(status, wire.RadarStatus) or status.reason in REASONS
+
+
+@FUZZ
+@given(HOSTILE_BATCH)
+def test_hostile_msgpack_structures_never_raise(obj):
+    INPUTS["decoder: hostile structures"] += 1
+    payload = pack(obj)
+    check_decoded(wire.decode_plot_batch(payload))
+    for model in (wire.RadarStatus, wire.TrackBatch, wire.Health):
+        r = wire.decode_message(payload, model)
+        assert isinstance(r, model) or r.reason in REASONS
+
+
+@FUZZ
+@given(st.lists(st.just(good_plot()), min_size=1, max_size=30), st.data())
+def test_truncated_or_padded_msgpack_is_malformed(plots, data):
+    INPUTS["decoder: truncated/padded"] += 2
+    payload = pack({"v": 1, "radar_id": "app", "seq": 1, "plots": plots})
+    cut = data.draw(st.integers(0, len(payload) - 1))
+    r = wire.decode_plot_batch(payload[:cut])
+    assert isinstance(r, wire.Rejection) and r.reason == "malformed_msgpack"
+    tail = data.draw(st.binary(min_size=1, max_size=16))
+    r = wire.decode_plot_batch(payload + tail)
+    assert isinstance(r, wire.Rejection) and r.reason == "malformed_msgpack"
+
+
+def test_huge_arrays_and_deep_nesting_are_refused_cheaply():
+    claims = {
+        "array32 of 4e9 items": b"\xdd\xff\xff\xff\xff",
+        "map32 of 4e9 pairs": b"\xdf\xff\xff\xff\xff",
+        "str32 of 4 GB": b"\xdb\xff\xff\xff\xff",
+        "bin32 of 4 GB": b"\xc6\xff\xff\xff\xff",
+        "100k nested arrays": b"\x91" * 100_000 + b"\xc0",
+        "plots of MAX+2 items": pack({"v": 1, "radar_id": "app", "seq": 1,
+                                      "plots": [0] * (wire.MAX_PLOTS_PER_BATCH + 2)}),
+        "a plot with 65 keys": pack({"v": 1, "radar_id": "app", "seq": 1,
+                                     "plots": [{f"k{i}": i for i in range(65)}]}),
+    }
+    for name, payload in claims.items():
+        INPUTS["decoder: huge claims"] += 1
+        t0 = time.perf_counter()
+        r = wire.decode_plot_batch(payload)
+        assert isinstance(r, wire.Rejection) and r.reason == "malformed_msgpack", name
+        assert time.perf_counter() - t0 < 0.5, name
+    big = pack({"v": 1, "radar_id": "app", "seq": 1, "plots": [good_plot()] * wire.MAX_PLOTS_PER_BATCH})
+    r = wire.decode_plot_batch(big, max_bytes=len(big) - 1)
+    assert isinstance(r, wire.Rejection) and r.reason == "oversize"
+    d = wire.decode_plot_batch(big, max_bytes=len(big))
+    assert isinstance(d, wire.DecodedPlots) and len(d) == wire.MAX_PLOTS_PER_BATCH
+
+
+def test_a_batch_one_plot_over_the_limit_is_refused():
+    INPUTS["decoder: huge claims"] += 1
+    over = pack({"v": 1, "radar_id": "app", "seq": 1, "plots": [good_plot()] * (wire.MAX_PLOTS_PER_BATCH + 1)})
+    r = wire.decode_plot_batch(over, max_bytes=len(over))
+    assert isinstance(r, wire.Rejection) and r.reason in ("schema", "malformed_msgpack")
+
+
+# One mutation of one field, and the reason it must be refused with.
+BAD_PLOTS = [
+    *[({"t": v}, "plot_non_finite") for v in (math.nan, math.inf, -math.inf)],
+    *[({"range_m": v}, "plot_non_finite") for v in (math.nan, math.inf)],
+    *[({"azimuth_deg": v}, "plot_non_finite") for v in (math.nan, -math.inf)],
+    ({"fl": math.nan}, "plot_non_finite"),
+    *[({"range_m": v}, "plot_out_of_range") for v in (-1.0, -1e9, 2e6 + 1)],
+    *[({"azimuth_deg": v}, "plot_out_of_range") for v in (360.0, 720.0, -0.001, -360.0)],
+    *[({"t": v}, "plot_out_of_range") for v in (0.0, -T0, 1e10, 1e300)],
+    *[({"fl": v}, "plot_out_of_range") for v in (-21.0, 1301.0)],
+    *[({"mode3a": v}, "plot_out_of_range") for v in (-1, 0o10000, 2**64 - 1)],
+    *[({"mode_s": v}, "plot_out_of_range") for v in ("XYZ123", "4CA1F", "4CA1F3F", "")],
+    *[({"track_no": v}, "plot_out_of_range") for v in (-1, 2**32)],
+    *[({"range_m": v}, "plot_schema") for v in ("120000", None, True, [1.0], {"m": 1.0}, b"\x00")],
+    *[({"t": v}, "plot_schema") for v in ("2018-08-01T08:00:00Z", None, False)],
+    *[({"mode3a": v}, "plot_schema") for v in (True, 12.5, "1234")],
+    ({"mode_s": 0x4CA1F3}, "plot_schema"),
+    ({"track_no": 1.5}, "plot_schema"),
+    ({"kind": "laser"}, "plot_schema"),
+    ({"kind": 1}, "plot_schema"),
+]
+
+
+@FUZZ
+@given(
+    st.lists(st.tuples(st.floats(1.0, 400_000.0), st.floats(0.0, 359.999)), min_size=1, max_size=25),
+    st.lists(st.one_of(st.sampled_from(BAD_PLOTS),
+                       st.sampled_from(["t", "range_m", "azimuth_deg"]).map(lambda f: ("missing", f)),
+                       st.sampled_from([None, 7, "plot", [1, 2], b"\x01"]).map(lambda v: ("not a map", v))),
+             max_size=10),
+    st.randoms(use_true_random=False),
+)
+def test_one_bad_plot_never_spoils_the_good_plots_of_its_batch(goods, bads, rnd):
+    INPUTS["decoder: good+bad plot batches"] += 1
+    plots = [("good", good_plot(T0 + i, r, a)) for i, (r, a) in enumerate(goods)]
+    expected: Counter = Counter()
+    for bad in bads:
+        if bad[0] == "missing":
+            p = good_plot()
+            del p[bad[1]]
+            plots.append(("bad", p))
+            expected["plot_schema"] += 1
+        elif bad[0] == "not a map":
+            plots.append(("bad", bad[1]))
+            expected["plot_schema"] += 1
+        else:
+            mutation, reason = bad
+            plots.append(("bad", {**good_plot(), **mutation}))
+            expected[reason] += 1
+    rnd.shuffle(plots)
+    d = wire.decode_plot_batch(pack({"v": 1, "radar_id": "app", "seq": 9, "plots": [p for _, p in plots]}))
+    assert isinstance(d, wire.DecodedPlots)
+    check_decoded(d)
+    assert d.rejected == dict(expected)
+    good_in_order = [p for kind, p in plots if kind == "good"]
+    assert d.t_s.tolist() == [p["t"] for p in good_in_order]
+    assert d.range_m.tolist() == [p["range_m"] for p in good_in_order]
+    assert d.azimuth_deg.tolist() == [p["azimuth_deg"] for p in good_in_order]
+
+
+# ------------------------------------------------------------------ the engine
+ENGINE_SETTINGS = settings_from_dict({**CONFIG, "system": {**CONFIG["system"], "max_buffered_plots_per_radar": 60}})
+OFFSETS_S = st.one_of(
+    st.floats(-20.0, 200.0),  # ordinary traffic
+    st.floats(-T0 + 1.0, -3600.0),  # far in the past (down to 1970)
+    st.floats(3600.0, 9.99e9 - T0),  # far in the future (up to the contract's limit)
+    st.sampled_from([-1e-6, 59.9, 60.1, 1e6]),
+)
+ENGINE_PLOT = st.builds(
+    lambda dt, r, a, key: {"t": T0 + dt, "range_m": r, "azimuth_deg": a, "fl": 300.0, "track_no": key,
+                           "mode_s": None if key is None else f"{key:06X}"},
+    OFFSETS_S,
+    st.one_of(st.floats(0.0, 600_000.0), st.sampled_from([-5.0, math.nan, math.inf, 1e7])),
+    st.one_of(st.floats(0.0, 359.999), st.sampled_from([360.0, -1.0, 1e4, math.nan])),
+    st.one_of(st.none(), st.integers(0, 40)),
+)
+EVENT = st.one_of(
+    st.tuples(st.just("plots"), st.sampled_from(RADAR_IDS + ["intruder"]), st.integers(0, 12),
+              st.lists(ENGINE_PLOT, max_size=40)),
+    st.tuples(st.just("status"), st.sampled_from(RADAR_IDS + ["intruder"]), OFFSETS_S,
+              st.sampled_from(["north", "sector", "heartbeat"])),
+)
+ENGINE_PLOT_REASONS = ("plot_beyond_max_range", "plot_late", "plot_future", "buffer_full")
+
+
+@FUZZ
+@given(st.lists(EVENT, min_size=1, max_size=30))
+def test_engine_ingest_of_hostile_batches_never_raises_and_accounts_for_every_plot(events):
+    INPUTS["engine: messages (in sequences of 1-30)"] += len(events)
+    engine = Engine(ENGINE_SETTINGS)
+    outputs, decoder_rejected = [], Counter()
+    for kind, radar_id, a, b in events:
+        if kind == "plots":
+            d = wire.decode_plot_batch(pack({"v": 1, "radar_id": radar_id, "seq": a, "plots": b}))
+            check_decoded(d)
+            decoder_rejected.update(d.rejected)
+            engine.ingest_plots(d)
+        else:
+            s = wire.decode_message(pack({"v": 1, "radar_id": radar_id, "t": T0 + a, "kind": b}), wire.RadarStatus)
+            if isinstance(s, wire.Rejection):
+                assert s.reason in REASONS
+                engine.reject(s.reason)
+            else:
+                engine.ingest_status(s)
+        outputs += engine.poll()
+        assert engine.buffer.buffered_plots <= len(RADAR_IDS) * 60
+    outputs += engine.flush()
+    h = engine.health()
+    rejected, counters = h["rejected"], h["counters"]
+    assert set(rejected) <= REASONS
+    # every plot that reached the engine was accepted or refused by a counted reason
+    assert counters.get("plots_received", 0) == counters.get("plots_accepted", 0) + sum(
+        rejected.get(r, 0) for r in ENGINE_PLOT_REASONS)
+    for reason, n in decoder_rejected.items():
+        assert rejected.get(reason, 0) == n
+    periods = [o.period for o in outputs]
+    assert periods == sorted(set(periods))
+    for o in outputs:
+        batch = wire.TrackBatch.model_validate(o.track_batch)  # finite, typed, as the contract says
+        assert all(t.t == batch.t for t in batch.tracks)
+
+
+@functools.cache
+def _clean_plots_accepted() -> int:
+    engine = Engine(settings_from_dict(CONFIG))
+    replay_into_engine(engine, SIMULATION.messages)
+    return engine.counters["plots_accepted"]
+
+
+def _with_extra_plot(messages, nth_batch: int, dt_s: float):
+    """The messages with one extra plot, ``dt_s`` after the first plot of the n-th
+    non-empty plot batch (same radar, same aircraft otherwise)."""
+    out, seen = list(messages), 0
+    for j, (t_s, key, payload) in enumerate(out):
+        obj = msgpack.unpackb(payload) if key.endswith("/plots") else None
+        if obj and obj["plots"]:
+            seen += 1
+            if seen == nth_batch:
+                obj["plots"].append(dict(obj["plots"][0], t=obj["plots"][0]["t"] + dt_s))
+                out[j] = (t_s, key, pack(obj))
+                return out
+    raise AssertionError("not enough plot batches")
+
+
+@pytest.mark.parametrize("nth_batch, dt_s", [(1, 1e9), (1, 50.0), (40, 50.0)],
+                         ids=["first batch, +1e9 s", "first batch, +50 s", "40th batch, +50 s"])
+def test_one_plot_far_in_the_future_does_not_make_the_other_radars_late(nth_batch, dt_s):
+    """One plot of a radar far ahead of the others (a clock jump, a forged time) is
+    refused as plot_future. Accepted, it would push that radar's watermark more than
+    radar_timeout_s past the others, which would then count as silent: every period would
+    close on that one radar and all their good plots would become late."""
+    INPUTS["engine: clock-jump replays"] += 1
+    engine = Engine(settings_from_dict(CONFIG))
+    replay_into_engine(engine, _with_extra_plot(SIMULATION.messages, nth_batch, dt_s))
+    assert engine.counters["plots_accepted"] == _clean_plots_accepted()
+    assert dict(engine.rejected) == {"plot_future": 1}
+
+
+def test_a_status_far_in_the_future_does_not_make_the_engine_close_every_empty_period():
+    """One status from a radar not heard before, 2,000 s ahead (a clock jump), neither
+    moves the period clock nor makes the engine close the 500 empty periods in between
+    one at a time (1e9 s ahead, still inside the contract, that would take days and the
+    daemon's only processing thread with it)."""
+    INPUTS["engine: status clock jump"] += 1
+    engine = Engine(settings_from_dict(CONFIG))
+    engine.ingest_plots(wire.decode_plot_batch(pack({"v": 1, "radar_id": "app", "seq": 0,
+                                                     "plots": [good_plot(T0)]})))
+    engine.ingest_status(wire.RadarStatus(radar_id="east", t=T0 + 2000.0, kind="north"))
+    outputs = engine.poll()
+    assert len(outputs) <= 20, f"{len(outputs)} periods closed"
+
+
+def test_a_flooding_radar_is_bounded_per_radar_and_does_not_starve_the_others():
+    limit = 500
+    engine = Engine(settings_from_dict({**CONFIG, "system": {**CONFIG["system"],
+                                                             "max_buffered_plots_per_radar": limit}}))
+    flood, quiet = RADAR_IDS[0], RADAR_IDS[1]
+
+    def batch(radar_id, seq, t_s, n):
+        plots = [good_plot(t_s, 100_000.0 + 10.0 * k, (7.0 * k) % 360.0) for k in range(n)]
+        return wire.decode_plot_batch(pack({"v": 1, "radar_id": radar_id, "seq": seq, "plots": plots}))
+
+    t_s = math.floor(T0 / 4.0) * 4.0 + 1.0
+    engine.ingest_plots(batch(quiet, 0, t_s, 5))  # the quiet radar holds the period open
+    for seq in range(20):  # 2,000 plots at one time: the period cannot close
+        INPUTS["engine: flood batches"] += 1
+        engine.ingest_plots(batch(flood, seq, t_s, 100))
+        engine.poll()
+    assert engine.buffer.buffered_plots == limit + 5
+    assert engine.rejected["buffer_full"] == 2000 - limit
+    assert engine.radars[0].rejected["buffer_full"] == 2000 - limit and not engine.radars[1].rejected
+    assert engine.ingest_plots(batch(quiet, 1, t_s + 0.5, 5)) == 5  # the others are not starved
+    # once the quiet radar moves on, the period closes, the buffer drains, plots flow again
+    engine.ingest_plots(batch(quiet, 2, t_s + 8.0, 1))
+    # still full: this plot is refused, but it moves the flooding radar's watermark on
+    assert engine.ingest_plots(batch(flood, 20, t_s + 8.0, 1)) == 0
+    outputs = engine.poll()
+    assert outputs and sum(o.n_plots for o in outputs) >= limit + 10 - 100  # wild-gated plots aside
+    assert engine.buffer.buffered_plots == 1
+    assert engine.ingest_plots(batch(flood, 21, t_s + 8.5, 100)) == 100
+
+
+
+def test_an_internal_error_is_counted_by_a_listed_reason():
+    daemon = FusionDaemon(settings_from_dict(CONFIG))  # not started: the processing path only
+
+    def broken(_batch):
+        raise RuntimeError("bug")
+
+    daemon.engine.ingest_plots = broken
+    daemon._process_safely("atc/radar/app/plots", pack({"v": 1, "radar_id": "app", "seq": 0, "plots": []}))
+    assert daemon.messages_processed == 1
+    assert set(daemon.engine.rejected) <= REASONS
+
+
+# ------------------------------------------------------------------ over the bus
+N_HOSTILE = 2000
+MAX_PAYLOAD_BYTES = 64 << 10
+HOSTILE_VALUES = [None, True, -1, 2**64 - 1, -(2**63), 1.5, math.nan, math.inf, -math.inf, "", "x" * 300,
+                  b"\x00\xff", [], [1, [2, [3]]], {"a": {"b": None}}, -5.0, 360.0, 1e300, 0.0]
+
+
+def hostile_messages(rng: random.Random, prefix: str, sent: list[tuple[str, bytes]], seen_seq: dict[str, set]):
+    """N_HOSTILE (key, payload, category) on every key the daemon subscribes to
+    (<prefix>/radar/*/*), derived from the good messages already ``sent``. Mutations
+    that happen to decode as valid new data of a configured radar (a bit flip in a
+    float, say) are not hostile and are skipped (counted in SKIPPED_VALID)."""
+    ids = RADAR_IDS
+    keys = ([f"radar/{r}/{k}" for r in ids for k in ("plots", "status")] * 4
+            + ["radar/intruder/plots", "radar/intruder/status", f"radar/{'r' * 60}/plots",
+               f"radar/{ids[0]}/config", f"radar/{ids[1]}/plots2", "radar/APP/plots"])
+    out = []
+    while len(out) < N_HOSTILE:
+        key = rng.choice(keys)
+        good_key, good = rng.choice(sent)
+        kind = rng.random()
+        if kind < 0.15:
+            cat, payload = "random bytes", rng.randbytes(rng.randrange(0, 300))
+        elif kind < 0.30:
+            cat, payload = "truncated", good[: rng.randrange(0, len(good))]
+        elif kind < 0.50:
+            cat, b = "bit flips", bytearray(good)
+            for _ in range(rng.randint(1, 4)):
+                b[rng.randrange(len(b))] ^= 1 << rng.randrange(8)
+            payload, key = bytes(b), good_key
+        elif kind < 0.55:
+            cat, payload = "trailing garbage", good + rng.randbytes(rng.randint(1, 8))
+        elif kind < 0.65:
+            cat, payload, key = "duplicate seq", good, good_key
+        elif kind < 0.90:
+            cat = "wrong fields"
+            radar = key.split("/")[1] if rng.random() < 0.8 else rng.choice(ids + ["intruder"])
+            plots = [dict(good_plot(T0 + rng.uniform(0, 120)), **{rng.choice(PLOT_FIELDS): rng.choice(HOSTILE_VALUES)})
+                     for _ in range(rng.randint(0, 6))] + [good_plot(T0 + 60.0)] * rng.randint(0, 2)
+            msg = {"v": 1, "radar_id": radar, "seq": rng.choice(sorted(seen_seq.get(radar, {0}))), "plots": plots,
+                   "t": T0 + 60.0, "kind": "north"}
+            field_name = rng.choice(["v", "radar_id", "seq", "plots", "t", "kind", None])
+            if field_name:
+                msg[field_name] = rng.choice(HOSTILE_VALUES + [rng.randint(2, 99)])
+            payload = pack(msg)
+        elif kind < 0.95:
+            cat = "huge claims"
+            payload = rng.choice([b"\xdd\xff\xff\xff\xff", b"\xdf\x7f\xff\xff\xff", b"\x91" * 5000,
+                                  pack({"v": 1, "radar_id": ids[0], "seq": 1, "plots": [0] * 20_001})])
+        else:
+            cat, payload = "oversize", rng.randbytes(MAX_PAYLOAD_BYTES + rng.randint(1, 1 << 16))
+        parts = key.split("/")
+        if parts[1] in ids and parts[2] in ("plots", "status") and cat != "oversize":
+            d = (wire.decode_plot_batch(payload, MAX_PAYLOAD_BYTES) if parts[2] == "plots"
+                 else wire.decode_message(payload, wire.RadarStatus, MAX_PAYLOAD_BYTES))
+            valid = not isinstance(d, wire.Rejection) and d.radar_id == parts[1]
+            if valid and (parts[2] == "status" or d.seq not in seen_seq[parts[1]]):
+                SKIPPED_VALID[0] += 1
+                continue
+        out.append((f"{prefix}/{key}", payload, cat))
+    return out
+
+
+def test_daemon_survives_hostile_bus_traffic_and_keeps_tracking(free_port):
+    rng = random.Random(20240808)
+    cfg = {**CONFIG, "bus": {**CONFIG["bus"], "mode": "router", "listen": [f"tcp/127.0.0.1:{free_port}"],
+                             "max_payload_bytes": MAX_PAYLOAD_BYTES, "health_period_s": 0.2}}
+    settings_ = settings_from_dict(cfg)
+    prefix = settings_.bus.prefix
+    good = [(f"{prefix}/{key}", payload) for _, key, payload in SIMULATION.messages]
+    half = len(good) // 2
+    seen_seq: dict[str, set] = {r: set() for r in RADAR_IDS}
+    for key, payload in good[:half]:
+        if key.endswith("/plots"):
+            obj = msgpack.unpackb(payload)
+            seen_seq[obj["radar_id"]].add(obj["seq"])
+    hostile = hostile_messages(rng, prefix, [(k[len(prefix) + 1:], p) for k, p in good[:half]], seen_seq)
+    INPUTS.update(f"bus: {cat}" for _, _, cat in hostile)
+    traffic = good[:half] + [(k, p) for k, p, _ in hostile] + good[half:]
+
+    # The same decode/route/ingest path without Zenoh gives the counts to expect.
+    replica = FusionDaemon(settings_)
+    for key, payload in traffic:
+        replica._handle(key, payload)
+        replica.engine.poll()
+
+    daemon = FusionDaemon(settings_).start()
+    session = open_session(zenoh_config("client", connect=list(settings_.bus.listen)))
+    collector = TrackCollector(session, prefix)
+    pubs = {}
+    try:
+        time.sleep(0.3)
+        for key, payload in traffic:
+            pub = pubs.get(key) or pubs.setdefault(key, reliable_publisher(session, key))
+            pub.put(payload)
+        assert wait_until(lambda: daemon.messages_processed >= len(traffic), 60)
+        assert daemon._thread.is_alive()
+        assert wait_until(lambda: collector.health and
+                          collector.health[-1]["counters"]["messages_processed"] >= len(traffic), 10)
+    finally:
+        for pub in pubs.values():
+            pub.undeclare()
+        daemon.stop()
+        wait_until(lambda: len(collector.batches) >= daemon.batches_published, 10)
+        collector.close()
+        session.close()
+    health = collector.health[-1]
+    rejected = health["rejected"]
+    print(f"\nbus: {len(hostile)} hostile + {len(good)} good messages; rejected by reason: {dict(sorted(rejected.items()))}")
+    assert daemon.messages_received == len(traffic)  # reliable + BLOCK: nothing lost on the way
+    assert set(rejected) <= REASONS
+    # oversize on a configured radar's plots or status key (unknown_radar or schema on others)
+    assert rejected.get("oversize") == sum(1 for k, _, cat in hostile if cat == "oversize"
+                                           and k.split("/")[2] in RADAR_IDS and k.split("/")[3] in ("plots", "status"))
+    assert rejected.get("unknown_radar", 0) >= sum(1 for k, *_ in hostile if k.split("/")[2] not in RADAR_IDS)
+    for reason in REASONS - {"plot_late", "plot_future"}:  # these two depend on when periods closed
+        assert rejected.get(reason, 0) == replica.engine.rejected.get(reason, 0), reason
+    assert sum(rejected.values()) >= len(hostile)
+    # the good traffic is untouched: every batch and plot accepted, no sequence gap
+    good_plots = sum(len(pc) for pc in SIMULATION.plot_columns)
+    assert health["counters"]["plots_accepted"] == good_plots
+    for rid in RADAR_IDS:
+        sent_batches = sum(1 for k, _ in good if k == f"{prefix}/radar/{rid}/plots")
+        assert health["radars"][rid]["batches"] == sent_batches and health["radars"][rid]["seq_gaps"] == 0
+    # ... and still gives accurate tracks after the hostile run
+    assert len(collector.batches) == daemon.batches_published > 20
+    after = [b for b in collector.batches if b["t"] > T0 + 60.0 + 20.0]
+    assert after and max(sum(t["status"] == "confirmed" for t in b["tracks"]) for b in after) >= 10
+    truth = ev.Truth.from_columns(
+        SIMULATION.truth.t_s, SIMULATION.truth.target_id, SIMULATION.truth.x_m, SIMULATION.truth.y_m,
+        SIMULATION.truth.vx_mps, SIMULATION.truth.vy_mps, detectable=SIMULATION.truth.detectable,
+    )
+    assert ev.evaluate(collector.batches, truth).pos_rms_settled_m < 200.0
