@@ -93,6 +93,14 @@ def reliable_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
     )
 
 
+class _Oversize(bytes):
+    """Stands for a payload refused as oversize on Zenoh's thread, before any copy (a
+    distinct object: a real empty payload is the interned b"")."""
+
+
+_OVERSIZE = _Oversize()
+
+
 class RateLimitedLog:
     """Log a rejection at most once per interval per reason, with the count since."""
 
@@ -249,8 +257,12 @@ class FusionDaemon:
 
     # ------------------------------------------------------------------ input
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Zenoh's thread: copy out and hand over, nothing else.
-        item = (str(sample.key_expr), sample.payload.to_bytes(), time.monotonic())
+        # Zenoh's thread: copy out and hand over, nothing else. An oversize payload is not
+        # copied (bounded memory): an empty stand-in of the same verdict is queued instead,
+        # so the processing thread counts it as "oversize" in order with the rest.
+        size = len(sample.payload)
+        payload = sample.payload.to_bytes() if size <= self.settings.bus.max_payload_bytes else _OVERSIZE
+        item = (str(sample.key_expr), payload, time.monotonic())
         self.messages_received += 1
         try:
             self.queue.put(item, timeout=2.0)
@@ -262,6 +274,9 @@ class FusionDaemon:
         parts = key.split("/")
         radar_id, kind = parts[-2], parts[-1]
         max_bytes = self.settings.bus.max_payload_bytes
+        if payload is _OVERSIZE and kind in ("plots", "status"):
+            self._reject(Rejection("oversize", f"more than {max_bytes} bytes on {key}"), radar_id)
+            return
         if kind == "plots":
             decoded = decode_plot_batch(payload, max_bytes)
             if isinstance(decoded, Rejection):

@@ -260,7 +260,7 @@ def unpack(payload: bytes, max_bytes: int) -> Any | Rejection:
 def _envelope_check(obj: Any) -> Rejection | None:
     if not isinstance(obj, dict):
         return Rejection("schema", f"expected a map, got {type(obj).__name__}")
-    if obj.get("v") != WIRE_VERSION:
+    if type(obj.get("v")) is not int or obj.get("v") != WIRE_VERSION:  # not True, not 1.0
         return Rejection("version", f"v={obj.get('v')!r}")
     return None
 
