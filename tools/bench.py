@@ -184,6 +184,7 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     """
     import tomllib
 
+    import msgpack
     import numpy as np
 
     from radar_fusion import config, wire
@@ -203,6 +204,7 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     ]  # fmt: skip
     del data["events"]
     gc.collect()
+    gc.freeze()  # as `radar-fusion serve` does after start-up
     rss_base_kb = _rss_kb("VmRSS")
     hwm_reset = _reset_peak_rss()
     maxrss_before_kb = _maxrss_kb()
@@ -214,8 +216,14 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     # period) would make Python's cyclic GC slower and slower and distort the timings.
     periods: list[tuple[float, float, int, int]] = []  # (t_s, processing_ms, plots, tracks)
 
+    msg_ms: list[float] = []  # TrackBatch dicts built from the columns and msgpack-encoded, per period
+
     def keep(outs) -> None:
-        periods.extend((o.t_s, o.processing_s * 1e3, o.n_plots, len(o.track_batch["tracks"])) for o in outs)
+        for o in outs:
+            t0 = perf()
+            msgpack.packb(o.track_batch, use_bin_type=True)  # what the daemon's publisher does
+            msg_ms.append((perf() - t0) * 1e3)
+            periods.append((o.t_s, o.processing_s * 1e3, o.n_plots, len(o.track_columns)))
 
     profiler = None
     if profile_top:
@@ -274,6 +282,8 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
         "steady_period_mean_ms": float(np.mean(steady)) if steady else math.nan,
         "p50_ms": _percentile(steady, 50),
         "p99_ms": _percentile(steady, 99),
+        "msg_p50_ms": _percentile(msg_ms, 50),
+        "msg_p99_ms": _percentile(msg_ms, 99),
         "max_ms": max(steady) if steady else math.nan,
         "warm_p50_ms": _percentile(warm, 50),
         "warm_max_ms": max(warm) if warm else math.nan,
@@ -315,7 +325,7 @@ STAGES = [
     ("  initiation (two-point + altitude)", "singer_filter.py", "initiate"),
     ("  manoeuvre detection", "engine.py", "_detect_manoeuvres"),
     ("  life cycle (apply_life_cycle)", "track_management.py", "apply_life_cycle"),
-    ("  TrackBatch building (_track_batch)", "engine.py", "_track_batch"),
+    ("  TrackBatch building (TrackColumns.to_message, outside the period time)", "engine.py", "to_message"),
 ]
 
 
@@ -1420,7 +1430,8 @@ def _run_table(args: argparse.Namespace, sizes: list[tuple[int, int]], duration_
         msg = (f"  {n:>5,} × {r:>2}: {on['plots']:>9,} plots in {info['batches']:,} batches "
                f"({on['plots'] / max(info['batches'], 1):.1f}/batch), {on['periods']} periods, "
                f"gate on {on['engine_s']:.2f} s "
-               f"({on['plots_per_s']:,.0f} plots/s, p99 {on['p99_ms']:.1f} ms, {on['wild_rejected']:,} wild "
+               f"({on['plots_per_s']:,.0f} plots/s, p99 {on['p99_ms']:.1f} ms; TrackBatch build+encode p50/p99 "
+               f"{on['msg_p50_ms']:.1f}/{on['msg_p99_ms']:.1f} ms; {on['wild_rejected']:,} wild "
                f"rejected of {info['wild_truth']:,} simulated)")  # fmt: skip
         if row.get("off"):
             msg += f"; gate off {row['off']['engine_s']:.2f} s ({row['off']['plots_per_s']:,.0f} plots/s)"
