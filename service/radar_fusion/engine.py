@@ -60,7 +60,7 @@ FT_PER_FL = 100.0
 #: consecutive batches of a radar refused whole as too far in the future after which its
 #: new time base is accepted (a radar back from an outage longer than the future limit)
 FUTURE_RELOCK_BATCHES = 8
-# wire.Track fields in the order _track_batch builds them
+# wire.Track fields in the order TrackColumns.to_message builds them
 TRACK_KEYS = ("track_id", "t", "status", "lat_deg", "lon_deg", "x_m", "y_m", "vx_mps", "vy_mps", "fl", "cov_xy",
               "sources", "mode3a", "mode_s", "updates", "age_s", "vrate_fpm", "ax_mps2", "ay_mps2")
 
@@ -110,12 +110,19 @@ class TrackColumns:
     def __len__(self) -> int:
         return int(self.track_id.shape[0])
 
+    @cached_property
+    def geodetic(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lat_deg, lon_deg) of every track, computed once for the message and the safety nets."""
+        if not len(self):
+            return np.empty(0), np.empty(0)
+        return self.names.plane.to_geodetic(self.x[:, 0], self.x[:, 3])
+
     def to_message(self) -> dict[str, Any]:
         """The TrackBatch message (wire.Track fields). Built column by column and zipped
         into dicts in C loops: a per-track Python body would cost several times more."""
         n = len(self)
         x = self.x
-        lat, lon = self.names.plane.to_geodetic(x[:, 0], x[:, 3]) if n else (np.empty(0), np.empty(0))
+        lat, lon = self.geodetic
         masks = self.sources.tolist()
         mode_s = self.mode_s.tolist()
         cols = (
@@ -229,6 +236,8 @@ class Engine:
             gate_chi2=trk.gate_chi2, new_target_gate_m=trk.new_target_gate_m, max_speed_mps=trk.max_speed_mps
         )
         self.assumed_altitude_m = trk.assumed_altitude_ft * 0.3048
+        # how far past the newest watermark an event time may lie (see _future_limit_s)
+        self.future_margin_s = min(sysc.max_future_s, sysc.radar_timeout_s)
         self.manoeuvre_sigma_factor = trk.manoeuvre_sigma_factor
         self.manoeuvre_on, self.manoeuvre_off = trk.manoeuvre_nis_on, trk.manoeuvre_nis_off
         self.nis_fading = trk.manoeuvre_nis_fading
@@ -294,9 +303,8 @@ class Engine:
         radar with no other radar to follow that comes back after a longer outage is
         re-locked by :meth:`ingest_plots` after ``FUTURE_RELOCK_BATCHES`` batches.
         """
-        sysc = self.settings.system
         newest = float(self.buffer.watermark_s.max())
-        return newest + min(sysc.max_future_s, sysc.radar_timeout_s) if math.isfinite(newest) else math.inf
+        return newest + self.future_margin_s if math.isfinite(newest) else math.inf
 
     def ingest_plots(self, batch: DecodedPlots) -> int:
         """Check, gate, convert and buffer one radar's batch; returns plots accepted."""
@@ -332,8 +340,7 @@ class Engine:
         t_min_s, t_max_s = float(t_s.min()), float(t_s.max())
         closed_s, future_s = buf.closed_until_s, self._future_limit_s(i)
         if not math.isfinite(buf.watermark_s[i]):  # a first batch: also against its own start
-            sysc = self.settings.system
-            future_s = min(future_s, t_min_s + min(sysc.max_future_s, sysc.radar_timeout_s))
+            future_s = min(future_s, t_min_s + self.future_margin_s)
         if radar.future_streak >= FUTURE_RELOCK_BATCHES:
             # This radar's time has stayed ahead, consistently: it came back after an
             # outage (or its clock was set right); follow it from this batch on.
@@ -578,7 +585,7 @@ class Engine:
             alive = ~np.isin(ids, ended)
             out = [a[alive] for a in out]
         columns = self._track_columns(period, t_ref_s, ended, out[0], out[1], out[2])
-        alerts = self._safety_nets(t_ref_s, *out) if self.safety_nets is not None else []
+        alerts = self._safety_nets(columns) if self.safety_nets is not None else []
         dt = time.perf_counter() - t0
         self.processing_s.append(dt)
         self.periods_closed += 1
@@ -612,18 +619,18 @@ class Engine:
             names=self._names,
         )
 
-    def _safety_nets(self, t_ref_s: float, x, P, alt_x, alt_P) -> list[dict[str, Any]]:
+    def _safety_nets(self, columns: TrackColumns) -> list[dict[str, Any]]:
         from .safety_nets import TrackArrays
 
-        tr = self.tracks
-        lat, lon = self.plane.to_geodetic(x[:, 0], x[:, 3]) if len(tr) else (np.empty(0), np.empty(0))
+        x = columns.x
+        lat, lon = columns.geodetic
         arrays = TrackArrays(
-            track_id=tr.track_id, confirmed=tr.status != TENTATIVE,
+            track_id=columns.track_id, confirmed=columns.status != TENTATIVE,
             x_m=x[:, 0], y_m=x[:, 3], vx_mps=x[:, 1], vy_mps=x[:, 4],
-            ax_mps2=x[:, 2], ay_mps2=x[:, 5], fl=alt_x[:, 0],
-            vrate_fpm=alt_x[:, 1] * FT_PER_FL * 60.0, lat_deg=lat, lon_deg=lon, mode_s=tr.mode_s,
+            ax_mps2=x[:, 2], ay_mps2=x[:, 5], fl=columns.fl,
+            vrate_fpm=columns.vrate_fpm, lat_deg=lat, lon_deg=lon, mode_s=columns.mode_s,
         )
-        return self.safety_nets.update(t_ref_s, arrays)
+        return self.safety_nets.update(columns.t_s, arrays)
 
     # ================================================================= health
     def health(self) -> dict[str, Any]:

@@ -206,11 +206,6 @@ def _powers(x: np.ndarray) -> np.ndarray:
     return v
 
 
-def _g(ij: tuple[int, int], x: np.ndarray) -> np.ndarray:
-    """g_ij(x) for one element of Q (see :func:`_g_all`)."""
-    return _g_all(np.atleast_1d(np.asarray(x, dtype=float)))[:, _Q_KEYS.index(ij)]
-
-
 def _as_tracks(*arrays) -> list[np.ndarray]:
     """Broadcast scalars / (N,) arrays to a common 1-D float shape (N,)."""
     out = np.broadcast_arrays(*[np.atleast_1d(np.asarray(a, dtype=float)) for a in arrays])
