@@ -41,7 +41,7 @@ from radar_fusion.asterix import (
 )
 from radar_fusion.config import load_settings, settings_from_dict
 from radar_fusion.tools import asterix_bridge
-from radar_fusion.tools.recording import read_recording
+from radar_fusion.recording import read_recording
 from radar_fusion.wire import TrackBatch, decode_message, decode_plot_batch, RadarStatus
 
 ROOT = Path(__file__).resolve().parents[1]

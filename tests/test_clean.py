@@ -17,11 +17,11 @@ import pytest
 from radar_fusion import cli, wire
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
-from radar_fusion.outliers import analyse
+from radar_fusion.tracking.outliers import analyse
 from radar_fusion.tools import clean as cl
 from radar_fusion.tools import evaluate as ev
 from radar_fusion.tools import simulate as sim
-from radar_fusion.tools.recording import RecordingWriter, read_header, read_recording
+from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools.replay import replay_into_engine
 
 # Wild plots 5x (isolated) and 6x (runs of 3-5 scans) the demo's rates, so that a

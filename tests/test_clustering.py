@@ -1,4 +1,4 @@
-"""Tests of radar_fusion.clustering: time alignment and k-means clustering (Shu 2007 §2).
+"""Tests of radar_fusion.tracking.clustering: time alignment and k-means clustering (Shu 2007 §2).
 
 Each test compares with known truth or with an independent computation written here with
 plain loops (brute-force E of eq. 2, dense assignment by scipy's linear_sum_assignment).
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from radar_fusion.clustering import (
+from radar_fusion.tracking.clustering import (
     CHI2_2DOF_P999,
     ClusteringParams,
     _assign_per_radar,

@@ -1,4 +1,4 @@
-"""Tests of radar_fusion.coordinates against independent computations.
+"""Tests of radar_fusion.geo.coordinates against independent computations.
 
 The references written here do not call the module's maths: the earth radius comes from
 the ellipsoid's radii of curvature, the ground range from the arccos form of the law of
@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from radar_fusion.coordinates import (
+from radar_fusion.geo.coordinates import (
     RadarSites,
     SystemPlane,
     altitude_m_to_flight_level,

@@ -35,7 +35,7 @@ def plot_error_rms_m(simulation) -> float:
     """Horizontal RMS error of single plots (non-wild, of real targets) against truth at
     their own detection time, computed from the simulator's columns: the noise a track
     has to beat."""
-    from radar_fusion.coordinates import flight_level_to_altitude_m, polar_to_plane
+    from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
 
     err2 = []
     for pc in simulation.plot_columns:
@@ -77,7 +77,7 @@ def test_hostile_payloads_are_counted_and_good_plots_still_track(scenario, free_
     radar = settings.radars[0].id
     prefix = settings.bus.prefix
     from radar_fusion.bus import FusionDaemon
-    from radar_fusion.tools.recording import read_recording
+    from radar_fusion.recording import read_recording
     from radar_fusion.tools.replay import replay_records
 
     daemon = FusionDaemon(settings).start()
@@ -123,7 +123,7 @@ def test_idle_daemon_flushes_the_open_periods_without_being_stopped(scenario, fr
     """When the radars fall silent (end of a replay, a network cut), the periods still
     buffered are closed after idle_flush_s of wall-clock silence, not only at shutdown."""
     from radar_fusion.bus import FusionDaemon
-    from radar_fusion.tools.recording import read_recording
+    from radar_fusion.recording import read_recording
     from radar_fusion.tools.replay import replay_records
 
     out, _ = scenario

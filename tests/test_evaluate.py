@@ -13,7 +13,7 @@ from scipy.optimize import linear_sum_assignment
 
 from radar_fusion import wire
 from radar_fusion.tools import evaluate as ev
-from radar_fusion.tools.recording import RecordingWriter
+from radar_fusion.recording import RecordingWriter
 
 T0 = 1_700_000_000.0
 

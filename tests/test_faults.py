@@ -17,10 +17,10 @@ import zenoh
 
 from radar_fusion.bus import FusionDaemon, open_session, zenoh_config
 from radar_fusion.config import load_settings
-from radar_fusion.coordinates import SystemPlane
+from radar_fusion.geo.coordinates import SystemPlane
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, wait_until
-from radar_fusion.tools.recording import Record
+from radar_fusion.recording import Record
 from radar_fusion.tools.replay import replay_records
 
 

@@ -1,9 +1,9 @@
-"""Tests of radar_fusion.fusion (Shu eq. 5–6 and the information-form generalisation)."""
+"""Tests of radar_fusion.tracking.fusion (Shu eq. 5–6 and the information-form generalisation)."""
 
 import numpy as np
 import pytest
 
-from radar_fusion.fusion import fuse_clusters
+from radar_fusion.tracking.fusion import fuse_clusters
 
 
 def polar_cov(range_m, az_rad, sigma_r_m, sigma_az_rad):

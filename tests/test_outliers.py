@@ -1,4 +1,4 @@
-"""Tests of radar_fusion.outliers (Hu 2013): equations by hand, decision rule, the
+"""Tests of radar_fusion.tracking.outliers (Hu 2013): equations by hand, decision rule, the
 reproduction (soft >= K-MODF on runs), and the live gate."""
 
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from radar_fusion.outliers import (
+from radar_fusion.tracking.outliers import (
     LiveOutlierGate, OutlierParams, analyse, decide_wild, edge_points, hard_edge_weight,
     innovation_gate_3sigma, k_distance, k_mean_distance, minmax_normalise, outlier_factor,
     segment_at_edges, soft_edge_weight, subsequence_features,

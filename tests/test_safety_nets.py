@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from radar_fusion import safety_nets as sn
-from radar_fusion.coordinates import SystemPlane
+from radar_fusion.geo.coordinates import SystemPlane
 from radar_fusion.safety_nets import (
     NM_M,
     SafetyNets,

@@ -23,7 +23,7 @@ from radar_fusion.config import load_settings
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, wait_until
 from radar_fusion.tools.record import Recorder
-from radar_fusion.tools.recording import RecordingWriter, read_header, read_recording
+from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools.replay import replay_records
 
 

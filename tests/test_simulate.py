@@ -19,9 +19,9 @@ import pyproj
 import pytest
 
 from radar_fusion import config, wire
-from radar_fusion.coordinates import SystemPlane
+from radar_fusion.geo.coordinates import SystemPlane
 from radar_fusion.tools import simulate as sim
-from radar_fusion.tools.recording import read_recording
+from radar_fusion.recording import read_recording
 
 GEOD = pyproj.Geod(ellps="WGS84")
 

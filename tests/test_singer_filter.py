@@ -1,4 +1,4 @@
-"""Tests of radar_fusion.singer_filter against independent computations.
+"""Tests of radar_fusion.tracking.singer_filter against independent computations.
 
 Every maths check compares with something computed here without the module's own
 formulas: scipy.linalg.expm of the continuous model, Van Loan's method for Q, Monte
@@ -10,7 +10,7 @@ import pytest
 import scipy.linalg as sl
 from scipy.stats import chi2
 
-from radar_fusion.singer_filter import (
+from radar_fusion.tracking.singer_filter import (
     H,
     AltitudeFilter,
     SingerFilter,

@@ -10,7 +10,7 @@ import pytest
 
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools import soak
-from radar_fusion.tools.recording import RecordingWriter, read_header, read_recording
+from radar_fusion.recording import RecordingWriter, read_header, read_recording
 
 
 def test_soak_traffic_is_steady_with_flights_entering_throughout():

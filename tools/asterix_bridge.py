@@ -40,7 +40,7 @@ from radar_fusion.asterix import AsterixToWire, Cat062Encoder, DecodeCounters, W
 from radar_fusion.config import ConfigError, Settings, load_settings
 from radar_fusion.wire import Rejection, TrackBatch, decode_message
 
-from .recording import RecordingWriter
+from ..recording import RecordingWriter
 
 log = logging.getLogger("radar_fusion.asterix_bridge")
 

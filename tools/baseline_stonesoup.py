@@ -4,8 +4,8 @@
 tracker, the way its documentation composes one:
 
 * Measurements: every plot is converted to the daemon's system plane with the same code
-  and the same per-plot covariance as the engine (:func:`radar_fusion.coordinates.polar_to_plane`,
-  Mode C via :func:`~radar_fusion.coordinates.flight_level_to_altitude_m`, the configured
+  and the same per-plot covariance as the engine (:func:`radar_fusion.geo.coordinates.polar_to_plane`,
+  Mode C via :func:`~radar_fusion.geo.coordinates.flight_level_to_altitude_m`, the configured
   height for plots without Mode C); each :class:`~stonesoup.types.detection.Detection`
   carries its own ``LinearGaussian`` measurement model (H picks x and y, R = the plot's
   2×2 covariance). Plots beyond a radar's ``max_range_m`` are dropped as the engine does.
@@ -52,7 +52,7 @@ from typing import Any, Iterable, Optional
 
 import numpy as np
 
-from radar_fusion.coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
+from radar_fusion.geo.coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
 
 _EPOCH = _dt.datetime(1970, 1, 1)
 

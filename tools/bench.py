@@ -189,7 +189,7 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
 
     from radar_fusion import config, wire
     from radar_fusion.engine import Engine
-    from radar_fusion.track_management import CONFIRMED
+    from radar_fusion.tracking.track_management import CONFIRMED
 
     with open(path, "rb") as f:
         data = pickle.load(f)
@@ -564,8 +564,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     """
     import numpy as np
 
-    from radar_fusion.coordinates import flight_level_to_altitude_m, polar_to_plane
-    from radar_fusion.singer_filter import (
+    from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
+    from radar_fusion.tracking.singer_filter import (
         DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2, singer_process_noise, singer_transition,
     )  # fmt: skip
 
@@ -846,7 +846,7 @@ def run_bus(case_dir: str, speed: Optional[float], warmup_s: float, timeout_s: f
     from radar_fusion.bus import open_session, zenoh_config
     from radar_fusion.config import load_settings
     from radar_fusion.tools.demo import free_tcp_port
-    from radar_fusion.tools.recording import Record, read_recording
+    from radar_fusion.recording import Record, read_recording
     from radar_fusion.tools.replay import replay_records
 
     port = free_tcp_port()
@@ -1213,7 +1213,7 @@ COMPARE_NOTES = [
     "the period's last plot in event time); periods of the warm-up are left out. Peak RSS: the daemon's VmHWM.",
     "(c) Stone Soup (tools/baseline_stonesoup.py): Kalman CV, GNNWith2DAssignment with a Mahalanobis "
     "DistanceHypothesiser at the engine's gate, MultiMeasurementInitiator (3 updates), UpdateTimeDeleter; "
-    "plots converted by radar_fusion.coordinates with the engine's covariances, processed in time order; "
+    "plots converted by radar_fusion.geo.coordinates with the engine's covariances, processed in time order; "
     "its time covers conversion, detections, tracker and output. No Mode S identity (ours uses it). Sizes "
     "whose estimated run time (∝ plots × tracks, from the last measured size) exceeds the budget are skipped.",
     "Accuracy: tools/evaluate.py at every period time (gate 2 km, GOSPA c = 2 km, p = 2); best single radar = "

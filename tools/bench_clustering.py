@@ -1,4 +1,4 @@
-"""Benchmark of radar_fusion.clustering.cluster_plots (a benchmark, not a test).
+"""Benchmark of radar_fusion.tracking.clustering.cluster_plots (a benchmark, not a test).
 
 Scenario per period: targets at random positions in a 400 km square with random headings
 and speeds 100-250 m/s; radars at random positions in the square, each covering a disc
@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from radar_fusion.clustering import ClusteringParams, cluster_plots
+from radar_fusion.tracking.clustering import ClusteringParams, cluster_plots
 
 SQUARE_M = 400_000.0
 PERIOD_S = 4.0

@@ -7,7 +7,7 @@ validation goes into a series keyed by its radar (the batch's ``radar_id``) and 
 radar's identity of the target: its track number (``track_no``) when it has one, else its
 Mode S address. A series is split where consecutive plots are more than ``max_gap_s``
 apart (a track number reused for another aircraft). Each series of at least
-``min_series_length`` plots is analysed twice with :func:`radar_fusion.outliers.analyse`
+``min_series_length`` plots is analysed twice with :func:`radar_fusion.tracking.outliers.analyse`
 (every step of Hu 2013, eq. 1-7, and its decision rule): once on range, once on azimuth.
 A plot is removed when either analysis marks it wild.
 
@@ -27,7 +27,7 @@ in the plane, so close passes leave no trend in the residual.
 Decision. The paper leaves the rule open ("larger OF, more likely wild"). Per-track
 series are short (12-150 plots, so 2-30 sub-sequences), and eq. 6 normalises OF per
 series, so the most outlying sub-sequence of any series has OF near 2 and the robust
-rule of :mod:`radar_fusion.outliers` (median + 6 MAD over the sub-sequences) almost never
+rule of :mod:`radar_fusion.tracking.outliers` (median + 6 MAD over the sub-sequences) almost never
 fires. Here a plot is removed when Hu's method flags it with OF > ``threshold`` (default
 1.0, :data:`CLEAN_OUTLIER_PARAMS`; "robust" restores the module's rule) AND its residual is
 more than ``min_deviation_sigma`` (16) robust standard deviations of its series' residuals
@@ -71,9 +71,9 @@ import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
 from radar_fusion import wire
-from radar_fusion.outliers import METHODS, OutlierParams, analyse
+from radar_fusion.tracking.outliers import METHODS, OutlierParams, analyse
 
-from .recording import RecordingWriter, read_header, read_recording
+from ..recording import RecordingWriter, read_header, read_recording
 
 __all__ = [
     "CleanParams",

@@ -80,7 +80,7 @@ def run_pipeline(settings, plots_recording: Path, speed=None, tracks_recording: 
     """Daemon on an embedded router + replay through a client session; returns (collector, daemon, sent)."""
     from radar_fusion.bus import FusionDaemon, open_session, zenoh_config
 
-    from .recording import RecordingWriter, read_recording
+    from ..recording import RecordingWriter, read_recording
     from .replay import replay_records
 
     daemon = FusionDaemon(settings).start()

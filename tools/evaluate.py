@@ -77,7 +77,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .recording import read_recording
+from ..recording import read_recording
 
 TRACKS_KEY = "fusion/tracks"
 DISPLAYED_STATUSES = ("confirmed", "coasting")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radar_fusion.outliers import OutlierParams, detect_outliers, innovation_gate_3sigma
+from radar_fusion.tracking.outliers import OutlierParams, detect_outliers, innovation_gate_3sigma
 
 N_SAMPLES = 987
 RATE_HZ = 10.0

@@ -12,7 +12,7 @@ import signal
 import threading
 import time
 
-from .recording import RecordingWriter
+from ..recording import RecordingWriter
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -13,7 +13,7 @@ import time
 from collections import Counter
 from typing import Iterable, Optional
 
-from .recording import Record, read_recording
+from ..recording import Record, read_recording
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

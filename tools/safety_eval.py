@@ -34,7 +34,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from radar_fusion.coordinates import SystemPlane
+from radar_fusion.geo.coordinates import SystemPlane
 from radar_fusion.safety_nets import NM_M, SafetyNets, SafetyNetsConfig, TrackArrays, load_areas, load_msa
 
 CENTER_LAT_DEG, CENTER_LON_DEG = 47.0, 8.0
@@ -201,7 +201,7 @@ RADARS = [  # id, lat, lon, alt_m, sigma_range_m, sigma_azimuth_deg, rotation_pe
 def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.random.Generator) -> tuple[list, dict]:
     """Plots from two rotating Mode S radars → the real Engine with the safety nets attached."""
     from radar_fusion.config import settings_from_dict
-    from radar_fusion.coordinates import RadarSites, geodetic_to_polar
+    from radar_fusion.geo.coordinates import RadarSites, geodetic_to_polar
     from radar_fusion.engine import Engine
     from radar_fusion.wire import KIND_CODES, DecodedPlots
 

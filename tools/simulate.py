@@ -2,13 +2,13 @@
 
 ``radar-fusion simulate --scenario demo --out DIR [--seed N] [--duration-s S]`` writes
 
-* ``DIR/plots.rec``  -- a recording (:mod:`radar_fusion.tools.recording`) of every
+* ``DIR/plots.rec``  -- a recording (:mod:`radar_fusion.recording`) of every
   ``radar/<id>/plots`` (PlotBatch) and ``radar/<id>/status`` (RadarStatus) message, in
   publish-time order, record time = publish time (event time);
 * ``DIR/truth.csv``  -- the ground truth, one row per target per second while it exists:
   ``t_s,target_id,mode_s,callsign,lat_deg,lon_deg,alt_ft,x_m,y_m,vx_mps,vy_mps,vrate_fpm,detectable``
   (``x_m``/``y_m``/``vx_mps``/``vy_mps`` in the system plane of the scenario centre,
-  :class:`radar_fusion.coordinates.SystemPlane`; ``mode_s`` 6 hex digits or empty;
+  :class:`radar_fusion.geo.coordinates.SystemPlane`; ``mode_s`` 6 hex digits or empty;
   ``detectable`` 1 when at least one radar covers the target: within its instrumented
   range, above its radar horizon and outside its cone of silence);
 * ``DIR/config.toml`` -- a daemon configuration for the scenario (loads with
@@ -171,13 +171,13 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from radar_fusion import wire
-from radar_fusion.coordinates import (
+from radar_fusion.geo.coordinates import (
     WGS84_GEOD,
     RadarSites,
     SystemPlane,
     geodetic_to_polar,
 )
-from radar_fusion.tools.recording import RecordingWriter
+from radar_fusion.recording import RecordingWriter
 
 __all__ = [
     "Rates",

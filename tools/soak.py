@@ -141,7 +141,7 @@ def generate(out_dir: str | Path, n_aircraft: int = 300, duration_s: float = 360
     """Simulate :func:`soak_scenario`; write ``plots.rec`` and ``config.toml`` (no truth
     file: the soak does not score accuracy). Returns their paths."""
     from . import simulate as sim
-    from .recording import RecordingWriter
+    from ..recording import RecordingWriter
 
     scenario = soak_scenario(n_aircraft, duration_s, n_radars, seed)
     simulation = sim.simulate(scenario)
@@ -316,7 +316,7 @@ def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str
     from radar_fusion.bus import open_session, reliable_publisher, zenoh_config
     from radar_fusion.config import load_settings
 
-    from .recording import read_recording
+    from ..recording import read_recording
 
     settings = load_settings(config)
     prefix, period_s, lateness_s = settings.bus.prefix, settings.system.period_s, settings.system.allowed_lateness_s

@@ -35,14 +35,14 @@ from typing import Any, Optional
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from .clustering import ClusteringParams, cluster_plots
-from .config import Settings
-from .coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
-from .fusion import fuse_clusters
-from .outliers import LiveOutlierGate
+from ..tracking.clustering import ClusteringParams, cluster_plots
+from ..config import Settings
+from ..geo.coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
+from ..tracking.fusion import fuse_clusters
+from ..tracking.outliers import LiveOutlierGate
 from .period_buffer import PeriodBuffer, PlotChunk
-from .singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2, AltitudeFilter, SingerFilter, inv_2x2
-from .track_management import (
+from ..tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2, AltitudeFilter, SingerFilter, inv_2x2
+from ..tracking.track_management import (
     CONFIRMED,
     STATUS_NAMES,
     TENTATIVE,
@@ -54,7 +54,7 @@ from .track_management import (
     position_m,
     velocity_mps,
 )
-from .wire import DecodedPlots, RadarStatus, mode_s_to_str
+from ..wire import DecodedPlots, RadarStatus, mode_s_to_str
 
 FT_PER_FL = 100.0
 #: consecutive batches of a radar refused whole as too far in the future after which its
@@ -620,7 +620,7 @@ class Engine:
         )
 
     def _safety_nets(self, columns: TrackColumns) -> list[dict[str, Any]]:
-        from .safety_nets import TrackArrays
+        from ..safety_nets import TrackArrays
 
         x = columns.x
         lat, lon = columns.geodetic

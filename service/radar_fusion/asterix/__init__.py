@@ -36,7 +36,7 @@ import asterix.generated as gen
 from asterix.base import Bits, Extended, Group, Item, RawDatablock, Spare
 from pydantic import ValidationError
 
-from .wire import Plot, PlotBatch, RadarStatus, TrackBatch, encode
+from ..wire import Plot, PlotBatch, RadarStatus, TrackBatch, encode
 
 __all__ = [
     "CAT034",

@@ -114,8 +114,8 @@ from matplotlib.path import Path as MplPath
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from scipy.spatial import cKDTree
 
-from .coordinates import SystemPlane
-from .wire import Alert
+from ..geo.coordinates import SystemPlane
+from ..wire import Alert
 
 __all__ = [
     "NM_M",

@@ -1,0 +1,1 @@
+"""Geodesy: the system plane, radar polar coordinates, units."""
