@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from radar_fusion.tracking.outliers import (
-    LiveOutlierGate, OutlierParams, analyse, decide_wild, edge_points, hard_edge_weight,
+    OutlierParams, analyse, decide_wild, edge_points, hard_edge_weight,
     innovation_gate_3sigma, k_distance, k_mean_distance, minmax_normalise, outlier_factor,
     segment_at_edges, soft_edge_weight, subsequence_features,
 )
+from radar_fusion.tracking.live_gate import LiveOutlierGate
 from radar_fusion.tools.outlier_experiment import evaluate, make_scenario, run_method, score
 
 TINY = [1.0, 2.0, 2.0, 9.0, 3.0, 4.0, 4.0]

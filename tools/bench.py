@@ -312,7 +312,7 @@ def _maxrss_kb() -> int:
 # Stages of the pipeline, as (label, module file, function name); indented = inside the one above.
 STAGES = [
     ("ingest_plots (total)", "engine.py", "ingest_plots"),
-    ("  wild-plot gate (LiveOutlierGate.filter)", "outliers.py", "filter"),
+    ("  wild-plot gate (LiveOutlierGate.filter)", "live_gate.py", "filter"),
     ("  coordinate conversion (polar_to_plane)", "coordinates.py", "polar_to_plane"),
     ("  period buffer add", "period_buffer.py", "add"),
     ("ingest_status", "engine.py", "ingest_status"),

@@ -17,46 +17,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from .columns import PlotChunk
+
 import numpy as np
-
-# Columns a buffered plot carries (all numpy arrays of one length). Plots are buffered
-# as the radar measured them (polar); the engine gates and converts a whole period at
-# once when it closes, which costs one vectorised pass instead of one per batch.
-PLOT_COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "radar", "mode_s", "mode3a", "track_no")
-
-
-@dataclass
-class PlotChunk:
-    """Plots of one or more ingested batches, as columns (radar coordinates)."""
-
-    t_s: np.ndarray
-    range_m: np.ndarray
-    azimuth_deg: np.ndarray
-    fl: np.ndarray  # float, NaN none
-    radar: np.ndarray  # radar index, int64
-    mode_s: np.ndarray  # int64, -1 none
-    mode3a: np.ndarray  # int64, -1 none
-    track_no: np.ndarray  # int64, -1 none
-
-    def __len__(self) -> int:
-        return int(self.t_s.shape[0])
-
-    @staticmethod
-    def concatenate(chunks: list["PlotChunk"]) -> "PlotChunk":
-        if not chunks:
-            return PlotChunk.empty()
-        if len(chunks) == 1:
-            return chunks[0]
-        return PlotChunk(*(np.concatenate([getattr(c, name) for c in chunks]) for name in PLOT_COLUMNS))
-
-    @staticmethod
-    def empty() -> "PlotChunk":
-        f, i = np.empty(0), np.empty(0, np.int64)
-        return PlotChunk(f, f, f, f, i, i, i, i)
-
-    def select(self, mask: np.ndarray) -> "PlotChunk":
-        return PlotChunk(*(getattr(self, name)[mask] for name in PLOT_COLUMNS))
-
 
 @dataclass
 class PeriodBuffer:

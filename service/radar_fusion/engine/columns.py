@@ -1,0 +1,162 @@
+"""The engine's column types: plots and tracks as numpy arrays, one row each.
+
+* :class:`PlotChunk`: plots as the radars measured them (polar), buffered per period;
+* :class:`ConvertedPlots`: a closing period's plots after the gate, in the system plane;
+* :class:`TrackColumns`: every track at a period's reference time, the engine's output
+  (the TrackBatch message and the safety nets are built from it).
+
+The filter's own mutable track store is :class:`radar_fusion.tracking.track_management.TrackTable`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from itertools import repeat
+from typing import Any, Optional
+
+import numpy as np
+
+from ..geo.coordinates import SystemPlane
+from ..tracking.track_management import STATUS_NAMES
+from ..wire import mode_s_to_str
+
+# Columns a buffered plot carries (all numpy arrays of one length). Plots are buffered
+# as the radar measured them (polar); the engine gates and converts a whole period at
+# once when it closes, which costs one vectorised pass instead of one per batch.
+PLOT_COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "radar", "mode_s", "mode3a", "track_no")
+
+
+@dataclass
+class PlotChunk:
+    """Plots of one or more ingested batches, as columns (radar coordinates)."""
+
+    t_s: np.ndarray
+    range_m: np.ndarray
+    azimuth_deg: np.ndarray
+    fl: np.ndarray  # float, NaN none
+    radar: np.ndarray  # radar index, int64
+    mode_s: np.ndarray  # int64, -1 none
+    mode3a: np.ndarray  # int64, -1 none
+    track_no: np.ndarray  # int64, -1 none
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+    @staticmethod
+    def concatenate(chunks: list["PlotChunk"]) -> "PlotChunk":
+        if not chunks:
+            return PlotChunk.empty()
+        if len(chunks) == 1:
+            return chunks[0]
+        return PlotChunk(*(np.concatenate([getattr(c, name) for c in chunks]) for name in PLOT_COLUMNS))
+
+    @staticmethod
+    def empty() -> "PlotChunk":
+        f, i = np.empty(0), np.empty(0, np.int64)
+        return PlotChunk(f, f, f, f, i, i, i, i)
+
+    def select(self, mask: np.ndarray) -> "PlotChunk":
+        return PlotChunk(*(getattr(self, name)[mask] for name in PLOT_COLUMNS))
+
+
+@dataclass
+class TrackColumns:
+    """Every track at a period's reference time, as arrays (rows = tracks)."""
+
+    period: int
+    t_s: float
+    track_id: np.ndarray
+    status: np.ndarray  # track_management status codes
+    x: np.ndarray  # (N, 6) Singer state [x, vx, ax, y, vy, ay], system plane, m / m/s / m/s²
+    cov_xy: np.ndarray  # (N, 3) [σxx², σxy, σyy²], m²
+    fl: np.ndarray
+    vrate_fpm: np.ndarray
+    sources: np.ndarray  # uint64 bit mask over ``names``
+    mode3a: np.ndarray
+    mode_s: np.ndarray
+    updates: np.ndarray
+    age_s: np.ndarray
+    ended: np.ndarray  # ids of tracks ended in this period
+    names: "RadarNames"
+
+    def __len__(self) -> int:
+        return int(self.track_id.shape[0])
+
+    @cached_property
+    def geodetic(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lat_deg, lon_deg) of every track, computed once for the message and the safety nets."""
+        if not len(self):
+            return np.empty(0), np.empty(0)
+        return self.names.plane.to_geodetic(self.x[:, 0], self.x[:, 3])
+
+    def to_message(self) -> dict[str, Any]:
+        """The TrackBatch message (wire.Track fields). Built column by column and zipped
+        into dicts in C loops: a per-track Python body would cost several times more."""
+        n = len(self)
+        x = self.x
+        lat, lon = self.geodetic
+        masks = self.sources.tolist()
+        mode_s = self.mode_s.tolist()
+        cols = (
+            self.track_id.tolist(), repeat(self.t_s, n), _STATUS_NAMES[self.status].tolist(), lat.tolist(),
+            lon.tolist(), x[:, 0].tolist(), x[:, 3].tolist(), x[:, 1].tolist(), x[:, 4].tolist(),
+            [None if f != f else f for f in np.round(self.fl, 2).tolist()],
+            self.cov_xy.tolist(),
+            self.names.sources(masks),
+            [None if m < 0 else m for m in self.mode3a.tolist()],
+            self.names.mode_s(mode_s),
+            self.updates.tolist(), self.age_s.tolist(),
+            [None if v != v else v for v in self.vrate_fpm.tolist()], x[:, 2].tolist(), x[:, 5].tolist(),
+        )
+        tracks = [dict(zip(TRACK_KEYS, row)) for row in zip(*cols)]
+        return {"v": 1, "t": self.t_s, "period": self.period, "tracks": tracks, "ended": self.ended.tolist()}
+
+
+# wire.Track fields in the order TrackColumns.to_message builds them
+TRACK_KEYS = ("track_id", "t", "status", "lat_deg", "lon_deg", "x_m", "y_m", "vx_mps", "vy_mps", "fl", "cov_xy",
+              "sources", "mode3a", "mode_s", "updates", "age_s", "vrate_fpm", "ax_mps2", "ay_mps2")
+
+_STATUS_NAMES = np.array(STATUS_NAMES, dtype=object)
+
+
+class RadarNames:
+    """Shared, bounded caches of the strings a TrackBatch repeats: the source radar id
+    lists per bit mask and the Mode S address strings."""
+
+    def __init__(self, radar_ids: list[str], plane: SystemPlane):
+        self.radar_ids = radar_ids
+        self.plane = plane
+        self._sources: dict[int, list[str]] = {}
+        self._mode_s: dict[int, Optional[str]] = {}
+
+    def sources(self, masks: list[int]) -> list[list[str]]:
+        cache, names = self._sources, self.radar_ids
+        for mask in set(masks).difference(cache):
+            cache[mask] = [names[b] for b in range(len(names)) if mask >> b & 1]
+        return [cache[m] for m in masks]
+
+    def mode_s(self, addresses: list[int]) -> list[Optional[str]]:
+        cache = self._mode_s
+        if len(cache) > 100_000:  # addresses of long-gone aircraft are forgotten
+            cache.clear()
+        for m in set(addresses).difference(cache):
+            cache[m] = mode_s_to_str(m)
+        return [cache[m] for m in addresses]
+
+
+@dataclass
+class ConvertedPlots:
+    """A closing period's plots after the gate, in the system plane."""
+
+    t_s: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    cov_m2: np.ndarray  # (n, 2, 2)
+    radar: np.ndarray
+    mode_s: np.ndarray
+    mode3a: np.ndarray
+    fl: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])

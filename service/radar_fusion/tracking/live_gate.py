@@ -1,0 +1,288 @@
+"""The live wild-plot gate of the engine: Hu 2013's k-mean distance, causal, zero delay.
+
+The paper's batch method (eq. 1-7) and its baselines are in
+:mod:`radar_fusion.tracking.outliers`; this gate decides each plot on arrival from the
+recent plots of its own radar track, as :class:`LiveOutlierGate` describes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class LiveOutlierGate:
+    """Causal, zero-delay wild-plot gate for the engine, after Hu 2013's k-mean distance.
+
+    Each key (a radar track: e.g. ``radar_index << 32 | track_no``, or the radar index
+    and Mode S address packed the same way) keeps a ring buffer of its last `window`
+    *accepted* plots as radar-plane x/y (x = range*sin(az), y = range*cos(az)) and time.
+    A new plot is decided on arrival (delay 0) from past plots only:
+
+    * its window is fitted with a constant-velocity line (least squares in time), and each
+      past plot is carried forward to the new plot's time with that velocity;
+    * the new plot is a sub-sequence of length one, so its height (eq. 2) and deviation
+      (eq. 5) are 0 and only its level (eq. 4) can be outlying: its k-mean distance (the
+      paper's mean distance to the k nearest points) to the carried-forward plots
+      measures that, in metres;
+    * as in eq. 1 the deviation is standardised, by sqrt(sigma_fit^2 + sigma_floor_m^2),
+      where sigma_fit^2 is the window's residual variance about its line, from the
+      median squared residual so one wild plot in the window cannot inflate it (it grows in a turn, so
+      a manoeuvre widens the gate) and sigma_floor_m plays the role of eps*delta (radar
+      noise; it also keeps a perfectly straight window from rejecting everything);
+    * the plot is rejected when that ratio exceeds `threshold`.
+
+    Rejected plots never enter the window, so a run of wild plots cannot drag it along.
+    They are kept aside; after `relock_after` consecutive rejections the track is taken
+    to have genuinely jumped, the window is replaced by the rejected plots and the plot is
+    accepted (so a run of up to relock_after - 1 wild plots is rejected, and a persistent
+    change is accepted from its relock_after-th plot on). Keys with fewer than
+    `min_history` accepted plots, or whose last plot is older than `max_gap_s`, are
+    accepted unconditionally (the window restarts).
+
+    Memory is bounded: at most `max_keys` keys; keys not seen for `evict_after_s` are
+    evicted, and if the table is still full the least recently seen keys are evicted.
+    All work is vectorised across keys; plots of one key in one batch are processed in
+    time order, one "round" per occurrence.
+    """
+
+    def __init__(self, window: int = 8, k: int = 3, threshold: float = 6.0, enabled: bool = True,
+                 min_history: int = 4, sigma_floor_m: float = 150.0, relock_after: int = 6,
+                 max_gap_s: float = 60.0, evict_after_s: float = 300.0, max_keys: int = 100_000):
+        if window < 3:
+            raise ValueError("window must be >= 3")
+        if not 1 <= k <= min_history <= window:
+            raise ValueError("need 1 <= k <= min_history <= window")
+        if relock_after < 2:
+            raise ValueError("relock_after must be >= 2")
+        self.window = int(window)
+        self.k = int(k)
+        self.threshold = float(threshold)
+        self.enabled = bool(enabled)
+        self.min_history = int(min_history)
+        self.sigma_floor_m = float(sigma_floor_m)
+        self.relock_after = int(relock_after)
+        self.max_gap_s = float(max_gap_s)
+        self.evict_after_s = float(evict_after_s)
+        self.max_keys = int(max_keys)
+        self.rejected = 0
+        self.relocked = 0
+        self.evicted = 0
+        # key → row index as two aligned sorted arrays: one vectorised searchsorted per
+        # batch instead of a dict lookup per key
+        self._skeys = np.empty(0, dtype=np.int64)
+        self._srows = np.empty(0, dtype=np.int64)
+        self._free: list[int] = []
+        self._last_sweep_t = -np.inf
+        self._alloc(min(1024, self.max_keys))
+
+    # -- storage -------------------------------------------------------------------
+    def _alloc(self, capacity: int) -> None:
+        """Grow the per-key arrays to `capacity` rows, keeping the rows held."""
+        old = getattr(self, "_cap", 0)
+        w, p = self.window, self.relock_after - 1
+        specs = {
+            "_x": ((w,), 0.0, float), "_y": ((w,), 0.0, float), "_t": ((w,), 0.0, float),
+            "_px": ((p,), 0.0, float), "_py": ((p,), 0.0, float), "_pt": ((p,), 0.0, float),
+            "_count": ((), 0, np.int64), "_head": ((), 0, np.int64), "_npend": ((), 0, np.int64),
+            "_last_t": ((), -np.inf, float), "_row_key": ((), -1, np.int64),
+        }
+        for name, (tail, fill, dtype) in specs.items():
+            arr = np.full((capacity,) + tail, fill, dtype=dtype)
+            if old:
+                arr[:old] = getattr(self, name)
+            setattr(self, name, arr)
+        self._free.extend(range(capacity - 1, old - 1, -1))
+        self._cap = capacity
+
+    @property
+    def n_keys(self) -> int:
+        """Number of keys currently held."""
+        return int(self._skeys.size)
+
+    @property
+    def capacity(self) -> int:
+        """Rows allocated (never more than max_keys)."""
+        return self._cap
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes held by the per-key arrays."""
+        return sum(a.nbytes for a in (self._x, self._y, self._t, self._px, self._py, self._pt,
+                                      self._count, self._head, self._npend, self._last_t, self._row_key))
+
+    def _evict_rows(self, rows: np.ndarray) -> None:
+        gone = np.isin(self._skeys, self._row_key[rows])
+        self._skeys, self._srows = self._skeys[~gone], self._srows[~gone]
+        self._free.extend(rows.tolist())
+        self._row_key[rows] = -1
+        self._count[rows] = 0
+        self._npend[rows] = 0
+        self._last_t[rows] = -np.inf
+        self.evicted += int(rows.size)
+
+    def _sweep(self, t_now: float) -> None:
+        stale = np.flatnonzero((self._row_key >= 0) & (self._last_t < t_now - self.evict_after_s))
+        if stale.size:
+            self._evict_rows(stale)
+        self._last_sweep_t = t_now
+
+    def _rows_for(self, ukeys: np.ndarray, t_now: float) -> np.ndarray:
+        rows = np.full(ukeys.size, -1, dtype=np.int64)
+        if self._skeys.size:
+            pos = np.minimum(np.searchsorted(self._skeys, ukeys), self._skeys.size - 1)
+            found = self._skeys[pos] == ukeys
+            rows[found] = self._srows[pos[found]]
+        new = np.flatnonzero(rows < 0)
+        if new.size == 0:
+            return rows
+        if new.size > len(self._free) and self._cap < self.max_keys:
+            cap = self._cap
+            while cap - self._skeys.size < new.size and cap < self.max_keys:
+                cap = min(2 * cap, self.max_keys)
+            self._alloc(cap)
+        if new.size > len(self._free):
+            self._sweep(t_now)
+        if new.size > len(self._free):
+            # Still full: evict the least recently seen keys not in this batch.
+            held = np.flatnonzero(self._row_key >= 0)
+            held = held[~np.isin(held, rows[rows >= 0])]
+            need = min(new.size - len(self._free), held.size)
+            oldest = held[np.argpartition(self._last_t[held], need - 1)[:need]] if need else held[:0]
+            self._evict_rows(oldest)
+        n_new = min(new.size, len(self._free))
+        if n_new:
+            new = new[:n_new]
+            got = np.array([self._free.pop() for _ in range(n_new)], dtype=np.int64)
+            new_keys = ukeys[new]
+            self._row_key[got] = new_keys
+            rows[new] = got
+            order = np.argsort(new_keys)
+            at = np.searchsorted(self._skeys, new_keys[order])
+            self._skeys = np.insert(self._skeys, at, new_keys[order])
+            self._srows = np.insert(self._srows, at, got[order])
+        return rows  # keys beyond max_keys keep row -1: they are accepted untracked
+
+    # -- decision ------------------------------------------------------------------
+    def filter(self, keys: np.ndarray, t_s: np.ndarray, range_m: np.ndarray, azimuth_deg: np.ndarray) -> np.ndarray:
+        """Boolean mask `accept` for a batch of plots (True = pass on to clustering).
+
+        keys: int64 per plot; t_s: detection time (s); range_m; azimuth_deg (clockwise
+        from north). Plots of one key are decided in time order; state is updated.
+        """
+        keys = np.asarray(keys, dtype=np.int64)
+        n = keys.size
+        accept = np.ones(n, dtype=bool)
+        if not self.enabled or n == 0:
+            return accept
+        t_s = np.asarray(t_s, dtype=float)
+        az = np.deg2rad(np.asarray(azimuth_deg, dtype=float))
+        rng = np.asarray(range_m, dtype=float)
+        x = rng * np.sin(az)
+        y = rng * np.cos(az)
+        t_now = float(t_s.max())
+        if t_now - self._last_sweep_t > 0.25 * self.evict_after_s:
+            self._sweep(t_now)
+        # Sort by key then time; rank = occurrence of the plot within its key.
+        order = np.lexsort((t_s, keys))
+        ks = keys[order]
+        first = np.concatenate(([True], ks[1:] != ks[:-1]))
+        group = np.cumsum(first) - 1
+        urows = self._rows_for(ks[first], t_now)
+        rows = np.empty(n, dtype=np.int64)
+        rank = np.empty(n, dtype=np.int64)
+        rows[order] = urows[group]
+        rank[order] = np.arange(n) - np.flatnonzero(first)[group]
+        tracked = rows >= 0
+        for r in range(int(rank.max()) + 1):
+            sel = np.flatnonzero(tracked & (rank == r))
+            if sel.size:
+                accept[sel] = self._decide(rows[sel], t_s[sel], x[sel], y[sel])
+        self.rejected += int(n - accept.sum())
+        return accept
+
+    def _decide(self, rows: np.ndarray, t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Decide one plot per row (rows unique), update the rows, return accept."""
+        w = self.window
+        stale = (t - self._last_t[rows]) > self.max_gap_s
+        if stale.any():
+            self._count[rows[stale]] = 0
+            self._head[rows[stale]] = 0
+            self._npend[rows[stale]] = 0
+        count = self._count[rows]
+        gated = count >= self.min_history
+        ok = np.ones(rows.size, dtype=bool)
+        gi = np.flatnonzero(gated)
+        if gi.size:
+            gr = rows[gi]
+            valid = np.arange(w)[None, :] < count[gi, None]
+            m = count[gi].astype(float)
+            dt = np.where(valid, self._t[gr] - t[gi, None], 0.0)  # <= 0 for past plots
+            wx = np.where(valid, self._x[gr], 0.0)
+            wy = np.where(valid, self._y[gr], 0.0)
+            tbar = dt.sum(axis=1) / m
+            xbar = wx.sum(axis=1) / m
+            ybar = wy.sum(axis=1) / m
+            dtc = np.where(valid, dt - tbar[:, None], 0.0)
+            stt = (dtc * dtc).sum(axis=1)
+            stt_safe = np.where(stt > 0.0, stt, 1.0)
+            vx = np.where(stt > 0.0, (dtc * (wx - xbar[:, None])).sum(axis=1) / stt_safe, 0.0)
+            vy = np.where(stt > 0.0, (dtc * (wy - ybar[:, None])).sum(axis=1) / stt_safe, 0.0)
+            # Residual scale about the fitted line, robust to a wild plot that got in:
+            # for 2-D Gaussian residuals E[r^2] = median(r^2) / ln 2; m/(m-2) for the fit.
+            rx = wx - (xbar[:, None] + vx[:, None] * dtc)
+            ry = wy - (ybar[:, None] + vy[:, None] * dtc)
+            r2 = np.sort(np.where(valid, rx * rx + ry * ry, np.inf), axis=1)  # the window's m first
+            mi = count[gi, None]
+            median = 0.5 * (np.take_along_axis(r2, (mi - 1) // 2, 1) + np.take_along_axis(r2, mi // 2, 1))[:, 0]
+            var_fit = median / np.log(2.0) * m / np.maximum(m - 2.0, 1.0)
+            # Past plots carried forward to the new time: p_j + v * (t - t_j) = p_j - v * dt_j.
+            ex = wx - vx[:, None] * dt
+            ey = wy - vy[:, None] * dt
+            d = np.hypot(x[gi, None] - ex, y[gi, None] - ey)
+            d = np.where(valid, d, np.inf)
+            kmd = np.partition(d, self.k - 1, axis=1)[:, :self.k].mean(axis=1)
+            ratio = kmd / np.sqrt(var_fit + self.sigma_floor_m ** 2)
+            ok[gi] = ratio <= self.threshold
+        # Rejected plots: keep aside; relock after relock_after consecutive rejections.
+        rej = np.flatnonzero(~ok)
+        if rej.size:
+            rr = rows[rej]
+            npend = self._npend[rr]
+            relock = npend >= self.relock_after - 1
+            keep = ~relock
+            if keep.any():
+                kr, kp = rr[keep], npend[keep]
+                self._px[kr, kp] = x[rej[keep]]
+                self._py[kr, kp] = y[rej[keep]]
+                self._pt[kr, kp] = t[rej[keep]]
+                self._npend[kr] = kp + 1
+            if relock.any():
+                for r in rr[relock].tolist():
+                    p = min(int(self._npend[r]), w - 1)
+                    src = slice(int(self._npend[r]) - p, int(self._npend[r]))
+                    self._x[r, :p] = self._px[r, src]
+                    self._y[r, :p] = self._py[r, src]
+                    self._t[r, :p] = self._pt[r, src]
+                    self._count[r] = p
+                    self._head[r] = p
+                ok[rej[relock]] = True
+                self.relocked += int(relock.sum())
+        # Accepted plots enter the ring buffer.
+        acc = np.flatnonzero(ok)
+        if acc.size:
+            ar = rows[acc]
+            h = self._head[ar]
+            self._x[ar, h] = x[acc]
+            self._y[ar, h] = y[acc]
+            self._t[ar, h] = t[acc]
+            self._head[ar] = (h + 1) % w
+            self._count[ar] = np.minimum(self._count[ar] + 1, w)
+            self._npend[ar] = 0
+        self._last_t[rows] = np.maximum(self._last_t[rows], t)
+        return ok
+
+    def reset(self) -> None:
+        """Forget every key."""
+        held = np.flatnonzero(self._row_key >= 0)
+        self._evict_rows(held)
+        self.evicted -= int(held.size)
