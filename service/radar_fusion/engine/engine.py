@@ -55,9 +55,9 @@ from ..tracking.track_management import (
     position_m,
     velocity_mps,
 )
+from ..geo.units import FT_PER_FL, M_PER_FT
 from ..wire import DecodedPlots, RadarStatus, mode_s_to_str
 
-FT_PER_FL = 100.0
 #: consecutive batches of a radar refused whole as too far in the future after which its
 #: new time base is accepted (a radar back from an outage longer than the future limit)
 FUTURE_RELOCK_BATCHES = 8
@@ -135,7 +135,7 @@ class Engine:
         self.clustering = ClusteringParams(
             gate_chi2=trk.gate_chi2, new_target_gate_m=trk.new_target_gate_m, max_speed_mps=trk.max_speed_mps
         )
-        self.assumed_altitude_m = trk.assumed_altitude_ft * 0.3048
+        self.assumed_altitude_m = trk.assumed_altitude_ft * M_PER_FT
         # how far past the newest watermark an event time may lie (see _future_limit_s)
         self.future_margin_s = min(sysc.max_future_s, sysc.radar_timeout_s)
         self.manoeuvre_sigma_factor = trk.manoeuvre_sigma_factor

@@ -48,8 +48,9 @@ from typing import Any
 import numpy as np
 import pyproj
 
+from .units import M_PER_FL
+
 __all__ = [
-    "FEET_TO_M",
     "WGS84_GEOD",
     "gaussian_earth_radius_m",
     "SystemPlane",
@@ -61,12 +62,6 @@ __all__ = [
     "flight_level_to_altitude_m",
     "altitude_m_to_flight_level",
 ]
-
-FEET_TO_M = 0.3048
-"""International foot in metres (exact)."""
-
-FLIGHT_LEVEL_M = 100.0 * FEET_TO_M
-"""One flight level (100 ft) in metres: 30.48 m."""
 
 WGS84_GEOD = pyproj.Geod(ellps="WGS84")
 """Geodesic calculator on the WGS-84 ellipsoid (Karney's algorithms, nm accuracy)."""
@@ -499,7 +494,7 @@ def flight_level_to_altitude_m(fl: Any) -> np.ndarray:
     QNH, temperature or geoid correction (errors of a few hundred metres are possible;
     the covariance's altitude term is meant to absorb them). NaN passes through.
     """
-    return np.asarray(fl, dtype=float) * FLIGHT_LEVEL_M
+    return np.asarray(fl, dtype=float) * M_PER_FL
 
 
 def altitude_m_to_flight_level(alt_m: Any) -> np.ndarray:
@@ -508,4 +503,4 @@ def altitude_m_to_flight_level(alt_m: Any) -> np.ndarray:
     Same assumption as :func:`flight_level_to_altitude_m` (no pressure correction);
     not rounded; NaN passes through.
     """
-    return np.asarray(alt_m, dtype=float) / FLIGHT_LEVEL_M
+    return np.asarray(alt_m, dtype=float) / M_PER_FL
