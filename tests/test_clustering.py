@@ -12,14 +12,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from radar_fusion.tracking.clustering import (
-    CHI2_2DOF_P999,
-    ClusteringParams,
-    _assign_per_radar,
-    align_to_reference,
-    cluster_plots,
-    transfer_rho,
-)
+from radar_fusion.tracking.association import align_to_reference, assign_per_radar, transfer_rho
+from radar_fusion.tracking.clustering import CHI2_2DOF_P999, ClusteringParams, cluster_plots
 
 T_REF = 100.0
 NM_M = 1852.0
@@ -234,7 +228,7 @@ def test_per_radar_assignment_is_optimal_against_dense_lsa():
         mask = rng.random((n_plots, n_slots)) < 0.6
         cost = rng.uniform(0.0, gate, size=(n_plots, n_slots))
         pp, ss = np.nonzero(mask)
-        assign = _assign_per_radar(pp, ss, cost[pp, ss], n_plots, gate)
+        assign = assign_per_radar(pp, ss, cost[pp, ss], n_plots, gate)
         # Validity: one plot per slot, only allowed pairs.
         chosen = assign[assign >= 0]
         assert len(set(ss[chosen])) == chosen.size

@@ -10,6 +10,7 @@ import pytest
 import scipy.linalg as sl
 from scipy.stats import chi2
 
+from radar_fusion.tracking.initiation import two_point_initiation
 from radar_fusion.tracking.singer_filter import (
     H,
     AltitudeFilter,
@@ -18,7 +19,6 @@ from radar_fusion.tracking.singer_filter import (
     singer_sigma_m_mps2,
     singer_transition,
     singer_transition_printed,
-    two_point_initiation,
 )
 
 G0 = 9.80665
@@ -313,7 +313,7 @@ def run_filter(f, truth, dt, sigma_meas, rng):
     n, steps, _ = truth.shape
     z = truth[:, :, [0, 3]] + sigma_meas * rng.normal(size=(n, steps, 2))
     R = np.broadcast_to(sigma_meas**2 * np.eye(2), (n, 2, 2))
-    x, P = f.initiate(z[:, 0], R, z[:, 1], R, dt)
+    x, P = two_point_initiation(z[:, 0], R, z[:, 1], R, dt, f.sigma_m_mps2)
     errs, covs = [], []
     for k in range(2, steps):
         x, P = f.predict(x, P, dt)
@@ -394,7 +394,7 @@ def test_mahalanobis_gate_rate_on_true_measurements():
     truth = singer_truth(rng, n, 12, dt, f.alpha_per_s, f.sigma_m_mps2)
     z = truth[:, :, [0, 3]] + sigma * rng.normal(size=(n, 12, 2))
     R = np.broadcast_to(sigma**2 * np.eye(2), (n, 2, 2))
-    x, P = f.initiate(z[:, 0], R, z[:, 1], R, dt)
+    x, P = two_point_initiation(z[:, 0], R, z[:, 1], R, dt, f.sigma_m_mps2)
     for k in range(2, 11):
         x, P = f.predict(x, P, dt)
         x, P, _, _ = f.update(x, P, z[:, k], R)

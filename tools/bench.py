@@ -565,9 +565,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     import numpy as np
 
     from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
-    from radar_fusion.tracking.singer_filter import (
-        DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2, singer_process_noise, singer_transition,
-    )  # fmt: skip
+    from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
+    from radar_fusion.tracking.singer_filter import singer_process_noise, singer_transition
 
     cols = [c for c in sim.plot_columns if len(c)]
     if not cols:
@@ -592,8 +591,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
 
     trk = settings.tracking
     gap_s = 60.0
-    alpha = trk.alpha_per_s or DEFAULT_ALPHA_PER_S
-    sigma_m = trk.sigma_m_mps2 or DEFAULT_SIGMA_M_MPS2
+    alpha = trk.alpha_per_s
+    sigma_m = trk.sigma_m_mps2
     order = np.lexsort((t, tgt))
     t, cov, tgt = t[order], cov[order], tgt[order]
     n = t.size
@@ -607,7 +606,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     def prior(i: np.ndarray) -> np.ndarray:
         p0 = np.zeros((i.size, 6, 6))
         p0[:, [0, 0, 3, 3], [0, 3, 0, 3]] = cov[i][:, [0, 0, 1, 1], [0, 1, 0, 1]]
-        p0[:, 1, 1] = p0[:, 4, 4] = trk.max_speed_mps**2 / 3.0
+        p0[:, 1, 1] = p0[:, 4, 4] = unknown_velocity_var_m2ps2(settings.clustering.max_speed_mps)
         p0[:, 2, 2] = p0[:, 5, 5] = sigma_m**2
         return p0
 

@@ -24,12 +24,11 @@ import logging
 import queue
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 import msgpack
-import numpy as np
 import zenoh
 
 from .config import BusConfig, Settings
@@ -120,56 +119,11 @@ class RateLimitedLog:
             self._suppressed[reason] += 1
 
 
-class ClockCheck:
-    """Each radar's clock against the other radars', in event time only (no wall clock,
-    so a replay at any speed gives the same estimates).
-
-    When a message of radar i arrives with time t (its newest plot, or its status time),
-    each other radar j that has sent something since i's previous message gives a sample
-    s_ij = t − w_j, w_j being j's watermark. With true clocks and time-ordered delivery,
-    s_ij is a fraction of a batch interval; clock offsets δ add δ_i − δ_j. The pair
-    offset D_ij = (median s_ij − median s_ji) / 2 cancels the lag common to both
-    directions, and radar i's offset is the median of {0} ∪ {D_ij over j}: with three or
-    more radars one wrong clock is blamed on its own radar; with two, the offset is split
-    between them. A transport delay of one radar's feed shows the same way as its clock
-    running behind. A silent radar gives no samples (its watermark does not move).
-    """
-
-    def __init__(self, n_radars: int, window: int = 64, min_samples: int = 8):
-        self.n = n_radars
-        self.min_samples = min_samples
-        self._samples = [[deque(maxlen=window) for _ in range(n_radars)] for _ in range(n_radars)]
-        self._seen_wm_s = np.full((n_radars, n_radars), -np.inf)
-        self._not_self = ~np.eye(n_radars, dtype=bool)
-
-    def observe(self, radar: int, t_s: float, watermark_s: np.ndarray) -> None:
-        """A message of ``radar`` stamped ``t_s``; ``watermark_s``: every radar's watermark before it."""
-        moved = (watermark_s > self._seen_wm_s[radar]) & self._not_self[radar]
-        for j in np.flatnonzero(moved).tolist():
-            self._samples[radar][j].append(t_s - float(watermark_s[j]))
-        self._seen_wm_s[radar, moved] = watermark_s[moved]
-
-    def offsets_s(self) -> list[Optional[float]]:
-        """Estimated clock offset of each radar in seconds (None: not enough data yet)."""
-        med = np.full((self.n, self.n), np.nan)
-        for i in range(self.n):
-            for j in range(self.n):
-                if len(self._samples[i][j]) >= self.min_samples:
-                    med[i, j] = float(np.median(self._samples[i][j]))
-        pair = (med - med.T) / 2.0
-        out: list[Optional[float]] = []
-        for i in range(self.n):
-            d = pair[i][self._not_self[i] & np.isfinite(pair[i])]
-            out.append(float(np.median(np.concatenate([[0.0], d]))) if d.size else None)
-        return out
-
-
 class FusionDaemon:
     """The fusion daemon: one Zenoh session, one engine, a processing and a publishing thread."""
 
     def __init__(self, settings: Settings, queue_size: int = 50_000, idle_flush_s: Optional[float] = None,
-                 base_dir: Optional[Path] = None, outbox_size: int = 1024,
-                 clock_offset_limit_s: Optional[float] = None):
+                 base_dir: Optional[Path] = None, outbox_size: int = 1024):
         from .safety_nets import SafetyNets
 
         self.settings = settings
@@ -185,14 +139,13 @@ class FusionDaemon:
         self.messages_received = 0
         self.messages_processed = 0
         self.batches_published = 0
-        self.overload = 0
+        self.overload = 0  # messages refused on Zenoh's threads for a full queue
+        self._overload_counted = 0  # ... of which the processing thread has told the engine
+        self._arrivals_lock = threading.Lock()  # Zenoh may call back on several threads
         # Outputs wait here for the publishing thread; when it is full the oldest is dropped.
         self.outbox: queue.Queue = queue.Queue(maxsize=outbox_size)
         self.outputs_dropped = 0
         self.publish_errors = 0
-        self.clock = ClockCheck(len(self.engine.radar_ids))
-        # |estimated offset| above this marks a radar's clock suspect on the health key
-        self.clock_offset_limit_s = clock_offset_limit_s or getattr(settings.system, "clock_offset_limit_s", 2.0)
         self.clock_offsets_s: list[Optional[float]] = [None] * len(self.engine.radar_ids)
         self._health_pending = False  # a periodic health snapshot waits in the outbox
         self._last_processed = time.monotonic()
@@ -263,12 +216,13 @@ class FusionDaemon:
         size = len(sample.payload)
         payload = sample.payload.to_bytes() if size <= self.settings.bus.max_payload_bytes else _OVERSIZE
         item = (str(sample.key_expr), payload, time.monotonic())
-        self.messages_received += 1
+        with self._arrivals_lock:
+            self.messages_received += 1
         try:
             self.queue.put(item, timeout=2.0)
         except queue.Full:
-            self.overload += 1
-            self.engine.reject("overload")
+            with self._arrivals_lock:
+                self.overload += 1
 
     def _handle(self, key: str, payload: bytes) -> None:
         parts = key.split("/")
@@ -284,9 +238,6 @@ class FusionDaemon:
             elif decoded.radar_id != radar_id:
                 self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
             else:
-                i = self.engine.radar_index.get(radar_id)
-                if i is not None and len(decoded):
-                    self.clock.observe(i, float(decoded.t_s.max()), self.engine.buffer.watermark_s)
                 self.engine.ingest_plots(decoded)
                 for reason, n in decoded.rejected.items():
                     self._log_rejection(reason, f"{n} plot(s) of {radar_id} seq {decoded.seq}")
@@ -297,9 +248,6 @@ class FusionDaemon:
             elif decoded.radar_id != radar_id:
                 self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
             else:
-                i = self.engine.radar_index.get(radar_id)
-                if i is not None:
-                    self.clock.observe(i, decoded.t, self.engine.buffer.watermark_s)
                 self.engine.ingest_status(decoded)
         else:
             self._reject(Rejection("schema", f"unknown key {key}"), radar_id)
@@ -324,6 +272,7 @@ class FusionDaemon:
                     self._process_safely(key, payload, arrived_s)
             except queue.Empty:
                 pass
+            self._count_overload()
             self._publish(self.engine.poll())
             idle_s = time.monotonic() - self._last_processed
             if self.messages_processed > processed_at_flush and idle_s > self.idle_flush_s:
@@ -338,9 +287,18 @@ class FusionDaemon:
                 last_health = now
             if stopping and self.queue.empty():
                 break
+        self._count_overload()
         self._publish(self.engine.flush())
         self._check_clocks()
         self._emit(("health", self.health_message()))  # the final health, after the last batches
+
+    def _count_overload(self) -> None:
+        """Hand the overload refusals of Zenoh's threads to the engine's counters (the
+        engine is only ever touched by the processing thread)."""
+        n = self.overload - self._overload_counted
+        if n:
+            self._overload_counted += n
+            self.engine.reject("overload", n)
 
     def _process_safely(self, key: str, payload: bytes, arrived_s: Optional[float] = None) -> None:
         try:
@@ -354,15 +312,16 @@ class FusionDaemon:
             self.metrics.observe_ingest(self._last_processed - arrived_s)
 
     def _check_clocks(self) -> None:
-        offsets = self.clock.offsets_s()
+        """Log each radar whose clock became suspect, or good again (the engine estimates)."""
+        limit_s = self.settings.system.clock_offset_limit_s
+        offsets = self.engine.clock_offsets_s()
         for rid, old, new in zip(self.engine.radar_ids, self.clock_offsets_s, offsets):
-            was = old is not None and abs(old) > self.clock_offset_limit_s
-            now = new is not None and abs(new) > self.clock_offset_limit_s
+            was = old is not None and abs(old) > limit_s
+            now = new is not None and abs(new) > limit_s
             if now and not was:
-                log.warning("radar %s: clock offset %.1f s against the other radars (limit %.1f s)",
-                            rid, new, self.clock_offset_limit_s)
+                log.warning("radar %s: clock offset %.1f s against the other radars (limit %.1f s)", rid, new, limit_s)
             elif was and not now:
-                log.info("radar %s: clock back within %.1f s of the other radars", rid, self.clock_offset_limit_s)
+                log.info("radar %s: clock back within %.1f s of the other radars", rid, limit_s)
         self.clock_offsets_s = offsets
 
     # ------------------------------------------------------------- publishing
@@ -420,9 +379,6 @@ class FusionDaemon:
             outputs_dropped=self.outputs_dropped,
             publish_errors=self.publish_errors,
         )
-        for rid, offset_s in zip(self.engine.radar_ids, self.clock_offsets_s):
-            h["radars"][rid]["clock_offset_s"] = offset_s
-            h["radars"][rid]["clock_suspect"] = offset_s is not None and abs(offset_s) > self.clock_offset_limit_s
         return {"v": 1, "t": now, "uptime_s": now - self.started_wall, **h, "lag_s": (now - newest) if newest else None}
 
     def publish_health(self, health: Optional[dict[str, Any]] = None) -> None:

@@ -3,7 +3,9 @@
     [system]   center_lat, center_lon (system-plane origin, degrees), period_s
     [bus]      mode = "router" | "peer" | "client", listen = [...], connect = [...], prefix
     [[radars]] id, lat, lon, alt_m, sigma_range_m, sigma_azimuth_deg, rotation_period_s
-    [tracking] Singer filter, gates and track life-cycle parameters (all defaulted)
+    [tracking] the filter: Singer model, fusion, manoeuvre detection (all defaulted)
+    [clustering] association gates and new-target clustering (tracking/clustering.py)
+    [life_cycle] track confirmation, coasting and deletion (tracking/track_management.py)
     [outliers] live wild-plot gate (Hu 2013) parameters (all defaulted)
     [safety_nets] STCA / APW / MSAW parameters (all defaulted)
     [metrics]  listen = "127.0.0.1:9108": Prometheus endpoint (off when absent)
@@ -21,6 +23,10 @@ from typing import Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from .tracking.clustering import ClusteringParams
+from .tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2
+from .tracking.track_management import LifeCycle
 
 
 class ConfigError(Exception):
@@ -46,6 +52,10 @@ class SystemConfig(_Section):
     )
     max_buffered_plots_per_radar: int = Field(
         200_000, gt=0, description="plots of one radar that may wait for open periods; beyond, refused as buffer_full"
+    )
+    clock_offset_limit_s: float = Field(
+        2.0, gt=0, description="a radar whose clock is off by more than this against the other radars' is shown "
+        "clock_suspect on health (about half a scan: plots later than that start to miss their period)"
     )
 
 
@@ -92,36 +102,46 @@ class RadarConfig(_Section):
 
 
 class TrackingConfig(_Section):
-    # Singer model (Shu 2007 eq. 4, 12 and Q); defaults justified in singer_filter.py.
-    alpha_per_s: Optional[float] = Field(None, gt=0, description="manoeuvre reciprocal time constant α = 1/Tc")
-    sigma_m_mps2: Optional[float] = Field(None, gt=0, description="manoeuvre acceleration standard deviation")
+    """The filter: Singer model, cluster fusion, manoeuvre detection, plots without Mode C.
+
+    Association and track start are ``[clustering]`` (tracking/clustering.py
+    ``ClusteringParams``), the track life cycle is ``[life_cycle]``
+    (tracking/track_management.py ``LifeCycle``).
+    """
+
+    alpha_per_s: float = Field(
+        DEFAULT_ALPHA_PER_S, gt=0,
+        description="Singer manoeuvre bandwidth α = 1/T_c (Shu eq. 4, 12). Default 1/30 s⁻¹: the ~30 s of a "
+        "rate-one 90° turn (singer_filter.py)",
+    )
+    sigma_m_mps2: float = Field(
+        DEFAULT_SIGMA_M_MPS2, gt=0,
+        description="Singer acceleration standard deviation σ_m (Shu §4's Q). Default ≈ 2.5 m/s², from Singer's "
+        "formula with a 25° bank turn as the maximum (singer_filter.py)",
+    )
     fusion_method: Literal["scalar", "matrix"] = Field(
-        "matrix", description="scalar: Shu eq. 5-6; matrix: full-covariance information form"
+        "matrix", description="scalar: Shu eq. 5-6 per axis; matrix: the full-covariance information form, which "
+        "keeps the range/azimuth ellipse of each plot (fusion.py)"
     )
     manoeuvre_sigma_factor: float = Field(
-        4.0, ge=1.0, description="σ_m multiplier while a manoeuvre is detected (1 = off)"
+        4.0, ge=1.0, description="σ_m multiplier while a manoeuvre is detected (1 = off). Default 4: 2.5 → 10 m/s², "
+        "the centripetal acceleration of a rate-one turn at 190 m/s (manoeuvre.py)"
     )
-    manoeuvre_nis_on: float = Field(6.0, gt=0, description="fading-average NIS above which a track manoeuvres")
-    manoeuvre_nis_off: float = Field(3.0, gt=0, description="... and below which it flies straight again")
-    manoeuvre_nis_fading: float = Field(0.5, ge=0, lt=1, description="weight of the previous NIS average")
-    gate_chi2: float = Field(13.8, gt=0, description="association gate, chi-square with 2 dof (99.9 %)")
-    new_target_gate_m: float = Field(3000.0, gt=0, description="plots of one new target lie within this distance")
-    max_speed_mps: float = Field(350.0, gt=0)
-    confirm_updates: int = Field(3, ge=2, description="updates (M) needed to confirm a tentative track ...")
-    confirm_window_s: float = Field(40.0, gt=0, description="... within this time from its first plot (N)")
-    coast_after_scans: float = Field(
-        1.5, gt=0, description="missed scans (of the track's own radars' revisit time) before status coasting"
+    manoeuvre_nis_on: float = Field(
+        6.0, gt=0, description="fading-average NIS above which a track manoeuvres. Default 6: three times the mean "
+        "2 of a χ² with 2 dof; one noisy update alone (NIS ~ 10) lifts the average only to 6 with fading 0.5"
     )
-    delete_tentative_after_scans: float = Field(2.5, gt=0, description="missed scans that end a tentative track")
-    delete_after_scans: float = Field(
-        6.5, gt=0, description="missed scans that end a confirmed track (a run of 5 rejected wild plots survives)"
+    manoeuvre_nis_off: float = Field(
+        3.0, gt=0, description="... and below which it flies straight again. Default 3, half of the 'on' level: "
+        "hysteresis, so a track does not flicker between the two models"
     )
-    coast_after_s: Optional[float] = Field(None, gt=0, description="fixed coasting time, instead of scans")
-    delete_tentative_after_s: Optional[float] = Field(None, gt=0, description="fixed time, instead of scans")
-    delete_after_s: Optional[float] = Field(None, gt=0, description="fixed time, instead of scans")
-    assumed_altitude_ft: float = Field(10_000.0, description="height assumed for plots without Mode C")
-    min_track_separation_m: float = Field(
-        500.0, ge=0, description="a tentative track this close to a confirmed one with the same identity is dropped"
+    manoeuvre_nis_fading: float = Field(
+        0.5, ge=0, lt=1, description="weight of the previous NIS average. Default 0.5: a memory of about two "
+        "updates, so a turn is seen within two scans"
+    )
+    assumed_altitude_ft: float = Field(
+        10_000.0, description="height assumed for plots without Mode C, ft (their slant range is converted to "
+        "ground range at it). Default 10,000 ft, the middle of terminal-area traffic"
     )
 
 
@@ -144,6 +164,8 @@ class Settings(BaseSettings):
     bus: BusConfig = Field(default_factory=BusConfig)
     radars: list[RadarConfig] = Field(min_length=1)
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
+    clustering: ClusteringParams = Field(default_factory=ClusteringParams)
+    life_cycle: LifeCycle = Field(default_factory=LifeCycle)
     outliers: OutlierConfig = Field(default_factory=OutlierConfig)
     metrics: MetricsConfig = Field(default_factory=MetricsConfig)
     safety_nets: dict[str, Any] = Field(default_factory=dict)
@@ -152,6 +174,17 @@ class Settings(BaseSettings):
     def settings_customise_sources(cls, settings_cls, init_settings, env_settings, dotenv_settings, file_secret_settings):
         # The file's values come in as init arguments; the environment overrides them.
         return (env_settings, init_settings)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _moved_keys(cls, data: Any) -> Any:
+        """Keys that were in ``[tracking]`` before the sections of issue 12: say where they went."""
+        if isinstance(data, dict) and isinstance(data.get("tracking"), dict):
+            for section, model in (("clustering", ClusteringParams), ("life_cycle", LifeCycle)):
+                moved = sorted(set(data["tracking"]) & set(model.model_fields))
+                if moved:
+                    raise ValueError(f"[tracking] {', '.join(moved)}: these settings are now in [{section}]")
+        return data
 
     @model_validator(mode="after")
     def _unique_radars(self) -> "Settings":

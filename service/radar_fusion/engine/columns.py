@@ -2,6 +2,7 @@
 
 * :class:`PlotChunk`: plots as the radars measured them (polar), buffered per period;
 * :class:`ConvertedPlots`: a closing period's plots after the gate, in the system plane;
+* :class:`ClusterMeasurements`: one fused measurement per cluster of the period;
 * :class:`TrackColumns`: every track at a period's reference time, the engine's output
   (the TrackBatch message and the safety nets are built from it).
 
@@ -160,3 +161,28 @@ class ConvertedPlots:
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
+
+    @cached_property
+    def xy_m(self) -> np.ndarray:
+        """(n, 2) positions in the system plane."""
+        return np.stack([self.x_m, self.y_m], axis=1)
+
+
+@dataclass
+class ClusterMeasurements:
+    """One fused measurement per cluster of a period (rows = clusters, Shu eq. 5-6).
+
+    ``track_row`` is the track-table row of the cluster's track, −1 for a new target;
+    ``valid`` is False for a track cluster that ended up with no plot.
+    """
+
+    track_row: np.ndarray
+    valid: np.ndarray
+    t_s: np.ndarray  # the mean time of the cluster's plots: the measurement's time
+    z_m: np.ndarray  # (K, 2) fused position
+    R_m2: np.ndarray  # (K, 2, 2) its covariance
+    fl: np.ndarray  # mean Mode C flight level of the cluster's plots, NaN none
+    mode_s: np.ndarray  # int64, -1 none
+    mode3a: np.ndarray  # int64, -1 none
+    revisit_s: np.ndarray  # shortest rotation period among the cluster's radars
+    sources: np.ndarray  # uint64 bit mask of the cluster's radars

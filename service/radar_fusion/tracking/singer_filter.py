@@ -34,7 +34,8 @@ Relation to the paper
   The closed forms lose all precision for small αT (q11 is a difference of O(1) terms
   whose sum is (αT)⁵/10), so below αT = 0.5 each q_ij is evaluated from its Taylor
   series in αT instead.
-* P0 (§4) is implemented exactly as printed, by :func:`two_point_initiation`.
+* P0 (§4) is implemented exactly as printed, by
+  :func:`radar_fusion.tracking.initiation.two_point_initiation`.
 * H (§4) picks x and y: ``H = [[1,0,0,0,0,0],[0,0,0,1,0,0]]``.
 * The filter equations are Shu eq. 7–11; the covariance update uses the Joseph form,
   which equals eq. 10 for the optimal gain of eq. 9 and stays symmetric and positive
@@ -60,7 +61,6 @@ __all__ = [
     "singer_transition",
     "singer_transition_printed",
     "singer_process_noise",
-    "two_point_initiation",
     "SingerFilter",
     "AltitudeFilter",
 ]
@@ -206,7 +206,7 @@ def _powers(x: np.ndarray) -> np.ndarray:
     return v
 
 
-def _as_tracks(*arrays) -> list[np.ndarray]:
+def as_tracks(*arrays) -> list[np.ndarray]:
     """Broadcast scalars / (N,) arrays to a common 1-D float shape (N,)."""
     out = np.broadcast_arrays(*[np.atleast_1d(np.asarray(a, dtype=float)) for a in arrays])
     if out[0].ndim != 1:
@@ -235,7 +235,7 @@ def singer_transition(dt_s, alpha_per_s) -> np.ndarray:
     ``dt_s`` (T) and ``alpha_per_s`` (α ≥ 0) are scalars or (N,) arrays.  The α → 0 limit
     is the constant-acceleration transition; small αT uses a Taylor series.
     """
-    dt_s, alpha_per_s = _as_tracks(dt_s, alpha_per_s)
+    dt_s, alpha_per_s = as_tracks(dt_s, alpha_per_s)
     if np.any(alpha_per_s < 0):
         raise ValueError("alpha_per_s must be >= 0")
     phi02, phi12, phi22 = _transition_terms(dt_s, alpha_per_s)
@@ -265,7 +265,7 @@ def singer_transition_printed(dt_s, alpha_per_s) -> np.ndarray:
 
     An approximation of :func:`singer_transition`; kept for comparison only.
     """
-    dt_s, alpha_per_s = _as_tracks(dt_s, alpha_per_s)
+    dt_s, alpha_per_s = as_tracks(dt_s, alpha_per_s)
     b = np.zeros((dt_s.size, 3, 3))
     b[:, 0, 0] = b[:, 1, 1] = 1.0
     b[:, 0, 1] = dt_s
@@ -285,7 +285,7 @@ def singer_process_noise(dt_s, alpha_per_s, sigma_m_mps2) -> np.ndarray:
     of each q_ij, so Q is accurate from αT = 0 up: Q → q_c·[[T⁵/20, T⁴/8, T³/6],
     [T⁴/8, T³/3, T²/2], [T³/6, T²/2, T]] as αT → 0.
     """
-    dt_s, alpha_per_s, sigma_m_mps2 = _as_tracks(dt_s, alpha_per_s, sigma_m_mps2)
+    dt_s, alpha_per_s, sigma_m_mps2 = as_tracks(dt_s, alpha_per_s, sigma_m_mps2)
     if np.any(alpha_per_s < 0) or np.any(dt_s < 0):
         raise ValueError("alpha_per_s and dt_s must be >= 0")
     q = _process_noise_terms(dt_s, alpha_per_s, sigma_m_mps2)
@@ -301,62 +301,6 @@ def _process_noise_terms(dt_s: np.ndarray, alpha_per_s: np.ndarray, sigma_m_mps2
     q_c = 2.0 * alpha_per_s * sigma_m_mps2**2
     powers = np.array([_Q_POWER[ij] for ij in _Q_KEYS])
     return (q_c * _g_all(x).T * dt_s ** powers[:, None]).T
-
-
-def two_point_initiation(z1_m, R1, z2_m, R2, dt_s, sigma_m_mps2):
-    """Two-point differencing initiation with Shu's P0 (§4).
-
-    From two position measurements z1 (time t1) and z2 (t2 = t1 + T) of each track::
-
-        x0 = [z2x, (z2x − z1x)/T, 0, z2y, (z2y − z1y)/T, 0]
-
-    and, with σ_x1², σ_xy1, σ_y1² the entries of R1 and likewise for R2 (Shu writes
-    the covariance σ_xy as σ_xy²), P0 exactly as printed::
-
-        [[σx2²,    σx2²/T,            0,    σxy2,    σxy2/T,            0   ],
-         [σx2²/T,  (σx1²+σx2²)/T²,    0,    σxy2/T,  (σxy1+σxy2)/T²,    0   ],
-         [0,       0,                 σm²,  0,       0,                 0   ],
-         [σxy2,    σxy2/T,            0,    σy2²,    σy2²/T,            0   ],
-         [σxy2/T,  (σxy1+σxy2)/T²,    0,    σy2²/T,  (σy1²+σy2²)/T²,    0   ],
-         [0,       0,                 0,    0,       0,                 σm² ]]
-
-    The position/velocity block is the exact covariance of the estimator for
-    independent measurement errors and a constant-velocity target; the acceleration
-    is initialised at 0 with the Singer prior variance σ_m².  (A real acceleration a
-    would add the bias −a·T/2 to the velocity estimate, which P0 ignores.)
-
-    Shapes: z1_m, z2_m (N,2); R1, R2 (N,2,2); dt_s (N,) or scalar (> 0);
-    sigma_m_mps2 scalar or (N,).  Returns x (N,6), P (N,6,6).
-    """
-    z1_m = np.asarray(z1_m, dtype=float)
-    z2_m = np.asarray(z2_m, dtype=float)
-    R1 = np.asarray(R1, dtype=float)
-    R2 = np.asarray(R2, dtype=float)
-    n = z2_m.shape[0]
-    dt_s, sigma_m_mps2 = _as_tracks(dt_s, sigma_m_mps2)
-    dt_s = np.broadcast_to(dt_s, (n,))
-    sigma_m_mps2 = np.broadcast_to(sigma_m_mps2, (n,))
-    if np.any(dt_s <= 0):
-        raise ValueError("two-point initiation needs dt_s > 0")
-
-    x = np.zeros((n, STATE_DIM))
-    x[:, POS_IDX] = z2_m
-    x[:, POS_IDX + 1] = (z2_m - z1_m) / dt_s[:, None]
-
-    # position/velocity covariance: cov(p, p) = R2, cov(p, v) = R2/T,
-    # cov(v, v) = (R1 + R2)/T², for each pair of axes (a, b) ∈ {x, y}²
-    inv_t = (1.0 / dt_s)[:, None, None]
-    pp = R2
-    pv = R2 * inv_t
-    vv = (R1 + R2) * inv_t**2
-    P = np.zeros((n, STATE_DIM, STATE_DIM))
-    pos, vel = POS_IDX, POS_IDX + 1
-    P[:, pos[:, None], pos[None, :]] = pp
-    P[:, pos[:, None], vel[None, :]] = pv
-    P[:, vel[:, None], pos[None, :]] = np.swapaxes(pv, 1, 2)
-    P[:, vel[:, None], vel[None, :]] = vv
-    P[:, 2, 2] = P[:, 5, 5] = sigma_m_mps2**2
-    return x, P
 
 
 def inv_2x2(m: np.ndarray) -> np.ndarray:
@@ -420,10 +364,6 @@ class SingerFilter:
     def process_noise(self, dt_s) -> np.ndarray:
         """Q(k), (N,6,6)."""
         return singer_process_noise(dt_s, self.alpha_per_s, self.sigma_m_mps2)
-
-    def initiate(self, z1_m, R1, z2_m, R2, dt_s):
-        """Two-point initiation with Shu's P0; see :func:`two_point_initiation`."""
-        return two_point_initiation(z1_m, R1, z2_m, R2, dt_s, self.sigma_m_mps2)
 
     def predict(self, x, P, dt_s):
         """Prediction over dt_s (scalar or (N,)) for x (N,6), P (N,6,6).

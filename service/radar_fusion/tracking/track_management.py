@@ -26,29 +26,58 @@ Life cycle
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 TENTATIVE, CONFIRMED, COASTING = 0, 1, 2
 STATUS_NAMES = ("tentative", "confirmed", "coasting")
 
 
-@dataclass(frozen=True)
-class LifeCycle:
-    """Life-cycle rules. Silence is measured in scans of the track's own revisit time
-    (the shortest rotation period among the radars of its latest update), so a track
-    seen by a 4 s radar and one seen only by a 12 s radar tolerate the same number of
-    missed scans; a fixed time in seconds may override each rule."""
+class LifeCycle(BaseModel):
+    """Life-cycle rules: the ``[life_cycle]`` section of the configuration.
 
-    confirm_updates: int
-    confirm_window_s: float
-    coast_after_scans: float = 1.5
-    delete_tentative_after_scans: float = 2.5
-    delete_after_scans: float = 6.5
-    coast_after_s: float | None = None
-    delete_tentative_after_s: float | None = None
-    delete_after_s: float | None = None
+    Silence is measured in scans of the track's own revisit time (the shortest rotation
+    period among the radars of its latest update), so a track seen by a 4 s radar and one
+    seen only by a 12 s radar tolerate the same number of missed scans; a fixed time in
+    seconds may override each rule.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    confirm_updates: int = Field(
+        3, ge=2,
+        description="Updates (M of M-of-N) that confirm a tentative track. Default 3: one update is any plot, two "
+        "give the first velocity (two-point initiation), the third is the first that the velocity predicted.",
+    )
+    confirm_window_s: float = Field(
+        40.0, gt=0,
+        description="... within this time from its first plot (the N of M-of-N), s. Default 40 s: three updates "
+        "of the slowest (12 s) radar with one scan missed; a tentative track that takes longer ends.",
+    )
+    coast_after_scans: float = Field(
+        1.5, gt=0,
+        description="Missed scans before a confirmed track is shown coasting. Default 1.5: one scan missed is "
+        "common (Pd 0.9); half a scan more absorbs the jitter of plot times within a scan.",
+    )
+    delete_tentative_after_scans: float = Field(
+        2.5, gt=0,
+        description="Missed scans that end a tentative track. Default 2.5: clutter rarely repeats at one place, "
+        "and a real aircraft with two misses in a row is picked up again within a few scans.",
+    )
+    delete_after_scans: float = Field(
+        6.5, gt=0,
+        description="Missed scans that end a confirmed or coasting track. Default 6.5: a run of 5 rejected wild "
+        "plots (the live gate re-locks at the 6th) must not end a track.",
+    )
+    coast_after_s: Optional[float] = Field(None, gt=0, description="A fixed coasting time, s, instead of scans.")
+    delete_tentative_after_s: Optional[float] = Field(
+        None, gt=0, description="A fixed time, s, instead of scans, that ends a tentative track."
+    )
+    delete_after_s: Optional[float] = Field(
+        None, gt=0, description="A fixed time, s, instead of scans, that ends a confirmed or coasting track."
+    )
 
 
 _FIELDS = {

@@ -1,0 +1,229 @@
+"""Admission: what comes in from each radar, checked before it is buffered (no I/O).
+
+Per message, cheap and constant per batch (the expensive per-plot work waits for the
+period to close, engine.py):
+
+* unknown radar, duplicate sequence numbers (a resent or doubled message), sequence gaps
+  and out-of-order batches (counted, not refused: the period buffer orders by time);
+* plots beyond the radar's instrumented range, late plots (their period already closed),
+  plots too far in the future (a clock jump or a forged time), a per-radar buffer limit;
+* every refusal counted by reason, in total and per radar, for the health key;
+* :class:`ClockCheck`: each radar's clock against the other radars', in event time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from ..wire import DecodedPlots, RadarStatus
+from .columns import PlotChunk
+from .period_buffer import PeriodBuffer
+
+#: consecutive batches of a radar refused whole as too far in the future after which its
+#: new time base is accepted (a radar back from an outage longer than the future limit)
+FUTURE_RELOCK_BATCHES = 8
+
+
+@dataclass
+class RadarState:
+    """What admission keeps of one radar (its figures go to health ``radars.<id>``)."""
+
+    last_seq: Optional[int] = None
+    recent_seqs: deque = field(default_factory=lambda: deque(maxlen=4096))
+    recent_set: set = field(default_factory=set)
+    plots: int = 0
+    batches: int = 0
+    seq_gaps: int = 0
+    out_of_order: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    rotation_period_s: Optional[float] = None
+    wild: int = 0
+    future_streak: int = 0  # consecutive batches refused whole as plot_future
+
+
+class Admission:
+    """The checks above, for the radars of one configuration, into one period buffer.
+
+    ``counters`` and ``rejected`` are the engine's counters (shared, not copied).
+    """
+
+    def __init__(self, radar_ids: list[str], max_range_m: np.ndarray, buffer: PeriodBuffer,
+                 future_margin_s: float, counters: Counter, rejected: Counter):
+        self.radar_ids = radar_ids
+        self.radar_index = {rid: i for i, rid in enumerate(radar_ids)}
+        self.max_range_m = max_range_m
+        self.buffer = buffer
+        self.future_margin_s = future_margin_s
+        self.counters = counters
+        self.rejected = rejected
+        self.radars = [RadarState() for _ in radar_ids]
+
+    def reject(self, reason: str, n: int = 1, radar_id: Optional[str] = None) -> None:
+        """Count ``n`` rejections (also those the codec made before the engine saw them)."""
+        if n <= 0:
+            return
+        self.rejected[reason] += n
+        if radar_id in self.radar_index:
+            self.radars[self.radar_index[radar_id]].rejected[reason] += n
+
+    def admit_status(self, status: RadarStatus) -> None:
+        """A north marker, sector crossing or heartbeat: it moves the radar's watermark."""
+        i = self.radar_index.get(status.radar_id)
+        if i is None:
+            self.reject("unknown_radar")
+            return
+        radar = self.radars[i]
+        if status.t > self._future_limit_s(i) and radar.future_streak < FUTURE_RELOCK_BATCHES:
+            self.reject("status_future", radar_id=status.radar_id)
+            radar.future_streak += 1
+            return
+        radar.future_streak = 0
+        self.counters["status_messages"] += 1
+        if status.rotation_period_s is not None:
+            radar.rotation_period_s = status.rotation_period_s
+        self.buffer.advance_watermark(i, status.t)
+
+    def _future_limit_s(self, i: int) -> float:
+        """Latest plausible event time from radar ``i``; later is refused as
+        ``plot_future``. A clock jump or a forged time must not push a watermark ahead:
+        beyond ``radar_timeout_s`` past the others it would make them all look silent,
+        close every period on this radar alone and turn their good plots late.
+
+        The limit is the newest watermark of all radars (this one included) plus
+        min(max_future_s, radar_timeout_s): a radar's time advances by about a rotation
+        per rotation, and one back from an outage is in step with the others again. A
+        radar with no other radar to follow that comes back after a longer outage is
+        re-locked by :meth:`admit_plots` after ``FUTURE_RELOCK_BATCHES`` batches.
+        """
+        newest = float(self.buffer.watermark_s.max())
+        return newest + self.future_margin_s if math.isfinite(newest) else math.inf
+
+    def admit_plots(self, batch: DecodedPlots) -> int:
+        """Check one radar's batch and buffer what passes; returns the plots accepted."""
+        self.counters["batches_received"] += 1
+        for reason, n in batch.rejected.items():
+            self.reject(reason, n, batch.radar_id)
+        i = self.radar_index.get(batch.radar_id)
+        if i is None:
+            self.reject("unknown_radar", 1)
+            return 0
+        radar = self.radars[i]
+        if batch.seq in radar.recent_set:
+            self.reject("duplicate", 1, batch.radar_id)
+            return 0
+        if len(radar.recent_seqs) == radar.recent_seqs.maxlen:
+            radar.recent_set.discard(radar.recent_seqs[0])
+        radar.recent_seqs.append(batch.seq)
+        radar.recent_set.add(batch.seq)
+        if radar.last_seq is None or batch.seq > radar.last_seq:
+            if radar.last_seq is not None and batch.seq > radar.last_seq + 1:
+                radar.seq_gaps += batch.seq - radar.last_seq - 1
+            radar.last_seq = batch.seq
+        else:
+            radar.out_of_order += 1
+            self.counters["batches_out_of_order"] += 1
+        radar.batches += 1
+        n_in = len(batch)
+        if n_in == 0:
+            return 0
+        self.counters["plots_received"] += n_in
+        buf = self.buffer
+        t_s, range_m = batch.t_s, batch.range_m
+        t_min_s, t_max_s = float(t_s.min()), float(t_s.max())
+        closed_s, future_s = buf.closed_until_s, self._future_limit_s(i)
+        if not math.isfinite(buf.watermark_s[i]):  # a first batch: also against its own start
+            future_s = min(future_s, t_min_s + self.future_margin_s)
+        if radar.future_streak >= FUTURE_RELOCK_BATCHES:
+            # This radar's time has stayed ahead, consistently: it came back after an
+            # outage (or its clock was set right); follow it from this batch on.
+            future_s = math.inf
+            radar.future_streak = 0
+            self.counters["radar_time_relocks"] += 1
+        if t_min_s >= closed_s and t_max_s <= future_s and float(range_m.max()) <= self.max_range_m[i]:
+            idx = slice(None)  # the usual case: the whole batch is good (no copies)
+            n_ok = n_in
+            radar.future_streak = 0
+        else:
+            keep = range_m <= self.max_range_m[i]
+            self.reject("plot_beyond_max_range", n_in - int(keep.sum()), batch.radar_id)
+            late = t_s < closed_s
+            self.reject("plot_late", int((late & keep).sum()), batch.radar_id)
+            keep &= ~late
+            future = t_s > future_s
+            self.reject("plot_future", int((future & keep).sum()), batch.radar_id)
+            keep &= ~future
+            idx = np.flatnonzero(keep)
+            n_ok = int(idx.size)
+            radar.future_streak = radar.future_streak + 1 if n_ok == 0 and future.any() else 0
+            if n_ok == 0:
+                return 0
+            t_min_s, t_max_s = float(t_s[idx].min()), float(t_s[idx].max())
+        room = buf.room(i)
+        if n_ok > room:
+            # Bounded memory: a radar far ahead of the others (or flooding) may not fill
+            # the buffer without limit. The earliest plots are kept.
+            self.reject("buffer_full", n_ok - max(room, 0), batch.radar_id)
+            buf.advance_watermark(i, t_max_s)  # valid plots: the radar's time has moved on
+            if room <= 0:
+                return 0
+            idx = (np.arange(n_in) if isinstance(idx, slice) else idx)[np.argsort(t_s[idx], kind="stable")[:room]]
+            n_ok = room
+            t_min_s, t_max_s = float(t_s[idx].min()), float(t_s[idx].max())
+        buf.add(
+            PlotChunk(t_s[idx], range_m[idx], batch.azimuth_deg[idx], batch.fl[idx], np.full(n_ok, i, np.int64),
+                      batch.mode_s[idx], batch.mode3a[idx], batch.track_no[idx]),
+            i, t_min_s,
+        )
+        buf.advance_watermark(i, t_max_s)
+        radar.plots += n_ok
+        self.counters["plots_accepted"] += n_ok
+        return n_ok
+
+
+class ClockCheck:
+    """Each radar's clock against the other radars', in event time only (no wall clock,
+    so a replay at any speed gives the same estimates).
+
+    When a message of radar i arrives with time t (its newest plot, or its status time),
+    each other radar j that has sent something since i's previous message gives a sample
+    s_ij = t − w_j, w_j being j's watermark. With true clocks and time-ordered delivery,
+    s_ij is a fraction of a batch interval; clock offsets δ add δ_i − δ_j. The pair
+    offset D_ij = (median s_ij − median s_ji) / 2 cancels the lag common to both
+    directions, and radar i's offset is the median of {0} ∪ {D_ij over j}: with three or
+    more radars one wrong clock is blamed on its own radar; with two, the offset is split
+    between them. A transport delay of one radar's feed shows the same way as its clock
+    running behind. A silent radar gives no samples (its watermark does not move).
+    """
+
+    def __init__(self, n_radars: int, window: int = 64, min_samples: int = 8):
+        self.n = n_radars
+        self.min_samples = min_samples
+        self._samples = [[deque(maxlen=window) for _ in range(n_radars)] for _ in range(n_radars)]
+        self._seen_wm_s = np.full((n_radars, n_radars), -np.inf)
+        self._not_self = ~np.eye(n_radars, dtype=bool)
+
+    def observe(self, radar: int, t_s: float, watermark_s: np.ndarray) -> None:
+        """A message of ``radar`` stamped ``t_s``; ``watermark_s``: every radar's watermark before it."""
+        moved = (watermark_s > self._seen_wm_s[radar]) & self._not_self[radar]
+        for j in np.flatnonzero(moved).tolist():
+            self._samples[radar][j].append(t_s - float(watermark_s[j]))
+        self._seen_wm_s[radar, moved] = watermark_s[moved]
+
+    def offsets_s(self) -> list[Optional[float]]:
+        """Estimated clock offset of each radar in seconds (None: not enough data yet)."""
+        med = np.full((self.n, self.n), np.nan)
+        for i in range(self.n):
+            for j in range(self.n):
+                if len(self._samples[i][j]) >= self.min_samples:
+                    med[i, j] = float(np.median(self._samples[i][j]))
+        pair = (med - med.T) / 2.0
+        out: list[Optional[float]] = []
+        for i in range(self.n):
+            d = pair[i][self._not_self[i] & np.isfinite(pair[i])]
+            out.append(float(np.median(np.concatenate([[0.0], d]))) if d.size else None)
+        return out

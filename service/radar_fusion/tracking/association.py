@@ -1,0 +1,370 @@
+"""Plots to tracks (Shu 2007 §2, case 2): gating and the track clusters of k-means.
+
+Steps 1-5 of the algorithm in clustering.py, whose module docstring has the notation
+(eq. 1-3): time alignment of a plot with a track's velocity, candidate pairs from a k-d
+tree, the Mahalanobis gate with identity compatibility, the seed assignment with one
+plot per radar per cluster (global nearest neighbour, Jonker-Volgenant), and the batched
+transfers between track clusters by the corrected eq. 3.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import connected_components, min_weight_full_bipartite_matching
+from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:
+    from .clustering import ClusteringParams
+
+__all__ = ["align_to_reference", "transfer_rho", "gated_pairs", "assign_per_radar", "transfer_track_clusters"]
+
+
+def align_to_reference(
+    xy_m: np.ndarray,
+    cov_m2: np.ndarray,
+    t_s: np.ndarray,
+    t_ref_s: float,
+    v_mps: np.ndarray,
+    cov_vel_m2ps2: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bring plots to the reference time with a constant velocity (Shu §2, 时空对准).
+
+    With dt = t_ref − t_p:  z' = z + v·dt,   R' = R + dt²·P_vv.
+
+    ``v_mps`` is (2,) or (M, 2) and ``cov_vel_m2ps2`` (2, 2) or (M, 2, 2), broadcast over
+    the M plots.  For a target without a track use v = 0 and a velocity covariance that
+    covers the unknown motion.  Returns (aligned xy (M, 2), aligned covariance (M, 2, 2)).
+    """
+    xy = np.asarray(xy_m, dtype=float)
+    cov = np.asarray(cov_m2, dtype=float)
+    dt_s = float(t_ref_s) - np.asarray(t_s, dtype=float)
+    aligned_xy = xy + np.asarray(v_mps, dtype=float) * dt_s[..., None]
+    aligned_cov = cov + (dt_s * dt_s)[..., None, None] * np.asarray(cov_vel_m2ps2, dtype=float)
+    return aligned_xy, aligned_cov
+
+
+def transfer_rho(
+    p_xy: np.ndarray, centroid_xy: np.ndarray, n_members: np.ndarray, own: np.ndarray
+) -> np.ndarray:
+    """ρ of Shu eq. 3 in its corrected form (Duda & Hart), vectorised.
+
+    own = True  (p is in the cluster):  ρ_i = N_i/(N_i − 1)·|p − m_i|²  (0 when N_i ≤ 1)
+    own = False (another cluster):      ρ_j = N_j/(N_j + 1)·|p − m_j|²
+
+    ρ_i is the decrease of E (eq. 2) when p leaves its cluster, ρ_j the increase when p
+    joins cluster j; N may be a (possibly fractional) total weight.
+    """
+    d = np.asarray(p_xy, dtype=float) - np.asarray(centroid_xy, dtype=float)
+    d2 = np.einsum("...k,...k->...", d, d)
+    n = np.asarray(n_members, dtype=float)
+    own = np.asarray(own, dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        factor = np.where(own, np.where(n > 1, n / (n - 1.0), 0.0), n / (n + 1.0))
+    return factor * d2
+
+
+# --------------------------------------------------------------------------------------
+# small vectorised helpers
+
+
+def lambda_max_2x2(cov: np.ndarray) -> np.ndarray:
+    """Largest eigenvalue of symmetric 2×2 matrices (…, 2, 2)."""
+    a = cov[..., 0, 0]
+    c = cov[..., 1, 1]
+    b = 0.5 * (cov[..., 0, 1] + cov[..., 1, 0])
+    half_diff = 0.5 * (a - c)
+    return 0.5 * (a + c) + np.sqrt(half_diff * half_diff + b * b)
+
+
+def mahalanobis2_2x2(y: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """yᵀS⁻¹y for (G, 2) residuals and (G, 2, 2) covariances; +inf where S is not PD."""
+    a = s[:, 0, 0]
+    c = s[:, 1, 1]
+    b = 0.5 * (s[:, 0, 1] + s[:, 1, 0])
+    det = a * c - b * b
+    y0 = y[:, 0]
+    y1 = y[:, 1]
+    num = c * y0 * y0 - 2.0 * b * y0 * y1 + a * y1 * y1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = num / det
+    return np.where((det > 0) & (a > 0), d2, np.inf)
+
+
+def identity_compatible(
+    s1: np.ndarray, s2: np.ndarray, a1: np.ndarray, a2: np.ndarray, use_mode3a: bool
+) -> np.ndarray:
+    """Mode S (and optionally Mode 3/A) codes agree or at least one is unknown (−1)."""
+    ok = (s1 < 0) | (s2 < 0) | (s1 == s2)
+    if use_mode3a:
+        ok &= (a1 < 0) | (a2 < 0) | (a1 == a2)
+    return ok
+
+
+def first_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """Index of the element of smallest key in each group (groups given by ``group``)."""
+    order = np.lexsort((key, group))
+    g_sorted = group[order]
+    first = np.ones(order.shape[0], dtype=bool)
+    first[1:] = g_sorted[1:] != g_sorted[:-1]
+    return order[first]
+
+
+# --------------------------------------------------------------------------------------
+# track phase
+
+
+def candidate_pairs(
+    plot_xy: np.ndarray,
+    plot_cov: np.ndarray,
+    dt_s: np.ndarray,
+    plot_ok: np.ndarray,
+    track_xy: np.ndarray,
+    track_v: np.ndarray,
+    track_cov_pos: np.ndarray,
+    track_cov_vel: np.ndarray,
+    track_ok: np.ndarray,
+    params: ClusteringParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(plot, track) pairs that may pass the gate, from one k-d tree query.
+
+    The aligned residual is y = z_p + v_j·dt_p − x_j, so |y| ≤ r_j implies
+    |z_p − c_j| ≤ r_j + |v_j|·h with c_j = x_j − v_j·dt_mid and h the half-range of dt.
+    The Euclidean bound of the gate is r_j = sqrt(gate·λmax(S)) with
+    λmax(S) ≤ λmax(P_pos,j) + max_p λmax(R_p) + max|dt|²·λmax(P_vv,j), capped by
+    max_gate_m.
+    """
+    plot_idx = np.flatnonzero(plot_ok)
+    track_idx = np.flatnonzero(track_ok)
+    empty = np.empty(0, dtype=np.intp)
+    if plot_idx.size == 0 or track_idx.size == 0:
+        return empty, empty
+    dt = dt_s[plot_idx]
+    dt_lo = float(dt.min())
+    dt_hi = float(dt.max())
+    dt_mid = 0.5 * (dt_lo + dt_hi)
+    dt_half = 0.5 * (dt_hi - dt_lo)
+    dt_abs = max(abs(dt_lo), abs(dt_hi))
+    lam_r = float(lambda_max_2x2(plot_cov[plot_idx]).max())
+    lam_p = lambda_max_2x2(track_cov_pos[track_idx])
+    lam_v = lambda_max_2x2(track_cov_vel[track_idx])
+    radius = np.sqrt(params.gate_chi2 * (lam_p + lam_r + dt_abs * dt_abs * lam_v))
+    if params.max_gate_m is not None:
+        radius = np.minimum(radius, params.max_gate_m)
+    v = track_v[track_idx]
+    speed = np.hypot(v[:, 0], v[:, 1])
+    radius = radius + speed * dt_half
+    radius = radius * (1.0 + 1e-9) + 1e-6  # rounding margin; the exact gate follows
+    centres = track_xy[track_idx] - v * dt_mid
+    tree = cKDTree(plot_xy[plot_idx])
+    hits = tree.query_ball_point(centres, radius, return_sorted=False)
+    lens = np.fromiter(map(len, hits), dtype=np.intp, count=len(hits))
+    total = int(lens.sum())
+    flat = np.fromiter(itertools.chain.from_iterable(hits), dtype=np.intp, count=total)
+    pair_plot = plot_idx[flat]
+    pair_track = np.repeat(track_idx, lens)
+    return pair_plot, pair_track
+
+
+def assign_per_radar(
+    pair_plot: np.ndarray,
+    pair_slot: np.ndarray,
+    pair_cost: np.ndarray,
+    n_plots: int,
+    dummy_cost: float,
+) -> np.ndarray:
+    """Min-cost assignment of plots to (track, radar) slots, at most one plot per slot.
+
+    Leaving a plot out costs ``dummy_cost``.  Returns, for each of the n_plots plots, the
+    index of its chosen pair or −1.  A connected component of the plot–slot graph in
+    which no two plots share their best slot is solved by taking each plot's best pair
+    (the sum of the per-plot minima is a lower bound, so it is optimal); the components
+    with a conflict are solved together by one sparse LAPJV call.
+    """
+    assign = np.full(n_plots, -1, dtype=np.intp)
+    if pair_plot.size == 0:
+        return assign
+    best = first_per_group(pair_plot, pair_cost)
+    slots, slot_id = np.unique(pair_slot, return_inverse=True)
+    n_slots = slots.shape[0]
+    demand = np.bincount(slot_id[best], minlength=n_slots)
+    if not np.any(demand > 1):
+        assign[pair_plot[best]] = best
+        return assign
+
+    plots_u, plot_id = np.unique(pair_plot, return_inverse=True)
+    n_pu = plots_u.shape[0]
+    graph = coo_matrix(
+        (np.ones(pair_plot.shape[0]), (plot_id, n_pu + slot_id)),
+        shape=(n_pu + n_slots, n_pu + n_slots),
+    )
+    _, comp = connected_components(graph, directed=False)
+    bad_comp = np.zeros(int(comp.max()) + 1, dtype=bool)
+    bad_comp[comp[n_pu + np.flatnonzero(demand > 1)]] = True
+    plot_bad = bad_comp[comp[:n_pu]]
+
+    easy = best[~plot_bad[plot_id[best]]]
+    assign[pair_plot[easy]] = easy
+
+    hard_pairs = np.flatnonzero(plot_bad[plot_id])
+    hard_plots_u, rows = np.unique(plot_id[hard_pairs], return_inverse=True)
+    hard_slots_u, cols = np.unique(slot_id[hard_pairs], return_inverse=True)
+    n_rows = hard_plots_u.shape[0]
+    n_cols = hard_slots_u.shape[0]
+    # Weights are offset by +1 so that no weight is zero (LAPJVsp ignores zeros); every
+    # row is matched exactly once, so the offset adds the same constant to every solution.
+    data = np.concatenate([pair_cost[hard_pairs] + 1.0, np.full(n_rows, dummy_cost + 1.0)])
+    r_all = np.concatenate([rows, np.arange(n_rows)])
+    c_all = np.concatenate([cols, n_cols + np.arange(n_rows)])
+    matrix = csr_matrix((data, (r_all, c_all)), shape=(n_rows, n_cols + n_rows))
+    m_rows, m_cols = min_weight_full_bipartite_matching(matrix)
+    real = m_cols < n_cols
+    m_rows = m_rows[real]
+    m_cols = m_cols[real]
+    # Map the matched (row, col) back to pair indices through a sorted key.
+    key = rows.astype(np.int64) * n_cols + cols
+    order = np.argsort(key)
+    pos = np.searchsorted(key[order], m_rows.astype(np.int64) * n_cols + m_cols)
+    chosen = hard_pairs[order[pos]]
+    assign[pair_plot[chosen]] = chosen
+    return assign
+
+
+def transfer_track_clusters(
+    assign: np.ndarray,
+    pair_plot: np.ndarray,
+    pair_track: np.ndarray,
+    pair_radar: np.ndarray,
+    pair_xy: np.ndarray,
+    track_xy: np.ndarray,
+    n_radars: int,
+    anchor_weight: float,
+    max_iterations: int,
+) -> tuple[np.ndarray, int]:
+    """Batched transfer test (eq. 3 corrected) among the track clusters.
+
+    Cluster j holds its predicted point (weight ``anchor_weight``) and its assigned
+    aligned plots; W_j is the total weight and m_j the weighted centroid (eq. 1).  A plot
+    may only move to another track whose gate it passed and whose slot for the plot's
+    radar is free.  Returns the new assignment (pair index per plot) and the number of
+    rounds that moved plots.
+    """
+    assign = assign.copy()
+    n_tracks = track_xy.shape[0]
+    n_plots = assign.shape[0]
+    if max_iterations == 0 or pair_plot.size == 0:
+        return assign, 0
+    # Only plots with at least two gated tracks can ever move.
+    n_pairs_of_plot = np.bincount(pair_plot, minlength=n_plots)
+    movable = np.flatnonzero(n_pairs_of_plot[pair_plot] >= 2)
+    if movable.size == 0:
+        return assign, 0
+
+    plot_track = np.full(n_plots, -1, dtype=np.intp)
+    used = np.flatnonzero(assign >= 0)
+    plot_track[used] = pair_track[assign[used]]
+    # Positions relative to a local origin keep the centroid sums well conditioned.
+    origin = track_xy.mean(axis=0)
+    txy = track_xy - origin
+    pxy = pair_xy - origin
+    weight = np.full(n_tracks, anchor_weight, dtype=float)
+    weight += np.bincount(plot_track[used], minlength=n_tracks)
+    sums = anchor_weight * txy
+    sums[:, 0] += np.bincount(plot_track[used], weights=pxy[assign[used], 0], minlength=n_tracks)
+    sums[:, 1] += np.bincount(plot_track[used], weights=pxy[assign[used], 1], minlength=n_tracks)
+    occupied = np.zeros((n_tracks, n_radars), dtype=bool)
+    occupied[pair_track[assign[used]], pair_radar[assign[used]]] = True
+
+    mv_plot = pair_plot[movable]
+    mv_track = pair_track[movable]
+    mv_radar = pair_radar[movable]
+    rounds = 0
+    for _ in range(max_iterations):
+        cur = assign[mv_plot]
+        cand = (cur >= 0) & (mv_track != plot_track[mv_plot]) & ~occupied[mv_track, mv_radar]
+        if not np.any(cand):
+            break
+        c_pair = movable[cand]
+        c_cur = cur[cand]
+        src = pair_track[c_cur]
+        dst = mv_track[cand]
+        centroid = sums / weight[:, None]
+        rho_src = transfer_rho(pxy[c_cur], centroid[src], weight[src], True)
+        rho_dst = transfer_rho(pxy[c_pair], centroid[dst], weight[dst], False)
+        gain = rho_src - rho_dst
+        better = gain > 1e-9 * (rho_src + rho_dst) + 1e-6
+        if not np.any(better):
+            break
+        c_pair = c_pair[better]
+        c_cur = c_cur[better]
+        src = src[better]
+        dst = dst[better]
+        gain = gain[better]
+        # Keep the moves that are the best of both their clusters: they touch disjoint
+        # clusters, so applied together they decrease E by exactly the sum of the gains.
+        rank = np.empty(gain.shape[0], dtype=np.intp)
+        rank[np.argsort(-gain, kind="stable")] = np.arange(gain.shape[0])
+        best_rank = np.full(n_tracks, gain.shape[0], dtype=np.intp)
+        np.minimum.at(best_rank, src, rank)
+        np.minimum.at(best_rank, dst, rank)
+        acc = (best_rank[src] == rank) & (best_rank[dst] == rank)
+        c_pair = c_pair[acc]
+        c_cur = c_cur[acc]
+        src = src[acc]
+        dst = dst[acc]
+        radar = pair_radar[c_pair]
+        weight[src] -= 1.0
+        weight[dst] += 1.0
+        sums[src] -= pxy[c_cur]
+        sums[dst] += pxy[c_pair]
+        occupied[src, radar] = False
+        occupied[dst, radar] = True
+        moved_plots = pair_plot[c_pair]
+        assign[moved_plots] = c_pair
+        plot_track[moved_plots] = dst
+        rounds += 1
+    return assign, rounds
+
+
+def gated_pairs(
+    plot_xy: np.ndarray, plot_cov: np.ndarray, plot_t: np.ndarray, dt_s: np.ndarray, plot_ok: np.ndarray,
+    plot_ms: np.ndarray, plot_3a: np.ndarray, track_xy: np.ndarray, track_v: np.ndarray, track_cp: np.ndarray,
+    track_cv: np.ndarray, track_ok: np.ndarray, track_ms: np.ndarray, track_3a: np.ndarray, t_ref: float,
+    params: ClusteringParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 1-3 of clustering.py: candidate (plot, track) pairs, each plot aligned to
+    t_ref with the track's velocity, kept when inside the Mahalanobis gate (and the
+    absolute cap) with compatible identities. Returns the kept pairs' plot and track
+    indices, aligned positions and covariances, and d²."""
+    pair_plot, pair_track = candidate_pairs(
+        plot_xy, plot_cov, dt_s, plot_ok, track_xy, track_v, track_cp, track_cv, track_ok, params
+    )
+    pair_xy, pair_cov = align_to_reference(
+        plot_xy[pair_plot],
+        plot_cov[pair_plot],
+        plot_t[pair_plot],
+        t_ref,
+        track_v[pair_track],
+        track_cv[pair_track],
+    )
+    resid = pair_xy - track_xy[pair_track]
+    d2 = mahalanobis2_2x2(resid, track_cp[pair_track] + pair_cov)
+    gated = d2 <= params.gate_chi2
+    if params.max_gate_m is not None:
+        gated &= np.hypot(resid[:, 0], resid[:, 1]) <= params.max_gate_m
+    gated &= identity_compatible(
+        plot_ms[pair_plot],
+        track_ms[pair_track],
+        plot_3a[pair_plot],
+        track_3a[pair_track],
+        params.use_mode3a,
+    )
+    pair_plot = pair_plot[gated]
+    pair_track = pair_track[gated]
+    pair_xy = pair_xy[gated]
+    pair_cov = pair_cov[gated]
+    d2 = d2[gated]
+    return pair_plot, pair_track, pair_xy, pair_cov, d2

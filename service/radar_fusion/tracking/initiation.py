@@ -1,0 +1,116 @@
+"""Track initiation: the state of a new track from its first fused measurements (Shu §2, §4).
+
+Stone Soup calls this role the *initiator*. A cluster that no track claims (Shu §2 cases
+1 and 3) starts a tentative track from one fused measurement, :func:`one_point_initiation`;
+its second update replaces that state by Shu's two-point differencing with the P0 of §4,
+:func:`two_point_initiation`; from the third on, the Kalman update runs (Shu eq. 7-11).
+
+One-point state. A single position says nothing about the velocity, so the state holds
+zero velocity with the variance :func:`unknown_velocity_var_m2ps2` per axis: wide enough
+that the track's gate at its next scan covers any civil aircraft speed. The same variance
+aligns the plots of a target without a track in time (clustering.py, Shu §2, 时空对准).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .singer_filter import POS_IDX, STATE_DIM, as_tracks
+
+__all__ = ["unknown_velocity_var_m2ps2", "one_point_initiation", "two_point_initiation"]
+
+Float = NDArray[np.float64]
+
+
+def unknown_velocity_var_m2ps2(max_speed_mps: float) -> float:
+    """Per-axis variance of the velocity of a target that has no track yet, m²/s².
+
+    Each velocity component is taken as uniform on [−v_max, v_max]: variance v_max²/3,
+    mean 0. That is a prior for the gate, not a model of traffic: the χ² 99.9 % gate of
+    clustering.py (3.7σ for 2 dof) then reaches 3.7·v_max/√3 ≈ 2.1·v_max per second of
+    prediction on each axis, beyond the furthest any aircraft can have moved, while a
+    wider prior would only let more clutter into a young track's gate.
+    """
+    return float(max_speed_mps) ** 2 / 3.0
+
+
+def one_point_initiation(
+    z_m: Float, R_m2: Float, velocity_var_m2ps2: float, sigma_m_mps2: float
+) -> tuple[Float, Float]:
+    """Singer state of new tracks from one fused measurement each.
+
+    x = [z_x, 0, 0, z_y, 0, 0]; P holds the measurement covariance R in the position
+    block, ``velocity_var_m2ps2`` on both velocities and the Singer prior σ_m² on both
+    accelerations (the stationary variance of Singer's acceleration process, Shu §4's P0
+    entry for it), no cross terms: nothing correlates an unknown velocity with the error of
+    the one position.
+
+    Shapes: z_m (N,2), R_m2 (N,2,2). Returns x (N,6), P (N,6,6).
+    """
+    z_m = np.asarray(z_m, dtype=float)
+    R_m2 = np.asarray(R_m2, dtype=float)
+    n = z_m.shape[0]
+    x = np.zeros((n, STATE_DIM))
+    x[:, POS_IDX] = z_m
+    P = np.zeros((n, STATE_DIM, STATE_DIM))
+    P[:, POS_IDX[:, None], POS_IDX[None, :]] = R_m2
+    P[:, 1, 1] = P[:, 4, 4] = velocity_var_m2ps2
+    P[:, 2, 2] = P[:, 5, 5] = sigma_m_mps2**2
+    return x, P
+
+
+def two_point_initiation(z1_m, R1, z2_m, R2, dt_s, sigma_m_mps2):
+    """Two-point differencing initiation with Shu's P0 (§4).
+
+    From two position measurements z1 (time t1) and z2 (t2 = t1 + T) of each track::
+
+        x0 = [z2x, (z2x − z1x)/T, 0, z2y, (z2y − z1y)/T, 0]
+
+    and, with σ_x1², σ_xy1, σ_y1² the entries of R1 and likewise for R2 (Shu writes
+    the covariance σ_xy as σ_xy²), P0 exactly as printed::
+
+        [[σx2²,    σx2²/T,            0,    σxy2,    σxy2/T,            0   ],
+         [σx2²/T,  (σx1²+σx2²)/T²,    0,    σxy2/T,  (σxy1+σxy2)/T²,    0   ],
+         [0,       0,                 σm²,  0,       0,                 0   ],
+         [σxy2,    σxy2/T,            0,    σy2²,    σy2²/T,            0   ],
+         [σxy2/T,  (σxy1+σxy2)/T²,    0,    σy2²/T,  (σy1²+σy2²)/T²,    0   ],
+         [0,       0,                 0,    0,       0,                 σm² ]]
+
+    The position/velocity block is the exact covariance of the estimator for
+    independent measurement errors and a constant-velocity target; the acceleration
+    is initialised at 0 with the Singer prior variance σ_m².  (A real acceleration a
+    would add the bias −a·T/2 to the velocity estimate, which P0 ignores.)
+
+    Shapes: z1_m, z2_m (N,2); R1, R2 (N,2,2); dt_s (N,) or scalar (> 0);
+    sigma_m_mps2 scalar or (N,).  Returns x (N,6), P (N,6,6).
+    """
+    z1_m = np.asarray(z1_m, dtype=float)
+    z2_m = np.asarray(z2_m, dtype=float)
+    R1 = np.asarray(R1, dtype=float)
+    R2 = np.asarray(R2, dtype=float)
+    n = z2_m.shape[0]
+    dt_s, sigma_m_mps2 = as_tracks(dt_s, sigma_m_mps2)
+    dt_s = np.broadcast_to(dt_s, (n,))
+    sigma_m_mps2 = np.broadcast_to(sigma_m_mps2, (n,))
+    if np.any(dt_s <= 0):
+        raise ValueError("two-point initiation needs dt_s > 0")
+
+    x = np.zeros((n, STATE_DIM))
+    x[:, POS_IDX] = z2_m
+    x[:, POS_IDX + 1] = (z2_m - z1_m) / dt_s[:, None]
+
+    # position/velocity covariance: cov(p, p) = R2, cov(p, v) = R2/T,
+    # cov(v, v) = (R1 + R2)/T², for each pair of axes (a, b) ∈ {x, y}²
+    inv_t = (1.0 / dt_s)[:, None, None]
+    pp = R2
+    pv = R2 * inv_t
+    vv = (R1 + R2) * inv_t**2
+    P = np.zeros((n, STATE_DIM, STATE_DIM))
+    pos, vel = POS_IDX, POS_IDX + 1
+    P[:, pos[:, None], pos[None, :]] = pp
+    P[:, pos[:, None], vel[None, :]] = pv
+    P[:, vel[:, None], pos[None, :]] = np.swapaxes(pv, 1, 2)
+    P[:, vel[:, None], vel[None, :]] = vv
+    P[:, 2, 2] = P[:, 5, 5] = sigma_m_mps2**2
+    return x, P

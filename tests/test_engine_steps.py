@@ -1,0 +1,219 @@
+"""The engine's named steps one by one (engine.py: gate → predict → associate → fuse →
+update → initiate → manage → output), the initiator, manoeuvre detection and the clock
+check, each against an independent computation.
+
+The one-aircraft scenario: two radars see a straight-flying aircraft; its noise-free
+plots come from the exact inverse of the coordinate conversion (geodetic_to_polar), so
+what each step must produce is known in closed form."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from radar_fusion.config import settings_from_dict
+from radar_fusion.engine import Engine
+from radar_fusion.engine.admission import ClockCheck
+from radar_fusion.geo.coordinates import geodetic_to_polar
+from radar_fusion.geo.units import M_PER_FL
+from radar_fusion.tracking.initiation import one_point_initiation, unknown_velocity_var_m2ps2
+from radar_fusion.tracking.manoeuvre import ManoeuvreDetector
+from radar_fusion.tracking.singer_filter import SingerFilter
+from radar_fusion.tracking.track_management import CONFIRMED, TENTATIVE
+from radar_fusion.wire import DecodedPlots, RadarStatus
+
+T0 = 1_533_110_400.0  # a multiple of the 4 s period
+FL = 300.0
+V_MPS = np.array([150.0, 80.0])  # east, north
+
+
+def settings():
+    return settings_from_dict({
+        "system": {"center_lat": 46.0, "center_lon": 8.0, "period_s": 4.0, "allowed_lateness_s": 1.0},
+        "radars": [
+            {"id": "a", "lat": 46.3, "lon": 7.6, "sigma_range_m": 40, "sigma_azimuth_deg": 0.05,
+             "rotation_period_s": 4.0},
+            {"id": "b", "lat": 45.7, "lon": 8.5, "sigma_range_m": 40, "sigma_azimuth_deg": 0.05,
+             "rotation_period_s": 4.0},
+        ],
+        "outliers": {"enabled": False},
+        "life_cycle": {"confirm_updates": 3},
+    })
+
+
+def truth_xy(t_s):
+    return np.array([5_000.0, -3_000.0]) + V_MPS * (t_s - T0)
+
+
+def plot_of(engine, radar, seq, t_s):
+    x, y = truth_xy(t_s)
+    lat, lon = engine.plane.to_geodetic(np.array([x]), np.array([y]))
+    r_m, az_deg, _ = geodetic_to_polar(engine.sites, radar, lat, lon, np.array([FL * M_PER_FL]))
+    rid = engine.radar_ids[radar]
+    return DecodedPlots(rid, seq, np.array([t_s]), r_m, az_deg, np.array([FL]), np.array([-1]),
+                        np.array([0x4B1234]), np.array([-1]), np.zeros(1, np.int8))
+
+
+def feed_period(engine, k):
+    """Radar a at 1.0 s and radar b at 3.0 s into period k; returns the outputs it closes."""
+    t = T0 + 4.0 * k
+    engine.ingest_plots(plot_of(engine, 0, 2 * k + 1, t + 1.0))
+    engine.ingest_plots(plot_of(engine, 1, 2 * k + 1, t + 3.0))
+    return engine.poll()
+
+
+def closed(engine, periods):
+    outputs = []
+    for k in range(periods):
+        outputs += feed_period(engine, k)
+    # the watermarks of both radars past the last period's end plus the lateness
+    engine.ingest_plots(plot_of(engine, 0, 2 * periods + 1, T0 + 4.0 * periods + 2.5))
+    engine.ingest_plots(plot_of(engine, 1, 2 * periods + 1, T0 + 4.0 * periods + 2.6))
+    return outputs + engine.poll()
+
+
+# ------------------------------------------------------------------ the steps on one aircraft
+def test_first_period_initiates_one_tentative_track_from_the_fused_pair():
+    eng = Engine(settings())
+    [out] = closed(eng, 1)
+    cols = out.track_columns
+    assert len(cols) == 1 and cols.status[0] == TENTATIVE and eng.counters["tracks_initiated"] == 1
+    # fuse: both plots of the period in one cluster, aligned to their mean time (t0 + 2 s)
+    # with zero velocity and the one-plot velocity prior; the fused position is the
+    # information-weighted mean, within the alignment error of ±1 s of flight
+    assert eng.tracks.t_state_s[0] == pytest.approx(T0 + 2.0)
+    err_m = np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(T0 + 2.0)))
+    assert err_m < np.hypot(*V_MPS) * 1.0
+    # initiate: zero velocity, the velocity prior v_max²/3 on both axes
+    assert eng.tracks.x[0, [1, 4]] == pytest.approx([0.0, 0.0])
+    assert eng.tracks.P[0, 1, 1] == pytest.approx(350.0**2 / 3.0)
+    assert eng.tracks.mode_s[0] == 0x4B1234 and bin(int(cols.sources[0])).count("1") == 2
+
+
+def test_second_period_is_the_two_point_initiation_third_confirms():
+    eng = Engine(settings())
+    outs = closed(eng, 3)
+    assert [len(o.track_columns) for o in outs] == [1, 1, 1]
+    assert eng.counters["tracks_initiated"] == 1  # one track for the whole run
+    assert [int(o.track_columns.status[0]) for o in outs] == [TENTATIVE, TENTATIVE, CONFIRMED]
+    assert len({int(o.track_columns.track_id[0]) for o in outs}) == 1
+    # the velocity after three updates of noise-free plots: the true velocity, up to the
+    # earth-curvature error of the alignment (a few m/s at most)
+    v = outs[-1].track_columns.x[0, [1, 4]]
+    assert np.hypot(*(v - V_MPS)) < 5.0
+
+
+def test_output_is_every_track_at_the_reference_time():
+    eng = Engine(settings())
+    outs = closed(eng, 4)
+    for o in outs[1:]:
+        # the reference time is the period's end; the published position is the track
+        # predicted there, within a few tens of metres of the truth
+        err_m = np.hypot(*(o.track_columns.x[0, [0, 3]] - truth_xy(o.t_s)))
+        assert err_m < 60.0, (o.period, err_m)
+
+
+def test_manage_ends_a_track_after_its_missed_scans():
+    eng = Engine(settings())
+    closed(eng, 3)
+    [tid] = eng.tracks.track_id.tolist()
+    ended_at = None
+    for k in range(4, 20):  # the aircraft vanishes; only status messages move time on
+        for radar in ("a", "b"):
+            eng.ingest_status(RadarStatus(radar_id=radar, t=T0 + 4.0 * k, kind="heartbeat"))
+        for o in eng.poll():
+            if tid in o.track_columns.ended.tolist():
+                ended_at = o.t_s
+    # last update at the period ending T0 + 12 s; delete_after_scans 6.5 × 4 s = 26 s later
+    # the first period end past T0 + 12 + 26 = T0 + 38 s is T0 + 40 s
+    assert ended_at == pytest.approx(T0 + 40.0)
+
+
+# ------------------------------------------------------------------ the initiator
+def test_one_point_initiation_state_and_covariance():
+    z = np.array([[1_000.0, -2_000.0]])
+    R = np.array([[[900.0, 120.0], [120.0, 1_600.0]]])
+    x, P = one_point_initiation(z, R, velocity_var_m2ps2=4.0e4, sigma_m_mps2=2.5)
+    assert x.tolist() == [[1_000.0, 0.0, 0.0, -2_000.0, 0.0, 0.0]]
+    expected = np.zeros((6, 6))
+    expected[np.ix_([0, 3], [0, 3])] = R[0]
+    expected[1, 1] = expected[4, 4] = 4.0e4
+    expected[2, 2] = expected[5, 5] = 6.25
+    assert P[0] == pytest.approx(expected)
+
+
+def test_the_velocity_prior_lets_any_aircraft_direction_into_the_next_gate():
+    """A target seen once, flying at the maximum speed in any direction, lies inside the
+    χ² 99.9 % gate of its one-plot track one scan later."""
+    v_max, dt_s, sigma_m = 350.0, 4.0, 2.5
+    R = np.eye(2)[None] * 200.0**2
+    x, P = one_point_initiation(np.zeros((1, 2)), R, unknown_velocity_var_m2ps2(v_max), sigma_m)
+    f = SingerFilter(sigma_m_mps2=sigma_m)
+    xp, Pp = f.predict(x, P, dt_s)
+    heading = np.linspace(0, 2 * np.pi, 73)
+    z = (v_max * dt_s) * np.stack([np.sin(heading), np.cos(heading)], axis=1)
+    d2 = f.mahalanobis_sq(np.repeat(xp, z.shape[0], 0), np.repeat(Pp, z.shape[0], 0), z,
+                          np.repeat(R, z.shape[0], 0))
+    assert (d2 <= 13.8155).all() and d2.max() > 1.0
+
+
+# ------------------------------------------------------------------ manoeuvre detection
+def test_manoeuvre_detection_by_hand():
+    det = ManoeuvreDetector(sigma_factor=4.0, nis_on=6.0, nis_off=3.0, nis_fading=0.5)
+    S = np.array([np.diag([100.0, 400.0])] * 3)
+    nu = np.array([[30.0, 40.0], [10.0, 0.0], [0.0, 20.0]])  # NIS 9 + 4 = 13, 1, 1
+    avg, man = det.detect(np.array([2.0, 8.0, 4.0]), np.array([False, True, True]), nu, S)
+    # 0.5·2 + 0.5·13 = 7.5 > 6: on;  0.5·8 + 0.5·1 = 4.5 > 3: stays on;  0.5·4 + 0.5·1 = 2.5 < 3: off
+    assert avg == pytest.approx([7.5, 4.5, 2.5])
+    assert man.tolist() == [True, True, False]
+
+
+def test_manoeuvring_prediction_is_a_singer_model_with_k_times_sigma():
+    rng = np.random.default_rng(1)
+    n = 5
+    x = rng.normal(size=(n, 6)) * 100.0
+    A = rng.normal(size=(n, 6, 6))
+    P = A @ np.swapaxes(A, 1, 2) + np.eye(6)
+    dt = rng.uniform(1.0, 12.0, n)
+    man = np.array([True, False, True, False, True])
+    det = ManoeuvreDetector(sigma_factor=3.0, nis_on=6.0, nis_off=3.0, nis_fading=0.5)
+    base = SingerFilter(alpha_per_s=1 / 30, sigma_m_mps2=2.5)
+    xm, Pm = det.predict(base, x, P.copy(), dt, man)
+    x_slow, P_slow = base.predict(x, P, dt)
+    x_fast, P_fast = SingerFilter(alpha_per_s=1 / 30, sigma_m_mps2=7.5).predict(x, P, dt)
+    assert xm == pytest.approx(x_slow)
+    assert Pm[man] == pytest.approx(P_fast[man], rel=1e-10)
+    assert Pm[~man] == pytest.approx(P_slow[~man], rel=1e-12)
+
+
+# ------------------------------------------------------------------ the clock check
+def test_clock_check_blames_the_one_radar_whose_clock_is_off():
+    """Three radars report in turn every second; radar 2's clock runs 5 s ahead."""
+    offset_s = np.array([0.0, 0.0, 5.0])
+    clock = ClockCheck(3)
+    wm = np.full(3, -np.inf)
+    for k in range(60):
+        for r in range(3):
+            t = T0 + k + r / 3.0 + offset_s[r]
+            clock.observe(r, t, wm.copy())
+            wm[r] = max(wm[r], t)
+    est = clock.offsets_s()
+    assert est[0] == pytest.approx(0.0, abs=0.3) and est[1] == pytest.approx(0.0, abs=0.3)
+    assert est[2] == pytest.approx(5.0, abs=0.3)
+
+
+def test_engine_health_reports_the_clock_suspect():
+    eng = Engine(settings())
+    for k in range(40):
+        eng.ingest_plots(plot_of(eng, 0, k + 1, T0 + k))
+        eng.ingest_plots(plot_of(eng, 1, k + 1, T0 + k + 0.5 + 3.0))  # b 3 s ahead, limit 2 s
+    radars = eng.health()["radars"]
+    assert radars["a"]["clock_offset_s"] == pytest.approx(-1.5, abs=0.3)  # two radars: split
+    assert radars["b"]["clock_offset_s"] == pytest.approx(1.5, abs=0.3)
+    assert not radars["a"]["clock_suspect"] and not radars["b"]["clock_suspect"]
+    eng2 = Engine(settings_from_dict({**settings().model_dump(), "system": {
+        **settings().system.model_dump(), "clock_offset_limit_s": 1.0}}))
+    for k in range(40):
+        eng2.ingest_plots(plot_of(eng2, 0, k + 1, T0 + k))
+        eng2.ingest_plots(plot_of(eng2, 1, k + 1, T0 + k + 0.5 + 3.0))
+    assert eng2.health()["radars"]["b"]["clock_suspect"]
