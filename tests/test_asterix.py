@@ -40,6 +40,7 @@ from radar_fusion.asterix import (
     split_datablocks,
 )
 from radar_fusion.config import load_settings, settings_from_dict
+from radar_fusion.geo.units import M_PER_NM, MPS_PER_KT
 from radar_fusion.tools import asterix_bridge
 from radar_fusion.recording import read_recording
 from radar_fusion.wire import TrackBatch, decode_message, decode_plot_batch, RadarStatus
@@ -104,7 +105,7 @@ def test_jahorina_decodes_every_record():
     assert len(reports) == 2099
     assert len({r.mode_s for r in reports if r.mode_s}) == 106
     assert {(r.sac, r.sic) for r in reports} == {(23, 2)}
-    assert max(r.range_m for r in reports) < 181 * 1852.0
+    assert max(r.range_m for r in reports) < 181 * M_PER_NM
     markers = [i for i in items if isinstance(i, SectorMessage)]
     assert all(m.kind == "north" and m.rotation_period_s == pytest.approx(5.0, abs=0.05) for m in markers)
 
@@ -272,14 +273,14 @@ def test_bds50_and_bds60_fields():
                    (14, 10, track_raw), (24, 1, 1), (25, 10, 225), (46, 1, 1), (47, 10, 230)])
     v = decode_bds50(mb)
     assert v["track_angle_deg"] == pytest.approx(330.0, abs=0.18)
-    assert v["ground_speed_mps"] == pytest.approx(450 * 1852 / 3600)
+    assert v["ground_speed_mps"] == pytest.approx(450 * MPS_PER_KT)
     assert v["roll_deg"] == pytest.approx(10.0, abs=0.18)
-    assert v["tas_mps"] == pytest.approx(460 * 1852 / 3600)
+    assert v["tas_mps"] == pytest.approx(460 * MPS_PER_KT)
     assert decode_bds50(mb_field([(12, 1, 0), (24, 1, 1), (25, 10, 225)])) is None
     mb60 = mb_field([(1, 1, 1), (3, 10, 256), (13, 1, 1), (14, 10, 280), (35, 1, 1), (36, 1, 1), (37, 9, 512 - 50)])
     w = decode_bds60(mb60)
     assert w["magnetic_heading_deg"] == pytest.approx(45.0)
-    assert w["ias_mps"] == pytest.approx(280 * 1852 / 3600)
+    assert w["ias_mps"] == pytest.approx(280 * MPS_PER_KT)
     assert w["vertical_rate_fpm"] == pytest.approx(-1600.0)
 
 

@@ -14,8 +14,9 @@ asterix-out
     system-track records to a UDP destination (unicast or multicast) or appends them to
     a file of raw concatenated blocks.
 
-The conversion itself lives in :mod:`radar_fusion.asterix` (sans-I/O); this module is
-the I/O around it: sockets, files, pacing, the Zenoh session.
+The conversion itself lives in :mod:`radar_fusion.asterix` (sans-I/O: ``bridge.py`` turns
+ASTERIX into wire messages, ``cat062.py`` tracks into CAT062); this module is the I/O
+around it: sockets, files, pacing, the Zenoh session.
 """
 
 from __future__ import annotations
@@ -38,9 +39,8 @@ from typing import Any, Callable, Iterator, Optional
 
 from radar_fusion.asterix import AsterixToWire, Cat062Encoder, DecodeCounters, WireMessage, iter_file, sort_by_time
 from radar_fusion.config import ConfigError, Settings, load_settings
+from radar_fusion.recording import RecordingWriter
 from radar_fusion.wire import Rejection, TrackBatch, decode_message
-
-from ..recording import RecordingWriter
 
 log = logging.getLogger("radar_fusion.asterix_bridge")
 
