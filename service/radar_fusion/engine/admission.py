@@ -34,13 +34,13 @@ class RadarState:
     """What admission keeps of one radar (its figures go to health ``radars.<id>``)."""
 
     last_seq: Optional[int] = None
-    recent_seqs: deque = field(default_factory=lambda: deque(maxlen=4096))
-    recent_set: set = field(default_factory=set)
+    recent_seqs: deque[int] = field(default_factory=lambda: deque(maxlen=4096))
+    recent_set: set[int] = field(default_factory=set)
     plots: int = 0
     batches: int = 0
     seq_gaps: int = 0
     out_of_order: int = 0
-    rejected: Counter = field(default_factory=Counter)
+    rejected: Counter[str] = field(default_factory=Counter)
     rotation_period_s: Optional[float] = None
     wild: int = 0
     future_streak: int = 0  # consecutive batches refused whole as plot_future
@@ -53,7 +53,7 @@ class Admission:
     """
 
     def __init__(self, radar_ids: list[str], max_range_m: np.ndarray, buffer: PeriodBuffer,
-                 future_margin_s: float, counters: Counter, rejected: Counter):
+                 future_margin_s: float, counters: Counter[str], rejected: Counter[str]):
         self.radar_ids = radar_ids
         self.radar_index = {rid: i for i, rid in enumerate(radar_ids)}
         self.max_range_m = max_range_m
@@ -145,7 +145,7 @@ class Admission:
             radar.future_streak = 0
             self.counters["radar_time_relocks"] += 1
         if t_min_s >= closed_s and t_max_s <= future_s and float(range_m.max()) <= self.max_range_m[i]:
-            idx = slice(None)  # the usual case: the whole batch is good (no copies)
+            idx: slice | np.ndarray = slice(None)  # the usual case: the whole batch is good (no copies)
             n_ok = n_in
             radar.future_streak = 0
         else:
@@ -158,7 +158,7 @@ class Admission:
             self.reject("plot_future", int((future & keep).sum()), batch.radar_id)
             keep &= ~future
             idx = np.flatnonzero(keep)
-            n_ok = int(idx.size)
+            n_ok = int(np.count_nonzero(keep))
             radar.future_streak = radar.future_streak + 1 if n_ok == 0 and future.any() else 0
             if n_ok == 0:
                 return 0
@@ -203,7 +203,7 @@ class ClockCheck:
     def __init__(self, n_radars: int, window: int = 64, min_samples: int = 8):
         self.n = n_radars
         self.min_samples = min_samples
-        self._samples = [[deque(maxlen=window) for _ in range(n_radars)] for _ in range(n_radars)]
+        self._samples: list[list[deque[float]]] = [[deque(maxlen=window) for _ in range(n_radars)] for _ in range(n_radars)]
         self._seen_wm_s = np.full((n_radars, n_radars), -np.inf)
         self._not_self = ~np.eye(n_radars, dtype=bool)
 

@@ -134,8 +134,8 @@ class Engine:
             n_radars=len(self.radar_ids),
             max_plots_per_radar=sysc.max_buffered_plots_per_radar,
         )
-        self.counters: Counter = Counter()
-        self.rejected: Counter = Counter()
+        self.counters: Counter[str] = Counter()
+        self.rejected: Counter[str] = Counter()
         # how far past the newest watermark an event time may lie (Admission._future_limit_s)
         self.admission = Admission(
             self.radar_ids, np.array([r.max_range_m for r in settings.radars]), self.buffer,
@@ -148,7 +148,7 @@ class Engine:
         self.track_t_s: Optional[float] = None  # reference time of the newest closed period
         self.safety_nets = safety_nets
         self.periods_closed = 0
-        self.processing_s: deque = deque(maxlen=1000)
+        self.processing_s: deque[float] = deque(maxlen=1000)
         self._names = RadarNames(self.radar_ids, self.plane)
 
     # ================================================================== input
@@ -177,7 +177,7 @@ class Engine:
     # ================================================================= output
     def poll(self) -> list[PeriodOutput]:
         """Close every period the watermarks allow; returns their outputs in order."""
-        outputs = []
+        outputs: list[PeriodOutput] = []
         while True:
             if len(self.tracks) == 0:
                 self.buffer.skip_empty_to_data()
@@ -443,7 +443,7 @@ class Engine:
                 "plots": r.plots, "batches": r.batches, "last_seq": r.last_seq, "seq_gaps": r.seq_gaps,
                 "rejected": dict(r.rejected), "wild": r.wild,
                 "clock_offset_s": offsets_s[i],
-                "clock_suspect": offsets_s[i] is not None and abs(offsets_s[i]) > limit_s,
+                "clock_suspect": (offset_s := offsets_s[i]) is not None and abs(offset_s) > limit_s,
             }
         proc = np.array(self.processing_s) * 1e3
         counters = dict(self.counters)

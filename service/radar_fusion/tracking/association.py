@@ -13,6 +13,7 @@ import itertools
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, min_weight_full_bipartite_matching
 from scipy.spatial import cKDTree
@@ -48,7 +49,7 @@ def align_to_reference(
 
 
 def transfer_rho(
-    p_xy: np.ndarray, centroid_xy: np.ndarray, n_members: np.ndarray, own: np.ndarray
+    p_xy: ArrayLike, centroid_xy: ArrayLike, n_members: ArrayLike, own: ArrayLike
 ) -> np.ndarray:
     """ρ of Shu eq. 3 in its corrected form (Duda & Hart), vectorised.
 
@@ -64,7 +65,7 @@ def transfer_rho(
     own = np.asarray(own, dtype=bool)
     with np.errstate(divide="ignore", invalid="ignore"):
         factor = np.where(own, np.where(n > 1, n / (n - 1.0), 0.0), n / (n + 1.0))
-    return factor * d2
+    return np.asarray(factor * d2)
 
 
 # --------------------------------------------------------------------------------------
@@ -77,7 +78,7 @@ def lambda_max_2x2(cov: np.ndarray) -> np.ndarray:
     c = cov[..., 1, 1]
     b = 0.5 * (cov[..., 0, 1] + cov[..., 1, 0])
     half_diff = 0.5 * (a - c)
-    return 0.5 * (a + c) + np.sqrt(half_diff * half_diff + b * b)
+    return np.asarray(0.5 * (a + c) + np.sqrt(half_diff * half_diff + b * b))
 
 
 def mahalanobis2_2x2(y: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -101,7 +102,7 @@ def identity_compatible(
     ok = (s1 < 0) | (s2 < 0) | (s1 == s2)
     if use_mode3a:
         ok &= (a1 < 0) | (a2 < 0) | (a1 == a2)
-    return ok
+    return np.asarray(ok)
 
 
 def first_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:

@@ -212,20 +212,20 @@ def _kmeans_component(
     labels[first] = np.arange(first.size)
     n_clusters = first.size
     for r in radar_order[1:]:
-        members = np.flatnonzero(radar == r)
+        of_radar = np.flatnonzero(radar == r)
         onehot = np.zeros((n, n_clusters))
         placed = labels >= 0
         onehot[np.flatnonzero(placed), labels[placed]] = 1.0
         size = onehot.sum(axis=0)
         centroid = (onehot.T @ xy) / size[:, None]
-        incompatible = (~compat[members]).astype(float) @ onehot > 0
-        diff = xy[members, None, :] - centroid[None, :, :]
+        incompatible = (~compat[of_radar]).astype(float) @ onehot > 0
+        diff = xy[of_radar, None, :] - centroid[None, :, :]
         cost = np.einsum("pkc,pkc->pk", diff, diff)
         cost[incompatible] = _BIG_COST
         rows, cols = linear_sum_assignment(cost)
         ok = ~incompatible[rows, cols]
-        labels[members[rows[ok]]] = cols[ok]
-        rest = members[labels[members] < 0]
+        labels[of_radar[rows[ok]]] = cols[ok]
+        rest = of_radar[labels[of_radar] < 0]
         labels[rest] = n_clusters + np.arange(rest.size)
         n_clusters += rest.size
     seed = labels.copy()

@@ -14,7 +14,7 @@ aligns the plots of a target without a track in time (clustering.py, Shu §2, �
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from .singer_filter import POS_IDX, STATE_DIM, as_tracks
 
@@ -60,7 +60,9 @@ def one_point_initiation(
     return x, P
 
 
-def two_point_initiation(z1_m, R1, z2_m, R2, dt_s, sigma_m_mps2):
+def two_point_initiation(
+    z1_m: ArrayLike, R1: ArrayLike, z2_m: ArrayLike, R2: ArrayLike, dt_s: ArrayLike, sigma_m_mps2: ArrayLike
+) -> tuple[Float, Float]:
     """Two-point differencing initiation with Shu's P0 (§4).
 
     From two position measurements z1 (time t1) and z2 (t2 = t1 + T) of each track::

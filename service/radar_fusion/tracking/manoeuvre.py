@@ -35,7 +35,7 @@ Bool = NDArray[np.bool_]
 
 def normalised_innovation_sq(nu: Float, S: Float) -> Float:
     """ε = νᵀ S⁻¹ ν per track, for ν (N,2) and S (N,2,2)."""
-    return np.einsum("ni,nij,nj->n", nu, inv_2x2(S), nu)
+    return np.asarray(np.einsum("ni,nij,nj->n", nu, inv_2x2(S), nu))
 
 
 @dataclass(frozen=True)

@@ -50,8 +50,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from fractions import Fraction
+from typing import Any, Optional
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = [
     "STATE_DIM",
@@ -105,7 +107,7 @@ def _exp_coeffs(k: int, shift: int = 0) -> list[Fraction]:
     return out
 
 
-def _series(numerator: dict, power: int) -> np.ndarray:
+def _series(numerator: dict[tuple[Any, ...], int | Fraction], power: int) -> np.ndarray:
     """Coefficients of N(x) / (2 x**power) as a power series in x.
 
     ``numerator`` maps a term to its factor: ("poly", j) is x**j, ("exp", k, s) is
@@ -127,7 +129,7 @@ def _series(numerator: dict, power: int) -> np.ndarray:
 
 # q_ij = T**p · g_ij(αT), g_ij(x) = N_ij(x) / (2 x**p)   (Singer 1970; Shu §4 with the
 # q13 and q22 misprints fixed).  Keys: (row, col) in the 3×3 per-axis block.
-_Q_NUMERATORS = {
+_Q_NUMERATORS: dict[tuple[int, int], tuple[dict[tuple[Any, ...], int | Fraction], int]] = {
     # q11: (1 − e^{−2x} + 2x + 2x³/3 − 2x² − 4x e^{−x}) / 2x⁵
     (0, 0): ({("poly", 0): 1, ("exp", 2, 0): -1, ("poly", 1): 2, ("poly", 3): Fraction(2, 3),
               ("poly", 2): -2, ("exp", 1, 1): -4}, 5),
@@ -173,7 +175,7 @@ def _q_closed(ij: tuple[int, int], x: np.ndarray) -> np.ndarray:
         num = 1 + e2 - 2 * e1
     else:
         num = 1 - e2
-    return num / (2 * x ** _Q_POWER[ij])
+    return np.asarray(num / (2 * x ** _Q_POWER[ij]))
 
 
 _Q_KEYS = tuple(_Q_NUMERATORS)
@@ -206,7 +208,7 @@ def _powers(x: np.ndarray) -> np.ndarray:
     return v
 
 
-def as_tracks(*arrays) -> list[np.ndarray]:
+def as_tracks(*arrays: ArrayLike) -> list[np.ndarray]:
     """Broadcast scalars / (N,) arrays to a common 1-D float shape (N,)."""
     out = np.broadcast_arrays(*[np.atleast_1d(np.asarray(a, dtype=float)) for a in arrays])
     if out[0].ndim != 1:
@@ -222,7 +224,7 @@ def _block_diag2(b: np.ndarray) -> np.ndarray:
     return out
 
 
-def singer_transition(dt_s, alpha_per_s) -> np.ndarray:
+def singer_transition(dt_s: ArrayLike, alpha_per_s: ArrayLike) -> np.ndarray:
     """Exact Singer transition Φ(T, α) = expm(A·T), shape (N,6,6).
 
     Per axis (Shu eq. 12 with the row-5 misprint fixed and the exact acceleration
@@ -260,7 +262,7 @@ def _transition_terms(dt_s: np.ndarray, alpha_per_s: np.ndarray) -> tuple[np.nda
     return dt_s**2 * h2, dt_s * h1, np.exp(-x)
 
 
-def singer_transition_printed(dt_s, alpha_per_s) -> np.ndarray:
+def singer_transition_printed(dt_s: ArrayLike, alpha_per_s: ArrayLike) -> np.ndarray:
     """Φ as printed in Shu eq. 12 (acceleration column T²/2, T) with row 5 corrected.
 
     An approximation of :func:`singer_transition`; kept for comparison only.
@@ -275,7 +277,7 @@ def singer_transition_printed(dt_s, alpha_per_s) -> np.ndarray:
     return _block_diag2(b)
 
 
-def singer_process_noise(dt_s, alpha_per_s, sigma_m_mps2) -> np.ndarray:
+def singer_process_noise(dt_s: ArrayLike, alpha_per_s: ArrayLike, sigma_m_mps2: ArrayLike) -> np.ndarray:
     """Discrete process noise Q(k) = 2·α·σ_m² · [q_ij(T, α)], shape (N,6,6).
 
     q_ij are Singer's (1970) (Shu §4, with the q13/q22 misprints fixed, see module
@@ -300,7 +302,7 @@ def _process_noise_terms(dt_s: np.ndarray, alpha_per_s: np.ndarray, sigma_m_mps2
     x = alpha_per_s * dt_s
     q_c = 2.0 * alpha_per_s * sigma_m_mps2**2
     powers = np.array([_Q_POWER[ij] for ij in _Q_KEYS])
-    return (q_c * _g_all(x).T * dt_s ** powers[:, None]).T
+    return np.asarray((q_c * _g_all(x).T * dt_s ** powers[:, None]).T)
 
 
 def inv_2x2(m: np.ndarray) -> np.ndarray:
@@ -316,7 +318,7 @@ def inv_2x2(m: np.ndarray) -> np.ndarray:
 
 
 def _sym(P: np.ndarray) -> np.ndarray:
-    return 0.5 * (P + np.swapaxes(P, -1, -2))
+    return np.asarray(0.5 * (P + np.swapaxes(P, -1, -2)))
 
 
 # Defaults for civil air traffic (see SingerFilter):
@@ -357,15 +359,15 @@ class SingerFilter:
         if not self.sigma_m_mps2 >= 0:
             raise ValueError("sigma_m_mps2 must be >= 0")
 
-    def transition(self, dt_s) -> np.ndarray:
+    def transition(self, dt_s: ArrayLike) -> np.ndarray:
         """Φ(T, α), (N,6,6)."""
         return singer_transition(dt_s, self.alpha_per_s)
 
-    def process_noise(self, dt_s) -> np.ndarray:
+    def process_noise(self, dt_s: ArrayLike) -> np.ndarray:
         """Q(k), (N,6,6)."""
         return singer_process_noise(dt_s, self.alpha_per_s, self.sigma_m_mps2)
 
-    def predict(self, x, P, dt_s):
+    def predict(self, x: ArrayLike, P: ArrayLike, dt_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Prediction over dt_s (scalar or (N,)) for x (N,6), P (N,6,6).
 
         x(k+1|k) = Φ x(k|k)                        (eq. 8)
@@ -404,7 +406,9 @@ class SingerFilter:
         return x_pred, _sym(P_pred)
 
     @staticmethod
-    def innovation(x_pred, P_pred, z, R):
+    def innovation(
+        x_pred: ArrayLike, P_pred: ArrayLike, z: ArrayLike, R: ArrayLike
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Innovation ν = z − H x(k+1|k) (N,2) and its covariance S = H P Hᵀ + R (N,2,2)."""
         x_pred = np.asarray(x_pred, dtype=float)
         P_pred = np.asarray(P_pred, dtype=float)
@@ -412,7 +416,9 @@ class SingerFilter:
         S = P_pred[:, POS_IDX[:, None], POS_IDX[None, :]] + np.asarray(R, dtype=float)
         return nu, S
 
-    def update(self, x_pred, P_pred, z, R):
+    def update(
+        self, x_pred: ArrayLike, P_pred: ArrayLike, z: ArrayLike, R: ArrayLike
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Measurement update with fused measurements z (N,2) of covariance R (N,2,2).
 
         K = P Hᵀ [H P Hᵀ + R]⁻¹                      (eq. 9)
@@ -434,14 +440,14 @@ class SingerFilter:
         P = I_KH @ P_pred @ np.swapaxes(I_KH, 1, 2) + K @ R @ np.swapaxes(K, 1, 2)
         return x, _sym(P), nu, S
 
-    def mahalanobis_sq(self, x_pred, P_pred, z, R) -> np.ndarray:
+    def mahalanobis_sq(self, x_pred: ArrayLike, P_pred: ArrayLike, z: ArrayLike, R: ArrayLike) -> np.ndarray:
         """Squared Mahalanobis distance νᵀ S⁻¹ ν of z from the prediction, (N,).
 
         χ²-distributed with 2 degrees of freedom for a correct association; gate with
         e.g. ``scipy.stats.chi2.ppf(0.99, 2)`` ≈ 9.21.
         """
         nu, S = self.innovation(x_pred, P_pred, z, R)
-        return np.einsum("ni,nij,nj->n", nu, inv_2x2(S), nu)
+        return np.asarray(np.einsum("ni,nij,nj->n", nu, inv_2x2(S), nu))
 
 
 # --- altitude ------------------------------------------------------------------------
@@ -481,7 +487,7 @@ class AltitudeFilter:
     meas_var_fl2: float = MODE_C_QUANT_VAR_FL2 + 0.2**2
     rate_var0_fl2_ps2: float = 0.5**2
 
-    def initiate(self, fl_measured, var_fl=None):
+    def initiate(self, fl_measured: ArrayLike, var_fl: Optional[ArrayLike] = None) -> tuple[np.ndarray, np.ndarray]:
         """State from a first altitude: x = [FL, 0], P = diag(var_fl, rate_var0).
 
         Tracks whose FL is NaN (no Mode C) get NaN states; ``update`` initialises them
@@ -495,12 +501,12 @@ class AltitudeFilter:
         P[:, 1, 1] = np.where(np.isnan(fl), np.nan, self.rate_var0_fl2_ps2)
         return x, P
 
-    def _var(self, var_fl, n):
+    def _var(self, var_fl: Optional[ArrayLike], n: int) -> np.ndarray:
         if var_fl is None:
             return np.full(n, self.meas_var_fl2)
         return np.broadcast_to(np.asarray(var_fl, dtype=float), (n,))
 
-    def predict(self, x, P, dt_s):
+    def predict(self, x: ArrayLike, P: ArrayLike, dt_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """x(k+1|k) = Φ x,  P(k+1|k) = Φ P Φᵀ + Q; dt_s scalar or (N,)."""
         x = np.asarray(x, dtype=float)
         P = np.asarray(P, dtype=float)
@@ -514,7 +520,9 @@ class AltitudeFilter:
         P_pred[:, 1, 1] = p11 + q * t
         return x_pred, P_pred
 
-    def update(self, x, P, fl_measured, var_fl=None):
+    def update(
+        self, x: ArrayLike, P: ArrayLike, fl_measured: ArrayLike, var_fl: Optional[ArrayLike] = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Scalar Kalman update with z = FL; tracks with NaN FL keep the prediction.
 
         K = P Hᵀ / (H P Hᵀ + r), x += K (z − H x), P = (I − K H) P (I − K H)ᵀ + K r Kᵀ.

@@ -29,6 +29,7 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 TENTATIVE, CONFIRMED, COASTING = 0, 1, 2
@@ -105,7 +106,31 @@ _FIELDS = {
 
 
 class TrackTable:
-    """Column store of all live tracks. Row order is arbitrary; ``track_id`` is stable."""
+    """Column store of all live tracks. Row order is arbitrary; ``track_id`` is stable.
+
+    One array per column of ``_FIELDS`` (its shape, dtype and fill for new rows), declared
+    below so that readers and type checkers see every column.
+    """
+
+    track_id: NDArray[np.int64]
+    x: NDArray[np.float64]  # (N, 6) Singer state [x, vx, ax, y, vy, ay] at t_state_s, m, m/s, m/s²
+    t_state_s: NDArray[np.float64]  # each track's own time: that of its latest update
+    P: NDArray[np.float64]  # (N, 6, 6)
+    alt_x: NDArray[np.float64]  # (N, 2) [FL, FL/s], NaN before the first Mode C
+    alt_P: NDArray[np.float64]  # (N, 2, 2)
+    status: NDArray[np.int8]  # TENTATIVE / CONFIRMED / COASTING
+    initiated: NDArray[np.bool_]  # has a velocity from two-point initiation
+    updates: NDArray[np.int64]
+    first_t_s: NDArray[np.float64]
+    last_update_t_s: NDArray[np.float64]  # reference time of the period of the latest update
+    z1_m: NDArray[np.float64]  # (N, 2) first fused measurement, for two-point initiation
+    R1_m2: NDArray[np.float64]  # (N, 2, 2)
+    mode_s: NDArray[np.int64]  # 24-bit address, -1 unknown
+    mode3a: NDArray[np.int64]  # -1 unknown
+    sources: NDArray[np.uint64]  # radars that contributed in the latest period (bit mask)
+    revisit_s: NDArray[np.float64]  # shortest rotation among the radars of the latest update
+    nis_avg: NDArray[np.float64]  # fading average of the normalised innovation squared (2 dof)
+    manoeuvre: NDArray[np.bool_]  # manoeuvre detected: process noise raised
 
     def __init__(self) -> None:
         self.n = 0
@@ -132,8 +157,6 @@ class TrackTable:
         for name in _FIELDS:
             setattr(self, name, getattr(self, name)[mask])
         self.n = int(mask.sum())
-
-
 
 
 # Slices of Singer states x (N,6) = [x, vx, ax, y, vy, ay] and covariances P (N,6,6).
@@ -174,7 +197,7 @@ def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndar
         & ((since_update > limit(rules.delete_tentative_after_s, rules.delete_tentative_after_scans))
            | (age > rules.confirm_window_s))
     ) | ((status != TENTATIVE) & (since_update > limit(rules.delete_after_s, rules.delete_after_scans)))
-    ended = table.track_id[end].copy()
+    ended: np.ndarray = table.track_id[end].copy()
     if end.any():
         table.keep(~end)
     return ended
