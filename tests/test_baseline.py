@@ -31,7 +31,7 @@ def case():
 
 def test_steps_are_time_ordered_single_radar_and_within_periods(case):
     _scenario, sim, settings = case
-    plots = bs.convert_plots(settings, [c.to_decoded() for c in sim.plot_columns])
+    plots = bs.convert_plots(settings, sim.plot_columns)
     assert plots.t_s.size == sum(len(c) for c in sim.plot_columns)  # all inside range, all valid
     assert np.all(np.diff(plots.t_s) >= 0)
     rotation = np.array([r.rotation_period_s for r in settings.radars])
@@ -47,7 +47,7 @@ def test_steps_are_time_ordered_single_radar_and_within_periods(case):
 
 def test_plots_beyond_max_range_are_dropped_as_the_engine_does(case):
     _scenario, sim, settings = case
-    batch = next(c for c in sim.plot_columns if len(c) >= 2).to_decoded()
+    batch = next(c for c in sim.plot_columns if len(c) >= 2)
     radar = next(r for r in settings.radars if r.id == batch.radar_id)
     batch.range_m[0] = radar.max_range_m + 1.0
     plots = bs.convert_plots(settings, [batch])
@@ -58,7 +58,7 @@ def test_plots_beyond_max_range_are_dropped_as_the_engine_does(case):
 
 def test_stonesoup_tracks_a_small_scenario(case):
     scenario, sim, settings = case
-    run = bs.run_stonesoup(settings, [c.to_decoded() for c in sim.plot_columns])
+    run = bs.run_stonesoup(settings, sim.plot_columns)
     assert run.completed and run.plots_processed == run.plots_used > 0
     assert run.batches, "no track batches emitted"
     period_s = settings.system.period_s
@@ -86,7 +86,7 @@ def test_stonesoup_tracks_a_small_scenario(case):
 
 def test_time_budget_stops_the_run_early(case):
     _scenario, sim, settings = case
-    run = bs.run_stonesoup(settings, [c.to_decoded() for c in sim.plot_columns], time_budget_s=0.0)
+    run = bs.run_stonesoup(settings, sim.plot_columns, time_budget_s=0.0)
     assert not run.completed
     assert 0 < run.plots_processed < run.plots_used
 

@@ -21,6 +21,7 @@ import pytest
 from radar_fusion import config, wire
 from radar_fusion.geo.coordinates import SystemPlane
 from radar_fusion.tools import simulate as sim
+from radar_fusion.tools.truth import load_truth
 from radar_fusion.recording import read_recording
 
 GEOD = pyproj.Geod(ellps="WGS84")
@@ -83,7 +84,7 @@ def plots_of(simulation: sim.Simulation, radar_id: str) -> sim.PlotColumns:
     cat = {name: np.concatenate([getattr(c, name) for c in cols])
            for name in ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind",
                         "target_index", "wild")}  # fmt: skip
-    return sim.PlotColumns(radar_id, -1, -1, math.nan, **cat)
+    return sim.PlotColumns(radar_id=radar_id, radar_index=-1, seq=-1, t_pub_s=math.nan, **cat)
 
 
 # --------------------------------------------------------------------------- sweep timing
@@ -423,7 +424,7 @@ def test_outputs_config_and_truth_round_trip(demo, tmp_path):
             spec.lat_deg, spec.lon_deg, spec.rotation_period_s, spec.sigma_range_m)
     recs = list(read_recording(paths["recording"]))
     assert [(r.t_s, r.key, r.payload) for r in recs] == demo.messages
-    truth = sim.read_truth(paths["truth"])
+    truth = load_truth(paths["truth"])
     header = paths["truth"].read_text().splitlines()[0]
     assert header == "t_s,target_id,mode_s,callsign,lat_deg,lon_deg,alt_ft,x_m,y_m,vx_mps,vy_mps,vrate_fpm,detectable"
     assert len(truth) == len(demo.truth)

@@ -154,11 +154,19 @@ def _write_engine_inputs(scenario, sim, path: str) -> dict[str, Any]:
     """Pickle the engine's inputs of a simulation (config, decoded batches, statuses in publish order)."""
     from radar_fusion.tools import simulate as sim_mod
 
+    import dataclasses
+
+    from radar_fusion import wire
+
     radar_index = {r.id: i for i, r in enumerate(scenario.radars)}
     rotation = {r.id: float(r.rotation_period_s) for r in scenario.radars}
     # Publish order as simulate() builds it: by time, a batch before the status of the same
     # sweep, then by radar.
-    events: list[tuple] = [(c.t_pub_s, 0, c.radar_index, c.to_decoded()) for c in sim.plot_columns]
+    # The engine process gets what the daemon would decode, without the simulation's own
+    # columns (target_index, wild): they would count in the engine's peak RSS.
+    decoded = [f.name for f in dataclasses.fields(wire.DecodedPlots)]
+    events: list[tuple] = [(c.t_pub_s, 0, c.radar_index, wire.DecodedPlots(**{k: getattr(c, k) for k in decoded}))
+                           for c in sim.plot_columns]  # fmt: skip
     events += [(t, 1, radar_index[rid], (rid, t, kind, sector, rotation[rid] if kind == "north" else None))
                for (t, rid, kind, sector) in sim.statuses]  # fmt: skip
     events.sort(key=lambda e: e[:3])
