@@ -14,6 +14,7 @@ pytest.importorskip("stonesoup")
 from radar_fusion import config  # noqa: E402
 from radar_fusion.tools import baseline_stonesoup as bs  # noqa: E402
 from radar_fusion.tools import bench  # noqa: E402
+from radar_fusion.tools.bench import compare  # noqa: E402
 from radar_fusion.tools import simulate as sm  # noqa: E402
 
 
@@ -95,7 +96,7 @@ def test_pcrb_is_a_floor_that_falls_with_more_radars():
     floors = {}
     for radars in (1, 3):
         _scenario, sim, settings = _small_case(n_aircraft=6, n_radars=radars, duration_s=60.0, seed=5)
-        floors[radars] = bench.measurement_floor(sim, settings, settle_s=20.0)
+        floors[radars] = compare.measurement_floor(sim, settings, settle_s=20.0)
     for f in floors.values():
         assert f["pcrb_points"] > 0 and f["pcrb_pos_rms_m"] > 0.0
         # simulated noise without gross errors matches what the covariances predict (biases add a little)
@@ -108,10 +109,10 @@ def test_pcrb_is_a_floor_that_falls_with_more_radars():
 
 def test_accuracy_job_scores_ours_and_each_radar_alone(tmp_path):
     case = {"kind": "benchmark", "aircraft": 6, "radars": 2, "duration_s": 40.0}
-    info = bench.simulate_case(case, 4, str(tmp_path), settle_s=10.0)
+    info = compare.simulate_case(case, 4, str(tmp_path), settle_s=10.0)
     assert info["plots"] > 0 and info["radars"] == 2
     assert 0 < info["pcrb_pos_rms_m"] < info["noise_rms_m"]
-    acc = bench.run_accuracy(str(tmp_path), settle_s=10.0)
+    acc = compare.run_accuracy(str(tmp_path), settle_s=10.0)
     ours = acc["ours"]
     assert set(acc["single"]) == {"r00", "r01"}
     assert acc["best_single_radar"] in acc["single"]
