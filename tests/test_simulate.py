@@ -1,4 +1,4 @@
-"""Tests of the radar simulator (tools/simulate.py), each against an independent computation.
+"""Tests of the radar simulator (tools/simulate/), each against an independent computation.
 
 The expected values are recomputed here from first principles: beam azimuth from the
 north markers, polar truth with pyproj's geodesic and the spherical slant-range formula,
