@@ -165,7 +165,8 @@ def test_load_truth_csv_and_row_dicts(tmp_path):
             w.writerow([T0 + t, 7, "", "", 50.0, 8.0, 30000, 100.0 * t, 5.0, 100.0, 0.0, 0, 1])
             w.writerow([T0 + t, 9, "4CA123", "EIN12", 50.0, 8.0, 30000, 0.0, -5.0 * t, 0.0, -5.0, 0, t != 1])
     truth = ev.load_truth(path)
-    assert truth.target_ids == ["7", "9"] and truth.target_mode_s == ["", "4CA123"] and truth.target_callsign == ["", "EIN12"]
+    assert truth.target_ids == ["7", "9"]
+    assert truth.target_mode_s == ["", "4CA123"] and truth.target_callsign == ["", "EIN12"]
     np.testing.assert_allclose(truth.x_m[truth.start[0] : truth.stop[0]], [0, 100, 200])
     np.testing.assert_array_equal(truth.detectable[truth.start[1] : truth.stop[1]], [True, False, True])
     with open(path, newline="") as f:
