@@ -237,6 +237,3 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     add_arguments(parser)
     return run(parser.parse_args(argv))
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())
