@@ -14,6 +14,7 @@ pytest.importorskip("stonesoup")
 from radar_fusion import config  # noqa: E402
 from radar_fusion.tools import baseline_stonesoup as bs  # noqa: E402
 from radar_fusion.tools import bench  # noqa: E402
+from radar_fusion.tools.bench import compare  # noqa: E402
 from radar_fusion.tools import simulate as sm  # noqa: E402
 
 
@@ -31,7 +32,7 @@ def case():
 
 def test_steps_are_time_ordered_single_radar_and_within_periods(case):
     _scenario, sim, settings = case
-    plots = bs.convert_plots(settings, [c.to_decoded() for c in sim.plot_columns])
+    plots = bs.convert_plots(settings, sim.plot_columns)
     assert plots.t_s.size == sum(len(c) for c in sim.plot_columns)  # all inside range, all valid
     assert np.all(np.diff(plots.t_s) >= 0)
     rotation = np.array([r.rotation_period_s for r in settings.radars])
@@ -47,7 +48,7 @@ def test_steps_are_time_ordered_single_radar_and_within_periods(case):
 
 def test_plots_beyond_max_range_are_dropped_as_the_engine_does(case):
     _scenario, sim, settings = case
-    batch = next(c for c in sim.plot_columns if len(c) >= 2).to_decoded()
+    batch = next(c for c in sim.plot_columns if len(c) >= 2)
     radar = next(r for r in settings.radars if r.id == batch.radar_id)
     batch.range_m[0] = radar.max_range_m + 1.0
     plots = bs.convert_plots(settings, [batch])
@@ -58,7 +59,7 @@ def test_plots_beyond_max_range_are_dropped_as_the_engine_does(case):
 
 def test_stonesoup_tracks_a_small_scenario(case):
     scenario, sim, settings = case
-    run = bs.run_stonesoup(settings, [c.to_decoded() for c in sim.plot_columns])
+    run = bs.run_stonesoup(settings, sim.plot_columns)
     assert run.completed and run.plots_processed == run.plots_used > 0
     assert run.batches, "no track batches emitted"
     period_s = settings.system.period_s
@@ -86,7 +87,7 @@ def test_stonesoup_tracks_a_small_scenario(case):
 
 def test_time_budget_stops_the_run_early(case):
     _scenario, sim, settings = case
-    run = bs.run_stonesoup(settings, [c.to_decoded() for c in sim.plot_columns], time_budget_s=0.0)
+    run = bs.run_stonesoup(settings, sim.plot_columns, time_budget_s=0.0)
     assert not run.completed
     assert 0 < run.plots_processed < run.plots_used
 
@@ -95,7 +96,7 @@ def test_pcrb_is_a_floor_that_falls_with_more_radars():
     floors = {}
     for radars in (1, 3):
         _scenario, sim, settings = _small_case(n_aircraft=6, n_radars=radars, duration_s=60.0, seed=5)
-        floors[radars] = bench.measurement_floor(sim, settings, settle_s=20.0)
+        floors[radars] = compare.measurement_floor(sim, settings, settle_s=20.0)
     for f in floors.values():
         assert f["pcrb_points"] > 0 and f["pcrb_pos_rms_m"] > 0.0
         # simulated noise without gross errors matches what the covariances predict (biases add a little)
@@ -108,10 +109,10 @@ def test_pcrb_is_a_floor_that_falls_with_more_radars():
 
 def test_accuracy_job_scores_ours_and_each_radar_alone(tmp_path):
     case = {"kind": "benchmark", "aircraft": 6, "radars": 2, "duration_s": 40.0}
-    info = bench.simulate_case(case, 4, str(tmp_path), settle_s=10.0)
+    info = compare.simulate_case(case, 4, str(tmp_path), settle_s=10.0)
     assert info["plots"] > 0 and info["radars"] == 2
     assert 0 < info["pcrb_pos_rms_m"] < info["noise_rms_m"]
-    acc = bench.run_accuracy(str(tmp_path), settle_s=10.0)
+    acc = compare.run_accuracy(str(tmp_path), settle_s=10.0)
     ours = acc["ours"]
     assert set(acc["single"]) == {"r00", "r01"}
     assert acc["best_single_radar"] in acc["single"]

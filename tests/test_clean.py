@@ -21,6 +21,7 @@ from radar_fusion.tracking.outliers import analyse
 from radar_fusion.tools import clean as cl
 from radar_fusion.tools import evaluate as ev
 from radar_fusion.tools import simulate as sim
+from radar_fusion.tools.detrend import polar_residuals
 from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools.replay import replay_into_engine
 
@@ -131,10 +132,7 @@ def test_cleaned_recording_replays_with_fewer_false_tracks_and_the_same_accuracy
     plots start them) and the same accuracy (measured: 16 -> 2 false tracks, settled RMS
     87.1 m both)."""
     scenario, simulation, _paths, out, _rows, _summary = cleaned
-    truth = ev.Truth.from_columns(
-        simulation.truth.t_s, simulation.truth.target_id, simulation.truth.x_m, simulation.truth.y_m,
-        simulation.truth.vx_mps, simulation.truth.vy_mps, detectable=simulation.truth.detectable,
-    )
+    truth = simulation.truth  # the evaluation's own truth type
     cfg = tomllib.loads(sim.config_toml(scenario))
     cfg["outliers"] = {"enabled": False}
     scores = {}
@@ -167,11 +165,11 @@ def test_detrended_residuals_are_radar_noise_and_keep_a_wild_run_out():
     """A close pass (azimuth sweeps 127 degrees) leaves residuals at the noise level; a run
     of 5 wild plots (+4 km in range) stands out by its full size and does not bend the trend."""
     t, range_m, az_deg = _straight_track()
-    range_res, az_res = cl.polar_residuals(t, range_m, az_deg, 15)
+    range_res, az_res = polar_residuals(t, range_m, az_deg, 15)
     assert np.std(range_res) < 45.0 and np.std(az_res) < 0.08
     wild = np.zeros(t.size, bool)
     wild[18:23] = True
-    range_res, az_res = cl.polar_residuals(t, range_m + 4000.0 * wild, az_deg, 15)
+    range_res, az_res = polar_residuals(t, range_m + 4000.0 * wild, az_deg, 15)
     assert np.all(np.abs(range_res[wild] - 4000.0) < 300.0)
     assert np.max(np.abs(range_res[~wild])) < 200.0
 

@@ -165,13 +165,31 @@ def test_load_truth_csv_and_row_dicts(tmp_path):
             w.writerow([T0 + t, 7, "", "", 50.0, 8.0, 30000, 100.0 * t, 5.0, 100.0, 0.0, 0, 1])
             w.writerow([T0 + t, 9, "4CA123", "EIN12", 50.0, 8.0, 30000, 0.0, -5.0 * t, 0.0, -5.0, 0, t != 1])
     truth = ev.load_truth(path)
-    assert truth.target_ids == ["7", "9"] and truth.mode_s == ["", "4CA123"] and truth.callsign == ["", "EIN12"]
+    assert truth.target_ids == ["7", "9"]
+    assert truth.target_mode_s == ["", "4CA123"] and truth.target_callsign == ["", "EIN12"]
     np.testing.assert_allclose(truth.x_m[truth.start[0] : truth.stop[0]], [0, 100, 200])
     np.testing.assert_array_equal(truth.detectable[truth.start[1] : truth.stop[1]], [True, False, True])
     with open(path, newline="") as f:
         rows = [dict(r) for r in csv.DictReader(f)]
     again = ev.as_truth(rows)
     np.testing.assert_allclose(again.y_m, truth.y_m)
+
+
+
+def test_load_truth_needs_only_the_scored_columns(tmp_path):
+    """A hand-written truth CSV with the six columns scoring uses reads; the others come
+    out empty (NaN, "", detectable), and a CSV without one of the six is refused."""
+    path = tmp_path / "truth.csv"
+    path.write_text("target_id,t_s,x_m,y_m,vx_mps,vy_mps\nB,11,5,6,0,1\nA,10,1,2,3,4\nB,10,5,5,0,1\n")
+    truth = ev.load_truth(path)
+    assert len(truth) == 3 and truth.n_targets == 2 and truth.target_ids == ["B", "A"]
+    np.testing.assert_array_equal(truth.t_s, [10, 11, 10])  # by target (first appearance), then time
+    np.testing.assert_array_equal(truth.target_index, [0, 0, 1])
+    assert np.isnan(truth.lat_deg).all() and np.isnan(truth.alt_ft).all() and truth.detectable.all()
+    assert truth.mode_s.tolist() == ["", "", ""] and truth.target_mode_s == ["", ""]
+    path.write_text("target_id,t_s,x_m,y_m,vx_mps\nA,10,1,2,3\n")
+    with pytest.raises(ValueError, match="vy_mps"):
+        ev.load_truth(path)
 
 
 # --------------------------------------------------------------------------- accuracy

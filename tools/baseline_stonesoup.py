@@ -53,6 +53,7 @@ from typing import Any, Iterable, Optional
 import numpy as np
 
 from radar_fusion.geo.coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
+from radar_fusion.geo.units import M_PER_FT
 
 _EPOCH = _dt.datetime(1970, 1, 1)
 
@@ -122,7 +123,7 @@ def convert_plots(settings, plot_batches: Iterable[Any]) -> ConvertedPlots:
     sites = RadarSites.from_configs(settings.radars)
     index = {r.id: i for i, r in enumerate(settings.radars)}
     max_range = np.array([r.max_range_m for r in settings.radars])
-    assumed_altitude_m = settings.tracking.assumed_altitude_ft * 0.3048
+    assumed_altitude_m = settings.tracking.assumed_altitude_ft * M_PER_FT
     parts: list[tuple[np.ndarray, ...]] = []
     n_offered = 0
     for b in plot_batches:

@@ -11,6 +11,9 @@ the benchmarks pass decoded batches in memory)::
     print(format_table(scores))
     plot(batches, truth, "run.png", scores)
 
+The truth type, its CSV reader and its interpolation live in :mod:`radar_fusion.tools.truth`,
+the cut-off assignment and GOSPA in :mod:`radar_fusion.tools.gospa`; both are imported here.
+
 Definitions (every figure is taken at the batch times, i.e. each TrackBatch's ``t``):
 
 * Truth at a batch time: each target's rows (one per second) are interpolated linearly
@@ -63,7 +66,6 @@ Definitions (every figure is taken at the batch times, i.e. each TrackBatch's ``
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 from dataclasses import asdict, dataclass, field
@@ -72,142 +74,28 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import msgpack
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..recording import read_recording
+from .gospa import Gospa, cutoff_assignment, gospa
+from .truth import TRUTH_COLUMNS, Truth, TruthAtTimes, as_truth, interpolate_truth, load_truth
+
+__all__ = [
+    "TRACKS_KEY", "DISPLAYED_STATUSES", "EvalParams", "TargetScore", "Scores", "evaluate", "load_tracks",
+    "format_table", "plot", "add_arguments", "run",
+    # the truth and the metric this module scores with (their homes: truth.py, gospa.py)
+    "Truth", "TruthAtTimes", "TRUTH_COLUMNS", "load_truth", "as_truth", "interpolate_truth",
+    "Gospa", "gospa", "cutoff_assignment",
+]  # fmt: skip
 
 TRACKS_KEY = "fusion/tracks"
 DISPLAYED_STATUSES = ("confirmed", "coasting")
-TRUTH_COLUMNS = (
-    "t_s", "target_id", "mode_s", "callsign", "lat_deg", "lon_deg", "alt_ft",
-    "x_m", "y_m", "vx_mps", "vy_mps", "vrate_fpm", "detectable",
-)  # fmt: skip
 
 # Classification of a displayed track in one batch.
 ASSIGNED, EXCUSED, DUPLICATE, FALSE = 0, 1, 2, 3
 
 
 # --------------------------------------------------------------------------- inputs
-
-
-@dataclass
-class Truth:
-    """Truth trajectories, sorted by target then time.
-
-    ``start[k]:stop[k]`` is target k's slice of the row arrays; ``target_ids[k]`` its id.
-    """
-
-    target_ids: list[str]
-    mode_s: list[str]
-    callsign: list[str]
-    start: np.ndarray
-    stop: np.ndarray
-    t_s: np.ndarray
-    x_m: np.ndarray
-    y_m: np.ndarray
-    vx_mps: np.ndarray
-    vy_mps: np.ndarray
-    detectable: np.ndarray  # bool
-
-    @classmethod
-    def from_columns(
-        cls,
-        t_s: Sequence[float],
-        target_id: Sequence[Any],
-        x_m: Sequence[float],
-        y_m: Sequence[float],
-        vx_mps: Sequence[float],
-        vy_mps: Sequence[float],
-        detectable: Sequence[Any] | None = None,
-        mode_s: Sequence[Any] | None = None,
-        callsign: Sequence[Any] | None = None,
-    ) -> "Truth":
-        """Build from per-row columns in any order (rows are sorted by target, time)."""
-        ids = np.asarray([str(v) for v in target_id], dtype=object)
-        n = ids.shape[0]
-        t = np.asarray(t_s, float)
-        det = np.ones(n, bool) if detectable is None else np.asarray([_truthy(v) for v in detectable], bool)
-        ms = np.asarray(["" if v is None else str(v) for v in (mode_s if mode_s is not None else [""] * n)], object)
-        cs = np.asarray(["" if v is None else str(v) for v in (callsign if callsign is not None else [""] * n)], object)
-        # Targets in order of first appearance; rows sorted by (target, time).
-        uniq, first_idx, inverse = np.unique(ids.astype(str), return_index=True, return_inverse=True)
-        order_of_target = np.argsort(np.argsort(first_idx, kind="stable"), kind="stable")
-        tgt = order_of_target[inverse.reshape(-1)]
-        order = np.lexsort((t, tgt))
-        tgt = tgt[order]
-        n_targets = uniq.shape[0]
-        start = np.searchsorted(tgt, np.arange(n_targets), side="left")
-        stop = np.searchsorted(tgt, np.arange(n_targets), side="right")
-        ids_sorted = ids[order]
-        ms_sorted, cs_sorted = ms[order], cs[order]
-        return cls(
-            target_ids=[str(ids_sorted[s]) for s in start],
-            mode_s=[next((str(v) for v in ms_sorted[s:e] if v), "") for s, e in zip(start, stop)],
-            callsign=[next((str(v) for v in cs_sorted[s:e] if v), "") for s, e in zip(start, stop)],
-            start=start,
-            stop=stop,
-            t_s=t[order],
-            x_m=np.asarray(x_m, float)[order],
-            y_m=np.asarray(y_m, float)[order],
-            vx_mps=np.asarray(vx_mps, float)[order],
-            vy_mps=np.asarray(vy_mps, float)[order],
-            detectable=det[order],
-        )
-
-    def __len__(self) -> int:
-        return len(self.target_ids)
-
-
-def _truthy(v: Any) -> bool:
-    if isinstance(v, str):
-        return v.strip().lower() in ("1", "true", "yes", "1.0")
-    return bool(v)
-
-
-def load_truth(path: str | Path) -> Truth:
-    """Read the simulator's truth CSV (header as in :data:`TRUTH_COLUMNS`)."""
-    cols: dict[str, list[str]] = {k: [] for k in ("t_s", "target_id", "mode_s", "callsign", "x_m", "y_m",
-                                                   "vx_mps", "vy_mps", "detectable")}  # fmt: skip
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        missing = {"t_s", "target_id", "x_m", "y_m", "vx_mps", "vy_mps"} - set(reader.fieldnames or [])
-        if missing:
-            raise ValueError(f"{path}: truth CSV lacks columns {sorted(missing)}")
-        for row in reader:
-            for k in cols:
-                cols[k].append(row.get(k) or "")
-    return Truth.from_columns(
-        t_s=np.asarray(cols["t_s"], float),
-        target_id=cols["target_id"],
-        x_m=np.asarray(cols["x_m"], float),
-        y_m=np.asarray(cols["y_m"], float),
-        vx_mps=np.asarray(cols["vx_mps"], float),
-        vy_mps=np.asarray(cols["vy_mps"], float),
-        detectable=[v if v != "" else "1" for v in cols["detectable"]],
-        mode_s=cols["mode_s"],
-        callsign=cols["callsign"],
-    )
-
-
-def as_truth(truth: Truth | str | Path | Mapping[str, Sequence] | Sequence[Mapping[str, Any]]) -> Truth:
-    """Accept a :class:`Truth`, a CSV path, a mapping of column arrays, or a list of row dicts."""
-    if isinstance(truth, Truth):
-        return truth
-    if isinstance(truth, (str, Path)):
-        return load_truth(truth)
-    if isinstance(truth, Mapping):
-        cols = truth
-    else:
-        rows = list(truth)
-        cols = {k: [r.get(k) for r in rows] for k in TRUTH_COLUMNS}
-    return Truth.from_columns(
-        t_s=cols["t_s"], target_id=cols["target_id"], x_m=cols["x_m"], y_m=cols["y_m"],
-        vx_mps=cols["vx_mps"], vy_mps=cols["vy_mps"], detectable=cols.get("detectable"),
-        mode_s=cols.get("mode_s"), callsign=cols.get("callsign"),
-    )  # fmt: skip
 
 
 def load_tracks(path: str | Path, key: str = TRACKS_KEY) -> list[dict]:
@@ -220,127 +108,6 @@ def load_tracks(path: str | Path, key: str = TRACKS_KEY) -> list[dict]:
                 batches.append(obj)
     batches.sort(key=lambda b: float(b["t"]))
     return batches
-
-
-# --------------------------------------------------------------------------- truth at batch times
-
-
-@dataclass
-class TruthAtTimes:
-    """Truth interpolated to batch times: arrays of shape (n_targets, n_times)."""
-
-    exists: np.ndarray
-    detectable: np.ndarray
-    x_m: np.ndarray
-    y_m: np.ndarray
-    vx_mps: np.ndarray
-    vy_mps: np.ndarray
-
-
-def interpolate_truth(truth: Truth, times_s: Sequence[float], max_gap_s: float = 10.0) -> TruthAtTimes:
-    """Interpolate each target linearly in time to ``times_s`` (see the module docstring)."""
-    times = np.asarray(times_s, float)
-    k, m = len(truth), times.shape[0]
-    out = {name: np.full((k, m), np.nan) for name in ("x_m", "y_m", "vx_mps", "vy_mps")}
-    exists = np.zeros((k, m), bool)
-    detectable = np.zeros((k, m), bool)
-    for i, (s, e) in enumerate(zip(truth.start, truth.stop)):
-        t = truth.t_s[s:e]
-        if t.shape[0] == 0:
-            continue
-        hi = np.searchsorted(t, times, side="left")  # first row with t_row >= time
-        inside = (times >= t[0]) & (times <= t[-1])
-        hi_c = np.clip(hi, 0, t.shape[0] - 1)
-        on_row = inside & (t[hi_c] == times)
-        lo_c = np.where(on_row, hi_c, np.clip(hi - 1, 0, t.shape[0] - 1))
-        ok = inside & (on_row | (t[hi_c] - t[lo_c] <= max_gap_s))
-        exists[i] = ok
-        det = truth.detectable[s:e]
-        detectable[i] = ok & det[lo_c] & det[hi_c]
-        for name in out:
-            col = getattr(truth, name)[s:e]
-            out[name][i] = np.where(ok, np.interp(times, t, col), np.nan)
-    return TruthAtTimes(exists=exists, detectable=detectable, **out)
-
-
-# --------------------------------------------------------------------------- assignment and GOSPA
-
-
-def cutoff_assignment(
-    truth_xy: np.ndarray, track_xy: np.ndarray, cutoff_m: float, p: float = 2.0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Optimal partial assignment minimising Σ min(d, c)^p, keeping pairs with d < c.
-
-    Returns (truth index, track index, distance in m) of the kept pairs. Pairs with
-    d ≥ c cost as much as leaving both unassigned, so the problem splits into the
-    connected components of the bipartite graph "d < c"; one-to-one components are
-    taken directly, larger ones solved with ``linear_sum_assignment``.
-    """
-    truth_xy = np.asarray(truth_xy, float).reshape(-1, 2)
-    track_xy = np.asarray(track_xy, float).reshape(-1, 2)
-    m, n = truth_xy.shape[0], track_xy.shape[0]
-    empty = (np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0))
-    if m == 0 or n == 0:
-        return empty
-    pairs = cKDTree(truth_xy).sparse_distance_matrix(cKDTree(track_xy), cutoff_m, output_type="ndarray")
-    ei, ej, ed = pairs["i"].astype(np.intp), pairs["j"].astype(np.intp), pairs["v"]
-    keep = ed < cutoff_m
-    ei, ej, ed = ei[keep], ej[keep], ed[keep]
-    if ei.shape[0] == 0:
-        return empty
-    graph = coo_matrix((np.ones(ei.shape[0]), (ei, m + ej)), shape=(m + n, m + n))
-    _, label = connected_components(graph, directed=False)
-    comp = label[ei]  # component of each edge
-    n_comp = label.max() + 1
-    truth_in = np.bincount(label[:m], minlength=n_comp)
-    track_in = np.bincount(label[m:], minlength=n_comp)
-    simple = (truth_in[comp] == 1) & (track_in[comp] == 1)
-    out_i, out_j, out_d = [ei[simple]], [ej[simple]], [ed[simple]]
-    hard = ~simple
-    if hard.any():
-        hi, hj, hd, hc = ei[hard], ej[hard], ed[hard], comp[hard]
-        order = np.argsort(hc, kind="stable")
-        hi, hj, hd, hc = hi[order], hj[order], hd[order], hc[order]
-        bounds = np.flatnonzero(np.diff(hc)) + 1
-        for ci, cj, cd in zip(np.split(hi, bounds), np.split(hj, bounds), np.split(hd, bounds)):
-            ui, ri = np.unique(ci, return_inverse=True)
-            uj, rj = np.unique(cj, return_inverse=True)
-            cost = np.full((ui.shape[0], uj.shape[0]), float(cutoff_m) ** p)
-            dist = np.full(cost.shape, np.inf)
-            cost[ri, rj] = cd**p
-            dist[ri, rj] = cd
-            r, c = linear_sum_assignment(cost)
-            ok = dist[r, c] < cutoff_m
-            out_i.append(ui[r[ok]])
-            out_j.append(uj[c[ok]])
-            out_d.append(dist[r[ok], c[ok]])
-    return np.concatenate(out_i), np.concatenate(out_j), np.concatenate(out_d)
-
-
-@dataclass(frozen=True)
-class Gospa:
-    """One GOSPA evaluation (α = 2). Parts are in m^p; ``distance_m`` = (sum of parts)^(1/p)."""
-
-    distance_m: float
-    localisation: float
-    missed: float
-    false: float
-    n_assigned: int
-    n_missed: int
-    n_false: int
-
-
-def gospa(truth_xy: np.ndarray, track_xy: np.ndarray, c_m: float = 2000.0, p: float = 2.0) -> Gospa:
-    """GOSPA metric with α = 2 between truth points and track points (see module docstring)."""
-    truth_xy = np.asarray(truth_xy, float).reshape(-1, 2)
-    track_xy = np.asarray(track_xy, float).reshape(-1, 2)
-    m, n = truth_xy.shape[0], track_xy.shape[0]
-    _, _, d = cutoff_assignment(truth_xy, track_xy, c_m, p)
-    k = d.shape[0]
-    loc = float(np.sum(d**p))
-    missed = c_m**p / 2.0 * (m - k)
-    false = c_m**p / 2.0 * (n - k)
-    return Gospa((loc + missed + false) ** (1.0 / p), loc, missed, false, k, m - k, n - k)
 
 
 # --------------------------------------------------------------------------- scores
@@ -484,14 +251,14 @@ def _batch_columns(batch: Mapping[str, Any]) -> tuple[np.ndarray, ...]:
     return ids, x, y, vx, vy, status
 
 
-def evaluate(batches: Sequence[Mapping[str, Any]], truth: Any, params: EvalParams | None = None) -> Scores:
+def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: EvalParams | None = None) -> Scores:
     """Score decoded TrackBatch dicts against truth (definitions in the module docstring)."""
     params = params or EvalParams()
     truth = as_truth(truth)
     batches = sorted(batches, key=lambda b: float(b["t"]))
     times = np.array([float(b["t"]) for b in batches])
     tat = interpolate_truth(truth, times, params.truth_max_gap_s)
-    n_targets, n_times = len(truth), times.shape[0]
+    n_targets, n_times = truth.n_targets, times.shape[0]
     c, p = params.gospa_c_m, params.gospa_p
     rms_statuses = set(params.rms_statuses)
 
@@ -606,8 +373,8 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Any, params: EvalParam
         targets.append(
             TargetScore(
                 target_id=truth.target_ids[i],
-                mode_s=truth.mode_s[i],
-                callsign=truth.callsign[i],
+                mode_s=truth.target_mode_s[i],
+                callsign=truth.target_callsign[i],
                 detectable_batches=int(det_n[i]),
                 covered_batches=int(cov_n[i]),
                 completeness=float(cov_n[i] / det_n[i]) if det_n[i] else math.nan,

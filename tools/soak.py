@@ -75,6 +75,7 @@ def soak_scenario(n_aircraft: int = 300, duration_s: float = 3600.0, n_radars: i
     at the start are placed uniformly along their chords.
     """
     from . import simulate as sim
+    from .simulate.scenario import mode3a_codes, mode_s_addresses
 
     base = sim.scenario_for_benchmark(n_aircraft=n_aircraft, n_radars=n_radars, duration_s=duration_s, seed=seed)
     radius_m = max(math.hypot(t.plan.start_x_m, t.plan.start_y_m) for t in base.targets)
@@ -113,8 +114,8 @@ def soak_scenario(n_aircraft: int = 300, duration_s: float = 3600.0, n_radars: i
     vr = rng.uniform(1500.0, 2500.0, n) * np.where(fl > 250, -1.0, 1.0)
     t_climb = rng.uniform(60.0, 120.0, n)
     modes = rng.random(n) < 0.9
-    addrs = sim._mode_s_addresses(rng, n)
-    codes = sim._mode3a_codes(rng, n)
+    addrs = mode_s_addresses(rng, n)
+    codes = mode3a_codes(rng, n)
     targets = []
     for k in range(n):
         life = float(life_s[k])

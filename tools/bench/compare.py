@@ -1,0 +1,587 @@
+"""Side by side with Stone Soup (issue 7): ``radar-fusion bench --report DIR`` (or ``--compare``).
+
+Per case (a benchmark size, and the real ADS-B flights) each job below runs in its own
+fresh process:
+
+    simulate_case   simulation, recording, truth, engine inputs, measurement noise, PCRB
+    run_engine      (a) the engine alone, timed (:mod:`.engine_run`)
+    run_bus         (b) the daemon as its own process over Zenoh, fed by the replay tool
+    run_reference   (c) Stone Soup on the same plots (tools/baseline_stonesoup.py)
+    run_accuracy    the engine's tracks, and each radar alone, scored against truth
+
+The tables, goals and report: :mod:`.report`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import math
+import os
+import pickle
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+from .engine_run import (
+    in_fresh_process, maxrss_kb, percentile, reset_peak_rss, rss_kb, run_engine, write_engine_inputs,
+)  # fmt: skip
+from .report import compare_tables, machine_lines, write_report
+
+COMPARE_SIZES = [(50, 3), (100, 3), (1000, 10), (4000, 30)]
+"""50×3 first: Stone Soup finishes it within the budget, and the larger sizes are estimated from it."""
+SCORE_FIELDS = (
+    "pos_rms_m", "pos_rms_settled_m", "vel_rms_mps", "vel_rms_settled_mps", "gospa_mean_m",
+    "gospa_missed_targets_mean", "gospa_false_tracks_mean", "track_ids_per_target_mean", "completeness_mean",
+    "id_swaps", "false_tracks", "duplicate_tracks", "n_displayed_tracks", "n_detectable_targets",
+)  # fmt: skip
+
+
+def _case_label(case: dict[str, Any]) -> str:
+    if case["kind"] == "adsb":
+        return f"ADS-B {case['duration_s']:g} s"
+    return f"{case['aircraft']:,}×{case['radars']}"
+
+
+def _build_scenario(case: dict[str, Any], seed: int):
+    from radar_fusion.tools import simulate as sim_mod
+
+    if case["kind"] == "adsb":
+        return sim_mod.adsb_scenario(seed=seed, duration_s=case["duration_s"], max_aircraft=case["max_aircraft"])
+    return sim_mod.scenario_for_benchmark(case["aircraft"], case["radars"], case["duration_s"], seed)
+
+
+def _summary(scores, settled_from_s: float) -> dict[str, Any]:
+    """The scalar scores, plus GOSPA averaged over the period times from ``settled_from_s``
+    on (after every tracker has had time to start its tracks)."""
+    import numpy as np
+
+    out = {k: getattr(scores, k) for k in SCORE_FIELDS}
+    late = scores.times_s >= settled_from_s
+    out["gospa_settled_mean_m"] = float(np.mean(scores.gospa_per_time_m[late])) if late.any() else math.nan
+    return out
+
+
+def simulate_case(case: dict[str, Any], seed: int, case_dir: str, settle_s: float) -> dict[str, Any]:
+    """Simulate a case; write plots.rec, truth.csv, config.toml and engine.pkl into ``case_dir``;
+    return the input figures with the measurement noise and the PCRB floor."""
+    import tomllib
+
+    from radar_fusion import config
+    from radar_fusion.tools import simulate as sim_mod
+
+    t0 = time.perf_counter()
+    scenario = _build_scenario(case, seed)
+    sim = sim_mod.simulate(scenario, encode=True)
+    sim_mod.write_outputs(sim, case_dir)
+    info = write_engine_inputs(scenario, sim, os.path.join(case_dir, "engine.pkl"))
+    settings = config.settings_from_dict(tomllib.loads(sim_mod.config_toml(scenario)), source="benchmark scenario")
+    info.update(measurement_floor(sim, settings, settle_s))
+    info.update(aircraft=len(scenario.targets), radars=len(scenario.radars), duration_s=float(scenario.duration_s),
+                period_s=float(settings.system.period_s), sim_s=time.perf_counter() - t0)  # fmt: skip
+    return info
+
+
+def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
+    """Measurement noise of the plots and the posterior Cramér–Rao bound (PCRB) of the tracks.
+
+    Noise: every plot of a real aircraft that is not a simulated gross error, converted to
+    the system plane as the engine does, against the exact truth at the plot's time:
+    horizontal RMS error (radar biases included) and the RMS the plot covariances predict.
+
+    PCRB: Tichavský, Muravchik & Nehorai (1998). For a linear Gaussian model the recursion
+    J_{k+1} = D22 − D21 (J_k + D11)⁻¹ D12 (D11 = ΦᵀQ⁻¹Φ, D12 = −ΦᵀQ⁻¹, D22 = Q⁻¹ + HᵀR⁻¹H)
+    is, by the matrix inversion lemma, J_{k+1} = (Φ J_k⁻¹ Φᵀ + Q)⁻¹ + HᵀR_{k+1}⁻¹H, which is
+    evaluated in that covariance form (Q is nearly singular for plots a few ms apart). Model:
+    the engine's Singer model (its α and σ_m, Φ and Q from ``singer_filter``); measurements:
+    every such plot of the aircraft, from all radars, at its own time with its own 2×2
+    covariance R (sequential processing is the exact fused-measurement information);
+    prior at the first plot (and again after a gap of more than 60 s without plots, when a
+    tracker would have dropped the track): position from R, velocity variance
+    max_speed²/3, acceleration σ_m². Covariance updates in Joseph form. The bound assumes perfect association, no false or wild plots and no radar bias,
+    so it is a floor. It is evaluated at the period times (as the tracks are scored) while
+    the aircraft is detectable, from ``settle_s`` after its first plot on, and reported as
+    sqrt(mean(P_xx + P_yy)), comparable with the settled position RMS.
+    """
+    import numpy as np
+
+    from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
+    from radar_fusion.geo.units import M_PER_FT
+    from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
+    from radar_fusion.tracking.singer_filter import singer_process_noise, singer_transition
+
+    cols = [c for c in sim.plot_columns if len(c)]
+    if not cols:
+        return {"noise_rms_m": math.nan, "noise_model_rms_m": math.nan, "pcrb_pos_rms_m": math.nan}
+    cat = lambda name: np.concatenate([getattr(c, name) for c in cols])  # noqa: E731
+    radar = np.concatenate([np.full(len(c), c.radar_index) for c in cols])
+    t, rng, az, fl, tgt, wild = (cat(k) for k in ("t_s", "range_m", "azimuth_deg", "fl", "target_index", "wild"))
+    keep = (tgt >= 0) & ~wild
+    t, rng, az, fl, tgt, radar = t[keep], rng[keep], az[keep], fl[keep], tgt[keep], radar[keep]
+    x, y, cov, _g, valid = polar_to_plane(
+        sim.plane, sim.sites, radar, rng, az, flight_level_to_altitude_m(fl),
+        assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT, return_valid=True,
+    )  # fmt: skip
+    t, x, y, cov, tgt = t[valid], x[valid], y[valid], cov[valid], tgt[valid]
+    truth = sim.truth_at(tgt, t)
+    err2 = (x - truth["x_m"]) ** 2 + (y - truth["y_m"]) ** 2
+    out = {
+        "noise_rms_m": float(np.sqrt(np.mean(err2))),
+        "noise_model_rms_m": float(np.sqrt(np.mean(cov[:, 0, 0] + cov[:, 1, 1]))),
+        "noise_plots": int(t.size),
+    }
+
+    trk = settings.tracking
+    gap_s = 60.0
+    alpha = trk.alpha_per_s
+    sigma_m = trk.sigma_m_mps2
+    order = np.lexsort((t, tgt))
+    t, cov, tgt = t[order], cov[order], tgt[order]
+    n = t.size
+    first = np.r_[True, tgt[1:] != tgt[:-1]]
+    start = np.flatnonzero(first)
+    rank = np.arange(n) - np.repeat(start, np.diff(np.r_[start, n]))
+    H = np.zeros((2, 6))
+    H[0, 0] = H[1, 3] = 1.0
+    P = np.zeros((n, 6, 6))
+
+    def prior(i: np.ndarray) -> np.ndarray:
+        p0 = np.zeros((i.size, 6, 6))
+        p0[:, [0, 0, 3, 3], [0, 3, 0, 3]] = cov[i][:, [0, 0, 1, 1], [0, 1, 0, 1]]
+        p0[:, 1, 1] = p0[:, 4, 4] = unknown_velocity_var_m2ps2(settings.clustering.max_speed_mps)
+        p0[:, 2, 2] = p0[:, 5, 5] = sigma_m**2
+        return p0
+
+    for r in range(int(rank.max()) + 1):
+        idx = np.flatnonzero(rank == r)
+        if r == 0:
+            P[idx] = prior(idx)
+            continue
+        # after a gap longer than a track survives (the aircraft left coverage), the next
+        # plot starts a new track: the bound restarts from the one-plot prior
+        restart = t[idx] - t[idx - 1] > gap_s
+        P[idx[restart]] = prior(idx[restart])
+        idx = idx[~restart]
+        dt = t[idx] - t[idx - 1]
+        F = singer_transition(dt, alpha)
+        Pp = F @ P[idx - 1] @ np.swapaxes(F, 1, 2) + singer_process_noise(dt, alpha, sigma_m)
+        S = Pp[:, [0, 0, 3, 3], [0, 3, 0, 3]].reshape(-1, 2, 2) + cov[idx]
+        K = Pp @ H.T @ np.linalg.inv(S)
+        IKH = np.eye(6) - K @ H
+        # Joseph form: stays symmetric positive semi-definite in floating point
+        P[idx] = IKH @ Pp @ np.swapaxes(IKH, 1, 2) + K @ cov[idx] @ np.swapaxes(K, 1, 2)
+    # evaluation at the period times
+    period_s = float(settings.system.period_s)
+    sc = sim.scenario
+    times = np.arange(math.ceil(sc.start_t_s / period_s), math.floor((sc.start_t_s + sc.duration_s) / period_s) + 1)
+    times = times * period_s
+    tr = sim.truth
+    var_sum, count = 0.0, 0
+    for k, s in enumerate(start.tolist()):
+        e = start[k + 1] if k + 1 < start.size else n
+        target = int(tgt[s])
+        q = times[times >= t[s] + settle_s]
+        if q.size == 0:
+            continue
+        rows = tr.target_index == target
+        tt, det = tr.t_s[rows], tr.detectable[rows]
+        if tt.size == 0:
+            continue
+        ok = (q >= tt[0]) & (q <= tt[-1])
+        q = q[ok]
+        lo = np.clip(np.searchsorted(tt, q, side="right") - 1, 0, tt.size - 1)
+        hi = np.clip(lo + 1, 0, tt.size - 1)
+        q = q[det[lo] & det[hi]]
+        if q.size == 0:
+            continue
+        j = s + np.searchsorted(t[s:e], q, side="right") - 1
+        q, j = q[q - t[j] <= gap_s], j[q - t[j] <= gap_s]  # no plot for longer: no track to bound
+        if q.size == 0:
+            continue
+        dt = q - t[j]
+        F = singer_transition(dt, alpha)
+        Pq = F @ P[j] @ np.swapaxes(F, 1, 2) + singer_process_noise(dt, alpha, sigma_m)
+        var_sum += float(np.sum(Pq[:, 0, 0] + Pq[:, 3, 3]))
+        count += q.size
+    out["pcrb_pos_rms_m"] = math.sqrt(var_sum / count) if count else math.nan
+    out["pcrb_points"] = count
+    return out
+
+
+def _engine_settings(data: dict[str, Any], gate: bool = True):
+    import tomllib
+
+    from radar_fusion import config
+
+    raw = tomllib.loads(data["config_toml"])
+    raw.setdefault("outliers", {})["enabled"] = bool(gate)
+    return config.settings_from_dict(raw, source="benchmark scenario")
+
+
+def _decoded_events(data: dict[str, Any]) -> list[tuple[int, Any]]:
+    from radar_fusion import wire
+
+    return [
+        (0, obj) if kind == 0 else
+        (1, wire.RadarStatus(radar_id=obj[0], t=obj[1], kind=obj[2], sector=obj[3], rotation_period_s=obj[4]))
+        for kind, obj in data["events"]
+    ]  # fmt: skip
+
+
+def _run_engine_batches(settings, events) -> list[dict]:
+    from radar_fusion.engine import Engine
+
+    engine = Engine(settings, safety_nets=None)
+    batches: list[dict] = []
+    for kind, obj in events:
+        if kind == 0:
+            engine.ingest_plots(obj)
+            batches.extend(o.track_batch for o in engine.poll())
+        else:
+            engine.ingest_status(obj)
+    batches.extend(o.track_batch for o in engine.flush())
+    return batches
+
+
+def run_accuracy(case_dir: str, settle_s: float, png_prefix: Optional[str] = None) -> dict[str, Any]:
+    """Score the engine's tracks and each radar alone (the engine with that radar only) against truth."""
+    from radar_fusion.tools import evaluate as ev
+
+    with open(os.path.join(case_dir, "engine.pkl"), "rb") as f:
+        data = pickle.load(f)
+    settings = _engine_settings(data)
+    events = _decoded_events(data)
+    truth = ev.load_truth(os.path.join(case_dir, "truth.csv"))
+    params = ev.EvalParams(settle_s=settle_s)
+    batches = _run_engine_batches(settings, events)
+    scores = ev.evaluate(batches, truth, params)
+    settled_from = data["start_t_s"] + settle_s
+    out: dict[str, Any] = {"ours": _summary(scores, settled_from), "single": {}}
+    if png_prefix:
+        ev.plot(batches, truth, png_prefix + "_ours.png", scores)
+    del batches
+    per_target = {}
+    for radar in settings.radars:
+        one = settings.model_copy(update={"radars": [radar]})
+        evs = [(k, o) for k, o in events if (o.radar_id == radar.id)]
+        s1 = ev.evaluate(_run_engine_batches(one, evs), truth, params)
+        out["single"][radar.id] = _summary(s1, settled_from)
+        per_target[radar.id] = s1.targets
+    key = lambda rid: (_nan_last(out["single"][rid]["pos_rms_settled_m"]), _nan_last(out["single"][rid]["pos_rms_m"]))  # noqa: E731
+    out["best_single_radar"] = best = min(out["single"], key=key) if out["single"] else None
+    if best is not None:
+        out["same_aircraft"] = same_aircraft_rms(scores.targets, per_target[best])
+    return out
+
+
+def same_aircraft_rms(fused_targets, single_targets) -> dict[str, Any]:
+    """Fused vs single-radar position RMS on the same aircraft: the aircraft both track,
+    each weighted by the number of period times the single radar's track covers it (a
+    single radar sees only its own coverage, often the aircraft near it, so its overall
+    RMS is over an easier population). Per-aircraft RMS as in ``TargetScore.pos_rms_m``
+    (every associated pair, any status)."""
+    fused = {t.target_id: t for t in fused_targets}
+    num_f = num_s = den = 0.0
+    n = 0
+    for t in single_targets:
+        f = fused.get(t.target_id)
+        if f is None or not (t.covered_batches > 0) or math.isnan(t.pos_rms_m) or math.isnan(f.pos_rms_m):
+            continue
+        w = float(t.covered_batches)
+        num_f += w * f.pos_rms_m**2
+        num_s += w * t.pos_rms_m**2
+        den += w
+        n += 1
+    if den == 0:
+        return {"fused_m": math.nan, "single_m": math.nan, "aircraft": 0}
+    return {"fused_m": math.sqrt(num_f / den), "single_m": math.sqrt(num_s / den), "aircraft": n}
+
+
+def _nan_last(v: float) -> float:
+    return math.inf if v is None or math.isnan(v) else v
+
+
+def run_reference(case_dir: str, settle_s: float, budget_s: float, q_m2ps3: float,
+                  png_prefix: Optional[str] = None) -> dict[str, Any]:
+    """(c) Stone Soup on the same plots, timed, then scored against truth."""
+    from radar_fusion.tools import baseline_stonesoup as bs
+    from radar_fusion.tools import evaluate as ev
+
+    with open(os.path.join(case_dir, "engine.pkl"), "rb") as f:
+        data = pickle.load(f)
+    settings = _engine_settings(data)
+    plot_batches = [obj for kind, obj in _decoded_events(data) if kind == 0]
+    settled_from = data["start_t_s"] + settle_s
+    del data
+    gc.collect()
+    rss_base_kb = rss_kb("VmRSS")
+    hwm_reset = reset_peak_rss()
+    run = bs.run_stonesoup(settings, plot_batches, bs.StoneSoupParams(q_m2ps3=q_m2ps3), time_budget_s=budget_s)
+    peak_kb = rss_kb("VmHWM") if hwm_reset else maxrss_kb()
+    out = {
+        "version": bs.version(), "completed": run.completed, "run_s": run.run_s, "plots": run.plots_used,
+        "plots_processed": run.plots_processed, "plots_per_s": run.plots_per_s, "steps": run.steps,
+        "tracks_started": run.tracks_started, "peak_rss_mb": (peak_kb or 0) / 1024.0,
+        "rss_base_mb": (rss_base_kb or 0) / 1024.0, "q_m2ps3": q_m2ps3,
+    }  # fmt: skip
+    if run.completed:
+        truth = ev.load_truth(os.path.join(case_dir, "truth.csv"))
+        scores = ev.evaluate(run.batches, truth, ev.EvalParams(settle_s=settle_s))
+        out["scores"] = _summary(scores, settled_from)
+        if png_prefix:
+            ev.plot(run.batches, truth, png_prefix + "_stonesoup.png", scores)
+    return out
+
+
+def _closable_after(records, settings) -> "Any":
+    """Per message: the event time up to which every period may close once it is processed
+    (the period buffer's rule: min over live radars' watermarks − allowed lateness), as a
+    running maximum; periods ending at or before it have all their inputs."""
+    import numpy as np
+
+    from radar_fusion.wire import Rejection, decode_plot_batch
+
+    index = {r.id: i for i, r in enumerate(settings.radars)}
+    wm = np.full(len(index), -math.inf)
+    timeout, lateness = settings.system.radar_timeout_s, settings.system.allowed_lateness_s
+    out = np.full(len(records), -math.inf)
+    best = -math.inf
+    for i, rec in enumerate(records):
+        parts = rec.key.split("/")
+        r = index.get(parts[-2])
+        if r is not None:
+            if parts[-1] == "plots":
+                d = decode_plot_batch(rec.payload)
+                t_ev = float(d.t_s.max()) if not isinstance(d, Rejection) and len(d) else rec.t_s
+            else:
+                t_ev = rec.t_s
+            wm[r] = max(wm[r], t_ev)
+            live = np.isfinite(wm) & (wm >= wm.max() - timeout)
+            best = max(best, float(wm[live].min()) - lateness)
+        out[i] = best
+    return out
+
+
+def run_bus(case_dir: str, speed: Optional[float], warmup_s: float, timeout_s: float) -> dict[str, Any]:
+    """(b) The daemon (``radar-fusion serve``, its own process, embedded router on a free
+    127.0.0.1 port) fed by the replay tool (:func:`replay.replay_records`, a client
+    session), the track batches received by a subscriber on another client session.
+
+    Publish time of a message = when its ``put`` returned; receive time = when the
+    subscriber's callback ran (both ``time.monotonic``, one clock for every process on
+    Linux). After the recording, one heartbeat status per radar (event time last + one
+    period + the allowed lateness + 0.5 s) closes the last periods, so every period
+    ends the normal way. plots/s = plots / (last TrackBatch received − first message
+    sent). Latency of period k = receive time of its TrackBatch − publish time of the
+    message that let it close (the first after which every live radar's watermark has
+    passed the period's end + the allowed lateness: the last input the period waits
+    for); periods ending in the first ``warmup_s`` are left out.
+    """
+    import signal
+    import subprocess as sp
+
+    import msgpack
+    import numpy as np
+
+    from radar_fusion import wire
+    from radar_fusion.bus import open_session, zenoh_config
+    from radar_fusion.config import load_settings
+    from radar_fusion.tools.demo import free_tcp_port
+    from radar_fusion.recording import Record, read_recording
+    from radar_fusion.tools.replay import replay_records
+
+    port = free_tcp_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    text = Path(case_dir, "config.toml").read_text()
+    cfg_path = Path(case_dir, f"bus_{port}.toml")
+    cfg_path.write_text(text.replace('listen = ["tcp/127.0.0.1:7447"]', f'listen = ["{endpoint}"]'))
+    settings = load_settings(cfg_path)
+    prefix = settings.bus.prefix
+    records = list(read_recording(Path(case_dir, "plots.rec")))
+    n_plots = 0
+    t_last = -math.inf
+    for rec in records:
+        if rec.key.endswith("/plots"):
+            d = wire.decode_plot_batch(rec.payload)
+            if not isinstance(d, wire.Rejection) and len(d):
+                n_plots += len(d)
+                t_last = max(t_last, float(d.t_s.max()))
+    period_s = settings.system.period_s
+    t_hb = max(t_last, records[-1].t_s) + period_s + settings.system.allowed_lateness_s + 0.5
+    for r in settings.radars:
+        msg = {"v": wire.WIRE_VERSION, "radar_id": r.id, "t": t_hb, "kind": "heartbeat"}
+        records.append(Record(t_hb, f"radar/{r.id}/status", wire.encode(msg)))
+    closable = _closable_after(records, settings)
+    last_period = int(math.floor(t_last / period_s))
+
+    log_path = Path(case_dir, f"daemon_{port}.log")
+    with open(log_path, "w") as log:
+        daemon = sp.Popen([sys.executable, "-m", "radar_fusion.cli", "serve", "--config", str(cfg_path),
+                           "--log-level", "WARNING"], stdout=log, stderr=sp.STDOUT)  # fmt: skip
+    received: list[tuple[float, bytes]] = []
+    session = None
+    try:
+        deadline = time.monotonic() + 30.0
+        while session is None:
+            try:
+                session = open_session(zenoh_config("client", connect=[endpoint]))
+            except Exception:
+                if time.monotonic() > deadline or daemon.poll() is not None:
+                    raise RuntimeError(f"daemon did not come up; see {log_path}") from None
+                time.sleep(0.2)
+        sub = session.declare_subscriber(f"{prefix}/fusion/tracks",
+                                         lambda s: received.append((time.monotonic(), s.payload.to_bytes())))  # fmt: skip
+        time.sleep(1.0)  # subscriptions propagate through the router
+        pub_s: list[float] = []
+
+        def timed(recs):
+            for rec in recs:
+                yield rec
+                pub_s.append(time.monotonic())
+
+        t_start = time.monotonic()
+        replay_records(session, timed(records), prefix, speed)
+        t_sent = time.monotonic()
+
+        def last_seen() -> bool:
+            return any(msgpack.unpackb(p, raw=False).get("period", -1) >= last_period for _, p in received[-3:])
+
+        deadline = time.monotonic() + timeout_s
+        while not last_seen() and time.monotonic() < deadline and daemon.poll() is None:
+            time.sleep(0.02)
+        peak_kb = None
+        try:
+            with open(f"/proc/{daemon.pid}/status") as f:
+                peak_kb = next((int(line.split()[1]) for line in f if line.startswith("VmHWM:")), None)
+        except OSError:
+            pass
+        sub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        if daemon.poll() is None:
+            daemon.send_signal(signal.SIGINT)
+            try:
+                daemon.wait(30)
+            except sp.TimeoutExpired:
+                daemon.kill()
+                daemon.wait()
+        cfg_path.unlink(missing_ok=True)
+    batches = [(t_r, msgpack.unpackb(p, raw=False)) for t_r, p in received]
+    done = [t_r for t_r, b in batches if b.get("period", -1) >= last_period]
+    t_done = done[0] if done else math.nan
+    pub = np.asarray(pub_s)
+    lat_ms, warm_end = [], records[0].t_s + warmup_s
+    for t_r, b in batches:
+        end_s = (b["period"] + 1) * period_s
+        i = int(np.searchsorted(closable, end_s - 1e-9, side="left"))
+        if end_s >= warm_end and i < pub.size:
+            lat_ms.append(1e3 * (t_r - pub[i]))
+    return {
+        "speed": speed, "plots": n_plots, "messages": len(records), "batches_received": len(batches),
+        "completed": bool(done), "send_s": t_sent - t_start, "wall_s": t_done - t_start,
+        "plots_per_s": n_plots / (t_done - t_start) if done else math.nan,
+        "e2e_p50_ms": percentile(lat_ms, 50), "e2e_p99_ms": percentile(lat_ms, 99),
+        "e2e_max_ms": max(lat_ms) if lat_ms else math.nan, "e2e_periods": len(lat_ms),
+        "daemon_peak_rss_mb": (peak_kb or 0) / 1024.0,
+    }  # fmt: skip
+
+
+def _estimate_reference_s(cost: Optional[tuple[float, str]], plots: int, tracks: float) -> Optional[float]:
+    """Stone Soup's run time scales with plots × tracks (every plot is hypothesised against
+    every track, every track is predicted at every step): estimate from a measured case."""
+    if cost is None or not (tracks > 0):
+        return None
+    return cost[0] * plots * tracks
+
+
+def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration_s: float, tmp: str) -> int:
+    import shutil
+
+    from radar_fusion.tools import baseline_stonesoup as bs
+
+    report_dir = Path(args.report) if args.report else None
+    if report_dir:
+        report_dir.mkdir(parents=True, exist_ok=True)
+    use_ref = not args.no_reference and bs.available()
+    header = machine_lines() + [
+        f"stonesoup {bs.version()}" + ("" if use_ref else " (reference not run: "
+                                       + ("--no-reference)" if args.no_reference else "not importable)")),
+        f"{duration_s:g} s simulated per size, seed {args.seed}; warm-up {args.warmup_s:g} s left out of the "
+        f"latency percentiles; accuracy settled after {args.settle_s:g} s",
+    ]  # fmt: skip
+    print("\n".join(header), flush=True)
+    cases = [{"kind": "benchmark", "aircraft": n, "radars": r, "duration_s": duration_s} for n, r in sizes]
+    if not args.no_adsb:
+        cases.append({"kind": "adsb", "duration_s": args.adsb_duration_s, "max_aircraft": args.adsb_aircraft})
+    if not cases:
+        print("bench: nothing to compare (--sizes none and --no-adsb)", file=sys.stderr)
+        return 2
+    rows: list[dict[str, Any]] = []
+    ref_cost: Optional[tuple[float, str]] = None
+    t_bench = time.perf_counter()
+    for c, case in enumerate(cases):
+        label = _case_label(case)
+        case_dir = os.path.join(tmp, f"case{c}")
+        os.makedirs(case_dir, exist_ok=True)
+        png = str(report_dir / ("adsb" if case["kind"] == "adsb" else f"size{c}")) if report_dir and (
+            case["kind"] == "adsb" or c == 0) else None  # fmt: skip
+        row: dict[str, Any] = {"label": label, "case": case}
+        row["sim"] = sim = in_fresh_process(simulate_case, case, args.seed, case_dir, args.settle_s)
+        print(f"{label}: {sim['aircraft']:,} aircraft, {sim['radars']} radars, {sim['plots']:,} plots "
+              f"(simulated in {sim['sim_s']:.1f} s)", flush=True)  # fmt: skip
+        row["engine"] = eng = in_fresh_process(run_engine, os.path.join(case_dir, "engine.pkl"), True, args.warmup_s, 0)
+        print(f"  (a) engine: {eng['plots_per_s']:,.0f} plots/s, period p50 {eng['p50_ms']:.1f} / p99 "
+              f"{eng['p99_ms']:.1f} ms, peak RSS {eng['peak_rss_mb']:.0f} MB", flush=True)  # fmt: skip
+        if not args.no_bus:
+            row["bus"] = b = in_fresh_process(run_bus, case_dir, None, args.warmup_s, args.bus_timeout_s)
+            print(f"  (b) daemon over Zenoh, replay at max speed: {b['plots_per_s']:,.0f} plots/s "
+                  f"({b['wall_s']:.1f} s), daemon peak RSS {b['daemon_peak_rss_mb']:.0f} MB", flush=True)  # fmt: skip
+            if args.latency_speed > 0:
+                row["bus_paced"] = bp = in_fresh_process(run_bus, case_dir, args.latency_speed, args.warmup_s,
+                                                          args.bus_timeout_s)  # fmt: skip
+                print(f"      replay at {args.latency_speed:g}× real time: end-to-end p50 {bp['e2e_p50_ms']:.1f} / "
+                      f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods", flush=True)  # fmt: skip
+        if use_ref:
+            est = _estimate_reference_s(ref_cost, sim["plots"], eng["tracks_per_period"])
+            if est is not None and est > args.reference_budget_s:
+                row["reference"] = {"skipped": True, "estimate_s": est, "estimated_from": ref_cost[1],
+                                    "plots_per_s": sim["plots"] / est}  # fmt: skip
+                print(f"  (c) Stone Soup: skipped, estimated {est / 60:.0f} min (> budget "
+                      f"{args.reference_budget_s / 60:.0f} min) from the {ref_cost[1]} run", flush=True)  # fmt: skip
+            else:
+                ref = in_fresh_process(run_reference, case_dir, args.settle_s, args.reference_budget_s,
+                                        args.ss_q, png)  # fmt: skip
+                row["reference"] = ref
+                if ref["plots_processed"] > 0 and eng["tracks_per_period"] > 0:
+                    # a run stopped at the budget still measures the cost (optimistically for
+                    # Stone Soup: its first part, during initiation, holds fewer tracks)
+                    ref_cost = (ref["run_s"] / (ref["plots_processed"] * eng["tracks_per_period"]),
+                                label + ("" if ref["completed"] else " (partial)"))
+                print(f"  (c) Stone Soup {ref['version']}: {ref['plots_per_s']:,.1f} plots/s "
+                      f"({ref['run_s']:.0f} s{'' if ref['completed'] else ', stopped at the budget'}), "
+                      f"peak RSS {ref['peak_rss_mb']:.0f} MB; ours/reference {eng['plots_per_s'] / ref['plots_per_s']:,.0f}×",
+                      flush=True)  # fmt: skip
+        if not args.no_accuracy:
+            row["accuracy"] = acc = in_fresh_process(run_accuracy, case_dir, args.settle_s, png)
+            o = acc["ours"]
+            print(f"  accuracy: ours pos RMS {o['pos_rms_m']:.0f} m (settled {o['pos_rms_settled_m']:.0f}), GOSPA "
+                  f"{o['gospa_mean_m']:.0f} m; best single radar {acc['best_single_radar']}; plot noise "
+                  f"{sim['noise_rms_m']:.0f} m, PCRB {sim['pcrb_pos_rms_m']:.0f} m", flush=True)  # fmt: skip
+        rows.append(row)
+        shutil.rmtree(case_dir, ignore_errors=True)
+    wall = time.perf_counter() - t_bench
+    speed_md, acc_md, goals = compare_tables(rows, args)
+    print()
+    print(speed_md)
+    print()
+    print(acc_md)
+    print()
+    print("\n".join(goals))
+    print(f"(benchmark wall time {wall:.0f} s)")
+    if report_dir:
+        write_report(report_dir, header, rows, args, speed_md, acc_md, goals, wall)
+        print(f"wrote {report_dir}/report.md, summary.md, results.json and PNGs")
+    return 0
+

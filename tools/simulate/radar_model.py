@@ -1,0 +1,244 @@
+"""Radar model: beam crossings, coverage, detection, report kind and identity, measurement
+noise and biases, wild plots and false plots, for one radar over a whole scenario.
+
+Each antenna turns clockwise at a constant rate. Its beam azimuth (degrees, continuous,
+"unwrapped") is ``A(t) = 360 (t - t_start) / T_rot + phase``, the true azimuth of the beam
+``A(t) mod 360``; north crossings are at ``A = 360 k``. The phase is random per radar
+unless given. A target is seen when the beam passes its azimuth: the crossing solves
+``A(t) = 360 n + az(t)`` with ``az`` the target's (continuously unwrapped) azimuth from
+the site. It starts from the previous scan's azimuth and is iterated twice with the
+target's position at the estimated time (the target's angular rate is far below the
+beam's, so this converges to micro-seconds). The plot time is that crossing time: every
+radar has its own clock phase, there is no common scan time.
+
+At the crossing the target is *in coverage* when its slant range is within the radar's
+``max_range_m``, it is above the radar horizon (4/3 earth: ground range <=
+sqrt(2 k R h_radar) + sqrt(2 k R h_target)) and its elevation is below
+``max_elevation_deg`` (cone of silence). It is then detected with probability
+``rates.pd`` (secondary) or ``rates.pd_psr`` (primary-only plots). The measurement is
+``range = rho + range_bias_m + N(0, sigma_range_m)``, ``azimuth = az + azimuth_bias_deg +
+N(0, sigma_azimuth_deg)`` (noise-free rho/az from :func:`coordinates.geodetic_to_polar`).
+
+Report kind and identity: a Mode S target seen by a Mode S radar gives ``modes`` plots
+(Mode S address, Mode 3/A, Mode C quantised to 25 ft when the target reports 25 ft,
+else 100 ft); a transponder seen by a radar with a primary gives ``cmb`` when the
+primary also detected it (probability ``pd_psr``), else ``ssr``; a target without a
+transponder, or any target seen by a primary-only radar, gives ``psr`` plots (no
+identity, no flight level). Mode C is present on a plot with probability ``p_mode_c``
+when the target reports altitude. Every plot of a target carries the radar's track
+number for it (stable per aircraft per radar).
+
+False plots: Poisson(``false_plots_per_scan``) per revolution, uniform over the coverage
+area (range density ∝ r), no identity, kind ``psr`` (``ssr`` on a secondary-only radar).
+Wild plots: isolated (probability ``wild_plot_prob`` per plot) and in runs (probability
+``wild_run_prob`` per target per scan of a run of ``wild_run_scans`` consecutive scans
+with one constant error): a gross error of ``wild_range_m`` (uniform, random sign) in
+range or of ``wild_azimuth_deg`` in azimuth, keeping the aircraft's identity and track
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from radar_fusion import wire
+from radar_fusion.geo.coordinates import RadarSites, SystemPlane, geodetic_to_polar
+from radar_fusion.geo.units import M_PER_FT
+
+from .scenario import TRANSPONDER_CODES, RadarSpec, Rates, Target
+from .trajectories import Trajectories
+
+KIND_PSR, KIND_SSR, KIND_CMB, KIND_MODES = (wire.KIND_CODES[k] for k in ("psr", "ssr", "cmb", "modes"))
+KIND_NAMES = {code: name for name, code in wire.KIND_CODES.items()}
+_EFFECTIVE_EARTH_K = 4.0 / 3.0
+
+
+def _wrap180(a: np.ndarray) -> np.ndarray:
+    return np.mod(a + 180.0, 360.0) - 180.0
+
+
+def coverage(spec: RadarSpec, earth_radius_m: float, slant_m, ground_m, alt_m) -> np.ndarray:
+    """In range, above the radar horizon (4/3 earth) and below the cone of silence."""
+    a = earth_radius_m + spec.alt_m
+    b = earth_radius_m + alt_m
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sin_el = (b * b - a * a - slant_m * slant_m) / (2.0 * a * slant_m)
+    ke = _EFFECTIVE_EARTH_K * earth_radius_m
+    horizon_m = np.sqrt(2.0 * ke * max(spec.alt_m, 0.0)) + np.sqrt(2.0 * ke * np.maximum(alt_m, 0.0))
+    return (
+        (slant_m <= spec.max_range_m)
+        & (ground_m <= horizon_m)
+        & (sin_el <= math.sin(math.radians(spec.max_elevation_deg)))
+    )
+
+
+def _wild_offsets(rng: np.random.Generator, rates: Rates, n_scans: int, n: int):
+    """Per (scan, target): wild range and azimuth offsets (0 where not wild) and flag."""
+    d_range = np.zeros((n_scans, n))
+    d_az = np.zeros((n_scans, n))
+
+    def draw(k: int):
+        use_range = rng.random(k) < 0.5
+        sign = np.where(rng.random(k) < 0.5, -1.0, 1.0)
+        mag_r = rng.uniform(*rates.wild_range_m, size=k)
+        mag_a = rng.uniform(*rates.wild_azimuth_deg, size=k)
+        return np.where(use_range, sign * mag_r, 0.0), np.where(use_range, 0.0, sign * mag_a)
+
+    # runs first, isolated wild plots on top
+    s, i = np.nonzero(rng.random((n_scans, n)) < rates.wild_run_prob)
+    if s.size:
+        lo, hi = rates.wild_run_scans
+        length = rng.integers(lo, hi + 1, size=s.size)
+        dr, da = draw(s.size)
+        for step in range(int(length.max())):
+            m = (step < length) & (s + step < n_scans)
+            d_range[s[m] + step, i[m]] = dr[m]
+            d_az[s[m] + step, i[m]] = da[m]
+    s, i = np.nonzero(rng.random((n_scans, n)) < rates.wild_plot_prob)
+    if s.size:
+        dr, da = draw(s.size)
+        d_range[s, i], d_az[s, i] = dr, da
+    return d_range, d_az, (d_range != 0.0) | (d_az != 0.0)
+
+
+class TargetTable:
+    """Per-target identity columns (arrays indexed by target)."""
+
+    def __init__(self, targets: Sequence[Target]) -> None:
+        self.transponder = np.array([TRANSPONDER_CODES[t.transponder] for t in targets], np.int8)
+        self.mode_s = np.array([-1 if t.mode_s is None else t.mode_s for t in targets], np.int64)
+        self.mode3a = np.array([-1 if t.mode3a is None else t.mode3a for t in targets], np.int64)
+        self.mode_c = np.array([t.mode_c and t.transponder != "none" for t in targets], bool)
+        self.q25 = np.array([t.alt_quantum_ft == 25.0 for t in targets], bool)
+
+
+def radar_plots(
+    sim_ctx: dict, r: int, spec: RadarSpec, rates: Rates, phase_deg: float, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
+    """All plots (true, wild and false) of radar ``r`` over the scenario, as columns."""
+    traj: Trajectories = sim_ctx["traj"]
+    plane: SystemPlane = sim_ctx["plane"]
+    sites: RadarSites = sim_ctx["sites"]
+    tt: TargetTable = sim_ctx["targets"]
+    t_start, t_end = sim_ctx["t_start"], sim_ctx["t_end"]
+    period = spec.rotation_period_s
+    n = traj.n
+    # Only targets that can come within range during the scenario are followed
+    # (a plane-distance bound: at most 350 m/s from their position at the start).
+    sx, sy = sites.plane_positions(plane)
+    st0 = traj.state(np.arange(n), np.full(n, t_start))
+    reach_m = 1.02 * spec.max_range_m + 10_000.0 + 350.0 * (t_end - t_start)
+    idx = np.nonzero(np.hypot(st0.x_m - sx[r], st0.y_m - sy[r]) <= reach_m)[0]
+    n_followed = idx.size
+
+    def beam_angle(t):
+        return 360.0 * (t - t_start) / period + phase_deg
+
+    def beam_time(angle):
+        return t_start + (angle - phase_deg) * period / 360.0
+
+    def polar(t):
+        st = traj.state(idx, t)
+        lat, lon = plane.to_geodetic(st.x_m, st.y_m)
+        rho, az, g = geodetic_to_polar(sites, np.full(n_followed, r), lat, lon, st.alt_m)
+        return rho, az, g, st
+
+    # ---- beam crossings, one per target per step (a scan of that target)
+    cols: dict[str, list] = {k: [] for k in ("tgt", "step", "t", "rho", "az", "g", "alt", "active")}
+    if n_followed:
+        _, lift, _, _ = polar(np.full(n_followed, t_start))
+        n_rev = np.ceil((beam_angle(t_start) - lift) / 360.0)
+        step = 0
+        while True:
+            t_c = beam_time(360.0 * n_rev + lift)
+            if np.all(t_c >= t_end + period):
+                break
+            for _ in range(2):
+                _, az, _, _ = polar(t_c)
+                lift = lift + _wrap180(az - lift)
+                t_c = beam_time(360.0 * n_rev + lift)
+            rho, az, g, st = polar(t_c)
+            lift = lift + _wrap180(az - lift)
+            keep = (t_c >= t_start) & (t_c < t_end)
+            if np.any(keep):
+                cols["tgt"].append(idx[keep])
+                cols["step"].append(np.full(int(keep.sum()), step))
+                for k, v in (("t", t_c), ("rho", rho), ("az", az), ("g", g), ("alt", st.alt_m), ("active", st.active)):
+                    cols[k].append(v[keep])
+            n_rev += 1.0
+            step += 1
+    c = {k: (np.concatenate(v) if v else np.zeros(0, dtype=np.intp if k in ("tgt", "step") else float))
+         for k, v in cols.items()}  # fmt: skip
+    c["active"] = c["active"].astype(bool)
+    m = c["t"].shape[0]
+    tgt = c["tgt"].astype(np.intp)
+
+    # ---- detection, kind and identity
+    cover = c["active"] & coverage(spec, float(sites.earth_radius_m[r]), c["rho"], c["g"], c["alt"])
+    tr = tt.transponder[tgt]
+    ssr_path = spec.ssr & (tr > 0)
+    psr_path = ~ssr_path & spec.psr
+    pd = np.where(ssr_path, rates.pd, np.where(psr_path, rates.pd_psr, 0.0))
+    detected = cover & (rng.random(m) < pd)
+    kind = np.where(
+        ssr_path,
+        np.where(spec.mode_s & (tr == 2), KIND_MODES, np.where(spec.psr & (rng.random(m) < rates.pd_psr), KIND_CMB, KIND_SSR)),
+        KIND_PSR,
+    ).astype(np.int8)
+    secondary = kind != KIND_PSR
+    mode3a = np.where(secondary, tt.mode3a[tgt], -1)
+    mode_s = np.where(kind == KIND_MODES, tt.mode_s[tgt], -1)
+    quantum_ft = np.where((kind == KIND_MODES) & tt.q25[tgt], 25.0, 100.0)
+    has_fl = secondary & tt.mode_c[tgt] & (rng.random(m) < rates.p_mode_c)
+    fl = np.where(has_fl, np.round(c["alt"] / M_PER_FT / quantum_ft) * quantum_ft / 100.0, np.nan)
+    track_numbers = rng.permutation(max(4095, n))[:n].astype(np.int64) + 1
+    track_no = track_numbers[tgt] if n else np.zeros(0, np.int64)
+
+    # ---- measurement noise, bias and wild plots
+    n_scans = int(math.ceil(sim_ctx["duration_s"] / period)) + 4
+    d_range, d_az, wild_tab = _wild_offsets(rng, rates, n_scans, n)
+    step = np.minimum(c["step"].astype(np.intp), n_scans - 1)
+    wild = wild_tab[step, tgt] if m else np.zeros(0, bool)
+    range_m = c["rho"] + spec.range_bias_m + rng.normal(0.0, spec.sigma_range_m, m) + (d_range[step, tgt] if m else 0.0)
+    az_deg = c["az"] + spec.azimuth_bias_deg + rng.normal(0.0, spec.sigma_azimuth_deg, m) + (d_az[step, tgt] if m else 0.0)
+    reported = detected & (range_m > 0.0) & (range_m <= spec.max_range_m)
+
+    # ---- false plots: Poisson per revolution, uniform over the coverage disc
+    rev0 = math.floor(beam_angle(t_start) / 360.0)
+    rev1 = math.ceil(beam_angle(t_end) / 360.0)
+    counts = rng.poisson(rates.false_plots_per_scan, size=max(rev1 - rev0, 0))
+    k = int(counts.sum())
+    rev = np.repeat(np.arange(rev0, rev1), counts)
+    f_az = rng.uniform(0.0, 360.0, k)
+    r_min = 2000.0
+    f_range = np.sqrt(rng.uniform(r_min**2, spec.max_range_m**2, k))
+    f_t = beam_time(360.0 * rev + f_az)
+    f_keep = (f_t >= t_start) & (f_t < t_end)
+
+    sel = np.nonzero(reported)[0]
+    out = {
+        "t_s": np.concatenate([c["t"][sel], f_t[f_keep]]),
+        "range_m": np.concatenate([range_m[sel], f_range[f_keep]]),
+        "azimuth_deg": np.concatenate([az_deg[sel], f_az[f_keep]]),
+        "fl": np.concatenate([fl[sel], np.full(int(f_keep.sum()), np.nan)]),
+        "mode3a": np.concatenate([mode3a[sel], np.full(int(f_keep.sum()), -1)]).astype(np.int64),
+        "mode_s": np.concatenate([mode_s[sel], np.full(int(f_keep.sum()), -1)]).astype(np.int64),
+        "track_no": np.concatenate([track_no[sel], np.full(int(f_keep.sum()), -1)]).astype(np.int64),
+        "kind": np.concatenate([kind[sel], np.full(int(f_keep.sum()), KIND_PSR if spec.psr else KIND_SSR, np.int8)]),
+        "target_index": np.concatenate([tgt[sel], np.full(int(f_keep.sum()), -1)]).astype(np.int64),
+        "wild": np.concatenate([wild[sel], np.zeros(int(f_keep.sum()), bool)]),
+    }
+    az = np.mod(out["azimuth_deg"], 360.0)
+    out["azimuth_deg"] = np.where(az >= 360.0, 0.0, az)
+    order = np.argsort(out["t_s"], kind="stable")
+    out = {k2: v[order] for k2, v in out.items()}
+    out["_stats"] = {
+        "crossings_in_coverage": int(cover.sum()),
+        "detections": int(detected.sum()),
+        "target_plots": int(sel.size),
+        "wild_plots": int(wild[sel].sum()),
+        "false_plots": int(f_keep.sum()),
+    }
+    return out

@@ -1,0 +1,199 @@
+"""The scenario model: radars (site, antenna, accuracy, biases, rates), aircraft (identity,
+transponder) and how they fly (a synthetic flight plan or a recorded path).
+
+Everything :func:`radar_fusion.tools.simulate.simulate` needs is one :class:`Scenario`.
+Builders of scenarios: :mod:`.presets` (named scenarios), :mod:`.adsb` (real flights),
+:mod:`.files` (scenario TOML files).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from radar_fusion.geo.units import M_PER_NM
+
+EPOCH_2018_08_01_08Z = 1533110400.0
+"""2018-08-01 08:00:00 UTC, the default scenario start (the day of the ADS-B table)."""
+TRANSPONDER_CODES = {"none": 0, "modeac": 1, "modes": 2}
+"""Transponder kinds of :attr:`Target.transponder`, as the codes the radar model uses."""
+
+@dataclass(frozen=True)
+class Rates:
+    """Detection, clutter and gross-error rates of a radar (scenario default or per radar)."""
+
+    pd: float = 0.95
+    """probability that a transponder in coverage gives a secondary plot in a scan"""
+    pd_psr: float = 0.85
+    """primary detection probability: primary-only plots, and the share of ``cmb`` plots"""
+    p_mode_c: float = 0.99
+    """probability that a plot of an altitude-reporting target carries its flight level"""
+    false_plots_per_scan: float = 1.0
+    """mean number of false plots per revolution (Poisson), uniform over the coverage"""
+    wild_plot_prob: float = 0.002
+    """probability that a plot is an isolated wild plot"""
+    wild_run_prob: float = 0.0005
+    """probability per target and scan that a run of wild plots starts"""
+    wild_run_scans: tuple[int, int] = (3, 5)
+    """run length in scans, uniform between the two (inclusive)"""
+    wild_range_m: tuple[float, float] = (2000.0, 8000.0)
+    """magnitude of a wild range error, uniform between the two, random sign"""
+    wild_azimuth_deg: tuple[float, float] = (1.0, 4.0)
+    """magnitude of a wild azimuth error, uniform between the two, random sign"""
+
+
+@dataclass(frozen=True)
+class RadarSpec:
+    """One simulated radar: site, antenna, accuracy, systematic errors and capabilities."""
+
+    id: str
+    lat_deg: float
+    lon_deg: float
+    alt_m: float = 0.0
+    rotation_period_s: float = 4.0
+    sigma_range_m: float = 50.0
+    sigma_azimuth_deg: float = 0.07
+    range_bias_m: float = 0.0
+    azimuth_bias_deg: float = 0.0
+    max_range_m: float = 250.0 * M_PER_NM
+    psr: bool = True
+    ssr: bool = True
+    mode_s: bool = True
+    n_sectors: int = 32
+    start_phase_deg: Optional[float] = None
+    max_elevation_deg: float = 40.0
+    sac: Optional[int] = None
+    sic: Optional[int] = None
+    rates: Optional[Rates] = None
+
+    def __post_init__(self) -> None:
+        if not (self.psr or self.ssr):
+            raise ValueError(f"radar {self.id}: needs a primary (psr) or a secondary (ssr)")
+        if not (1 <= self.n_sectors <= 256):
+            raise ValueError(f"radar {self.id}: n_sectors must be in 1..256")
+        if self.rotation_period_s <= 0:
+            raise ValueError(f"radar {self.id}: rotation_period_s must be > 0")
+
+
+@dataclass(frozen=True)
+class Leg:
+    """A piece of a flight plan flown at constant turn rate and vertical rate."""
+
+    duration_s: float
+    turn_rate_dps: float = 0.0
+    """degrees per second, positive = right turn (heading increasing, clockwise)"""
+    vrate_fpm: float = 0.0
+    """feet per minute, positive = climb"""
+
+
+@dataclass(frozen=True)
+class FlightPlan:
+    """Synthetic kinematics: a start state in the system plane and a list of legs.
+
+    Speed is constant; the aircraft exists from ``t_offset_s`` after the scenario start
+    until the end of its last leg.
+    """
+
+    start_x_m: float
+    start_y_m: float
+    heading_deg: float
+    speed_mps: float
+    alt_ft: float
+    legs: tuple[Leg, ...]
+    t_offset_s: float = 0.0
+
+    @property
+    def duration_s(self) -> float:
+        return float(sum(leg.duration_s for leg in self.legs))
+
+
+@dataclass(frozen=True)
+class SampledPath:
+    """Recorded kinematics (e.g. ADS-B): samples of position, altitude and velocity.
+
+    The truth passes through every sample: positions by the C2 cubic spline in the
+    system plane, altitude by a cubic Hermite with ``vrate_fpm`` as slopes.
+    ``groundspeed_kt``/``track_deg`` are the reported velocity (kept for reference and
+    used to drop stale samples when the table is read)."""
+
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_ft: np.ndarray
+    groundspeed_kt: np.ndarray
+    track_deg: np.ndarray
+    vrate_fpm: np.ndarray
+
+
+@dataclass(frozen=True)
+class Target:
+    """One aircraft: identity, transponder, and either a flight plan or a sampled path."""
+
+    target_id: str
+    callsign: Optional[str] = None
+    mode_s: Optional[int] = None
+    """24-bit Mode S address, or None"""
+    mode3a: Optional[int] = None
+    """Mode 3/A code as an integer (0..0o7777), or None"""
+    transponder: str = "modes"
+    """"modes" (Mode S), "modeac" (Mode A/C only) or "none" (primary only)"""
+    mode_c: bool = True
+    alt_quantum_ft: float = 100.0
+    """Mode C quantum: 100 ft, or 25 ft for Mode S transponders that report it"""
+    plan: Optional[FlightPlan] = None
+    path: Optional[SampledPath] = None
+
+    def __post_init__(self) -> None:
+        if (self.plan is None) == (self.path is None):
+            raise ValueError(f"target {self.target_id}: give exactly one of plan and path")
+        if self.transponder not in TRANSPONDER_CODES:
+            raise ValueError(f"target {self.target_id}: transponder must be one of {list(TRANSPONDER_CODES)}")
+        if self.transponder == "modes" and self.mode_s is None:
+            raise ValueError(f"target {self.target_id}: a Mode S transponder needs a mode_s address")
+        if self.alt_quantum_ft not in (25.0, 100.0):
+            raise ValueError(f"target {self.target_id}: alt_quantum_ft must be 25 or 100")
+
+
+@dataclass
+class Scenario:
+    """Everything :func:`simulate` needs."""
+
+    name: str
+    center_lat_deg: float
+    center_lon_deg: float
+    radars: list[RadarSpec]
+    targets: list[Target]
+    start_t_s: float = EPOCH_2018_08_01_08Z
+    duration_s: float = 540.0
+    seed: int = 0
+    period_s: Optional[float] = None
+    """fusion period written to config.toml; None = the shortest rotation period"""
+    rates: Rates = field(default_factory=Rates)
+
+    @property
+    def effective_period_s(self) -> float:
+        shortest = min(r.rotation_period_s for r in self.radars)
+        return shortest if self.period_s is None else min(float(self.period_s), shortest)
+
+    def rates_of(self, radar: RadarSpec) -> Rates:
+        return radar.rates if radar.rates is not None else self.rates
+
+
+# =========================================================================== identities
+
+
+def mode3a_codes(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Random Mode 3/A codes, distinct while the pool lasts, avoiding the emergency and special codes."""
+    reserved = np.array([0o7500, 0o7600, 0o7700, 0o7000, 0o2000, 0o1200])
+    pool = np.setdiff1d(np.arange(0o0100, 0o10000), reserved)
+    if n <= pool.size:
+        return rng.choice(pool, size=n, replace=False)
+    return rng.choice(pool, size=n, replace=True)
+
+
+def mode_s_addresses(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Distinct random 24-bit addresses (in the ICAO blocks of European states)."""
+    return 0x300000 + rng.choice(0x0FFFFF, size=n, replace=False)
+
