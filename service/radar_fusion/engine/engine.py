@@ -46,7 +46,6 @@ from ..tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2, 
 from ..tracking.track_management import (
     CONFIRMED,
     STATUS_NAMES,
-    TENTATIVE,
     LifeCycle,
     TrackTable,
     apply_life_cycle,
@@ -520,17 +519,9 @@ class Engine:
         )
 
     def _safety_nets(self, columns: TrackColumns) -> list[dict[str, Any]]:
-        from ..safety_nets import TrackArrays
-
-        x = columns.x
-        lat, lon = columns.geodetic
-        arrays = TrackArrays(
-            track_id=columns.track_id, confirmed=columns.status != TENTATIVE,
-            x_m=x[:, 0], y_m=x[:, 3], vx_mps=x[:, 1], vy_mps=x[:, 4],
-            ax_mps2=x[:, 2], ay_mps2=x[:, 5], fl=columns.fl,
-            vrate_fpm=columns.vrate_fpm, lat_deg=lat, lon_deg=lon, mode_s=columns.mode_s,
-        )
-        return self.safety_nets.update(columns.t_s, arrays)
+        # the safety nets read the period's columns as they are (they judge every track
+        # that is not tentative, see safety_nets.prediction.eligible)
+        return self.safety_nets.update(columns.t_s, columns)
 
     # ================================================================= health
     def health(self) -> dict[str, Any]:
