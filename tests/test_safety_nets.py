@@ -1,5 +1,5 @@
 """Safety nets (issue 5): CPA maths, STCA/APW/MSAW detection, life cycle, pruning, hooks,
-point-in-polygon and the track columns they read."""
+point-in-polygon, the track columns they read and the counters they put on the health key."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from radar_fusion.safety_nets.hooks import load_hooks
 from radar_fusion.safety_nets.polygon import Polygon, ring_contains
 from radar_fusion.safety_nets.prediction import segment_conflicts
 from radar_fusion.tracking.track_management import COASTING, CONFIRMED, TENTATIVE
-from radar_fusion.wire import Alert, TrackBatch
+from radar_fusion.wire import Alert, Health, TrackBatch
 
 PLANE = SystemPlane(47.0, 8.0)
 REPO = Path(__file__).resolve().parents[1]
@@ -515,3 +515,30 @@ def test_coasting_tracks_are_judged_from_the_engine_but_not_from_a_received_batc
     received = TrackColumns.from_message(_proximity_pair([CONFIRMED, CONFIRMED]).to_message(), PLANE)
     assert [a["track_ids"] for a in nets().update(0.0, received)] == [[1, 2]]
 
+
+# ------------------------------------------------------------------ health counters
+
+
+def test_safety_net_counters_reach_the_health_message():
+    from radar_fusion.config import settings_from_dict
+    from radar_fusion.engine import Engine
+
+    settings = settings_from_dict({
+        "system": {"center_lat": 47.0, "center_lon": 8.0},
+        "radars": [dict(id="r1", lat=47.0, lon=8.0, sigma_range_m=50, sigma_azimuth_deg=0.1, rotation_period_s=4)],
+    })
+    net = nets()
+    engine = Engine(settings, safety_nets=net)
+    assert engine.health()["counters"]["safety_nets_alerts_new_stca"] == 0  # present before any alert
+    pair = _proximity_pair([CONFIRMED, CONFIRMED])
+    net.update(0.0, pair)  # separation lost now: new at once
+    net.update(4.0, pair)  # ongoing
+    net.update(8.0, arrays([dict(id=1, x=0, y=0, vx=200, vy=0)]))  # track 2 gone: ended
+    counters = engine.health()["counters"]
+    assert {k: counters[f"safety_nets_{k}"] for k in
+            ("periods", "hits_stca", "alerts_new", "alerts_new_stca", "alerts_ended_stca", "alerts_new_apw")} == {
+        "periods": 3, "hits_stca": 2, "alerts_new": 1, "alerts_new_stca": 1, "alerts_ended_stca": 1,
+        "alerts_new_apw": 0}
+    h = engine.health()
+    h.pop("newest_period_t")
+    Health.model_validate({"v": 1, "t": 0.0, "uptime_s": 0.0, **h})  # the wire contract takes them as they are

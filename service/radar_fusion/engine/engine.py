@@ -540,6 +540,8 @@ class Engine:
         counters = dict(self.counters)
         counters["tracks_confirmed"] = int((self.tracks.status == CONFIRMED).sum())
         counters["plots_buffered"] = self.buffer.buffered_plots
+        if self.safety_nets is not None:  # its event counts, as safety_nets_<name>
+            counters.update({f"safety_nets_{k}": int(v) for k, v in self.safety_nets.counters.items()})
         return {
             "counters": counters,
             "rejected": dict(self.rejected),

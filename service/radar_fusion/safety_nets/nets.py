@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
@@ -25,13 +26,19 @@ if TYPE_CHECKING:  # annotations only: the engine and the config import this pac
 
 log = logging.getLogger(__name__)
 
+ALERT_KINDS = ("stca", "apw", "msaw")
+
+
 class SafetyNets:
     """STCA, APW and MSAW over the fused tracks, with the alert life cycle and hooks.
 
     ``SafetyNets(config, plane)``; then once per closed period
     ``alerts = nets.update(t_s, tracks)`` with the period's
-    :class:`~radar_fusion.engine.columns.TrackColumns`. ``counters`` and ``hook_errors``
-    feed the health message; ``last_candidate_pairs`` is the STCA pair count after pruning.
+    :class:`~radar_fusion.engine.columns.TrackColumns`. ``counters`` (periods, hits and
+    alerts by function, hook alerts and hook errors; event counts that only grow) is
+    merged into the health message's counters by ``Engine.health`` with the prefix
+    ``safety_nets_``; ``hook_errors`` counts failures per hook; ``last_candidate_pairs``
+    is the STCA pair count after pruning.
     """
 
     def __init__(
@@ -59,12 +66,14 @@ class SafetyNets:
             hooks = load_hooks(cfg, plane) if cfg.load_entry_point_hooks else Hooks()
         self.hooks = hooks
         self.hook_errors: dict[str, int] = {}
-        self.counters: dict[str, int] = {
-            "periods": 0,
-            "hits_stca": 0, "hits_apw": 0, "hits_msaw": 0,
-            "alerts_new": 0, "alerts_ended": 0,
-            "hook_alerts": 0, "hook_alerts_invalid": 0, "hook_errors": 0,
-        }
+        # every key present from the start, so that each health counter exists at zero
+        self.counters: Counter[str] = Counter(
+            dict.fromkeys(
+                ["periods", "alerts_new", "alerts_ended", "hook_alerts", "hook_alerts_invalid", "hook_errors"]
+                + [f"{what}_{kind}" for kind in ALERT_KINDS for what in ("hits", "alerts_new", "alerts_ended")],
+                0,
+            )
+        )
         self.life_cycle = AlertLifeCycle(cfg)
         self.vertical_history = VerticalRateHistory()
 
@@ -100,6 +109,7 @@ class SafetyNets:
         for a in alerts:
             if a["status"] != "ongoing":
                 self.counters[f"alerts_{a['status']}"] += 1
+                self.counters[f"alerts_{a['status']}_{a['kind']}"] += 1
         for name, fn in self.hooks.functions:
             try:
                 produced = fn.update(t_s, tracks) or []
