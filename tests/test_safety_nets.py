@@ -23,7 +23,7 @@ from radar_fusion.geo.coordinates import SystemPlane
 from radar_fusion.geo.units import M_PER_NM
 from radar_fusion.safety_nets import SafetyNets, SafetyNetsConfig
 from radar_fusion.safety_nets.hooks import load_hooks
-from radar_fusion.safety_nets.polygon import Polygon, ring_contains
+from radar_fusion.safety_nets.polygon import SORT_ABOVE_EDGES, Polygon, ring_contains
 from radar_fusion.safety_nets.prediction import segment_conflicts
 from radar_fusion.tracking.track_management import COASTING, CONFIRMED, TENTATIVE
 from radar_fusion.wire import Alert, Health, TrackBatch
@@ -441,12 +441,13 @@ def _mpl_contains(outer: np.ndarray, holes: list[np.ndarray], xy: np.ndarray) ->
 def test_point_in_polygon_matches_matplotlib_on_concave_polygons_with_holes(seed):
     rng = np.random.default_rng(seed)
     grid = 1000.0 if seed % 2 else None  # snapped vertices: horizontal edges, points on edges and vertices
-    outer = _star(rng, 40, 30e3, 60e3, grid)
-    holes = [_star(rng, 12, 5e3, 20e3, grid)]
+    outer = _star(rng, 80, 30e3, 60e3, grid)  # above SORT_ABOVE_EDGES: tested on y-sorted points
+    holes = [_star(rng, 12, 5e3, 20e3, grid)]  # below: each edge against every point
     outer = np.vstack([outer, outer[:1]])  # closed as GeoJSON writes it
     pts = rng.uniform(-70e3, 70e3, (20_000, 2))
     if grid:
         pts = np.round(pts / grid) * grid
+    assert holes[0].shape[0] <= SORT_ABOVE_EDGES < outer.shape[0]
     pts = np.vstack([pts, outer, holes[0], (outer[:-1] + outer[1:]) / 2, [[np.nan, 0.0], [0.0, np.nan]]])
     got = Polygon([(outer, holes)]).contains(pts)
     expected = _mpl_contains(outer, holes, pts)

