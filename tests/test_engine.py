@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import tomllib
 
-import numpy as np
 import pytest
 
 from radar_fusion.config import settings_from_dict

@@ -1,28 +1,32 @@
-"""Safety nets (issue 5): CPA maths, STCA/APW/MSAW detection, life cycle, pruning, hooks."""
+"""Safety nets (issue 5): CPA maths, STCA/APW/MSAW detection, life cycle, pruning, hooks,
+point-in-polygon, the track columns they read and the counters they put on the health key."""
 
 from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from importlib import metadata
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from radar_fusion import safety_nets as sn
+from radar_fusion.engine.columns import RadarNames, TrackColumns
 from radar_fusion.geo.coordinates import SystemPlane
-from radar_fusion.safety_nets import (
-    NM_M,
-    SafetyNets,
-    SafetyNetsConfig,
-    TrackArrays,
-    load_hooks,
-    segment_conflicts,
-)
-from radar_fusion.wire import Alert
+from radar_fusion.geo.units import M_PER_NM
+from radar_fusion.safety_nets import SafetyNets, SafetyNetsConfig
+from radar_fusion.safety_nets.hooks import load_hooks
+from radar_fusion.safety_nets.polygon import SORT_ABOVE_EDGES, Polygon, ring_contains
+from radar_fusion.safety_nets.prediction import segment_conflicts
+from radar_fusion.tracking.track_management import COASTING, CONFIRMED, TENTATIVE
+from radar_fusion.wire import Alert, Health, TrackBatch
 
 PLANE = SystemPlane(47.0, 8.0)
 REPO = Path(__file__).resolve().parents[1]
@@ -34,15 +38,27 @@ def nets(**cfg) -> SafetyNets:
     return SafetyNets(SafetyNetsConfig(**cfg), PLANE)
 
 
-def arrays(rows: list[dict]) -> TrackArrays:
-    """rows: dicts with id, x, y, vx, vy and optional fl, vr, ax, ay, confirmed."""
-    n = len(rows)
-    g = lambda k, d=0.0: np.array([r.get(k, d) for r in rows], dtype=float)  # noqa: E731
-    lat, lon = PLANE.to_geodetic(g("x"), g("y"))
-    return TrackArrays(
-        np.array([r["id"] for r in rows], np.int64), np.array([r.get("confirmed", True) for r in rows], bool),
-        g("x"), g("y"), g("vx"), g("vy"), g("ax"), g("ay"), g("fl", 200.0), g("vr", 0.0), lat, lon,
+def columns(
+    track_id, x, y, vx, vy, ax, ay, fl, vrate_fpm, status: Optional[np.ndarray] = None
+) -> TrackColumns:
+    """The engine's track columns as the safety nets get them (status confirmed unless given)."""
+    n = len(track_id)
+    return TrackColumns(
+        period=0, t_s=0.0, track_id=np.asarray(track_id, np.int64),
+        status=np.full(n, CONFIRMED, np.int8) if status is None else np.asarray(status, np.int8),
+        x=np.column_stack([x, vx, ax, y, vy, ay]).astype(float), cov_xy=np.full((n, 3), 100.0),
+        fl=np.asarray(fl, float), vrate_fpm=np.asarray(vrate_fpm, float), sources=np.zeros(n, np.uint64),
+        mode3a=np.full(n, -1, np.int64), mode_s=np.full(n, -1, np.int64), updates=np.full(n, 5, np.int64),
+        age_s=np.full(n, 60.0), ended=np.zeros(0, np.int64), names=RadarNames([], PLANE),
     )
+
+
+def arrays(rows: list[dict]) -> TrackColumns:
+    """rows: dicts with id, x, y, vx, vy and optional fl, vr, ax, ay, confirmed (False: tentative)."""
+    g = lambda k, d=0.0: np.array([r.get(k, d) for r in rows], dtype=float)  # noqa: E731
+    status = [CONFIRMED if r.get("confirmed", True) else TENTATIVE for r in rows]
+    return columns([r["id"] for r in rows], g("x"), g("y"), g("vx"), g("vy"), g("ax"), g("ay"), g("fl", 200.0),
+                   g("vr", 0.0), status)
 
 
 def fly(acs: list[dict], duration_s: float, net: SafetyNets, t0: float = 1.7e9) -> list[dict]:
@@ -64,7 +80,7 @@ def fly(acs: list[dict], duration_s: float, net: SafetyNets, t0: float = 1.7e9) 
     return out
 
 
-def first_loss_s(acs: list[dict], h_m: float = 5 * NM_M, v_ft: float = 1000.0) -> float:
+def first_loss_s(acs: list[dict], h_m: float = 5 * M_PER_NM, v_ft: float = 1000.0) -> float:
     """Truth loss of separation of the first two aircraft, by 0.1 s sampling."""
     t = np.arange(0, 2000, 0.1)
     a, b = acs[0], acs[1]
@@ -139,11 +155,11 @@ def test_stca_conflicts_detected_with_a_minute_of_warning(name):
     assert len(new) == 1 and new[0]["kind"] == "stca" and new[0]["track_ids"] == [1, 2]
     warning = first_loss_s(acs) - new[0]["t"]
     assert warning >= 60.0, warning
-    assert new[0]["min_sep_m"] < 5 * NM_M and new[0]["time_to_cpa_s"] > 0
+    assert new[0]["min_sep_m"] < 5 * M_PER_NM and new[0]["time_to_cpa_s"] > 0
 
 
 def test_parallel_tracks_6nm_apart_no_alert():
-    acs = [dict(id=1, x=-60e3, y=0, vx=240, vy=0), dict(id=2, x=60e3, y=6 * NM_M, vx=-240, vy=0)]
+    acs = [dict(id=1, x=-60e3, y=0, vx=240, vy=0), dict(id=2, x=60e3, y=6 * M_PER_NM, vx=-240, vy=0)]
     assert fly(acs, 300, nets()) == []
 
 
@@ -180,7 +196,7 @@ def test_turn_prediction_warns_earlier_than_linear():
 
 def test_per_area_override_uses_3nm():
     # 4 NM apart, parallel, same level: conflict with 5 NM, none inside a 3 NM TMA
-    rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=4 * NM_M, vx=200, vy=0)]
+    rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=4 * M_PER_NM, vx=200, vy=0)]
     assert nets(stca_confirm_periods=1).update(0.0, arrays(rows))
     lat0, lon0 = 47.0, 8.0
     tma = dict(name="TMA", h_min_nm=3.0, v_min_ft=1000.0,
@@ -301,10 +317,9 @@ def test_4000_tracks_pruned_far_below_all_pairs():
     hd = rng.uniform(0, 2 * np.pi, n)
     sp = rng.uniform(100, 250, n)
     x, y = rng.uniform(-4e5, 4e5, n), rng.uniform(-4e5, 4e5, n)
-    lat, lon = PLANE.to_geodetic(x, y)
-    tr = TrackArrays(np.arange(n), np.ones(n, bool), x, y, sp * np.sin(hd), sp * np.cos(hd),
-                     rng.normal(0, 0.2, n), rng.normal(0, 0.2, n), rng.integers(50, 400, n).astype(float),
-                     rng.normal(0, 800, n), lat, lon)
+    tr = columns(np.arange(n), x, y, sp * np.sin(hd), sp * np.cos(hd),
+                 rng.normal(0, 0.2, n), rng.normal(0, 0.2, n), rng.integers(50, 400, n).astype(float),
+                 rng.normal(0, 800, n))
     net = nets()
     out = net.update(0.0, tr)
     assert 0 < net.last_candidate_pairs < 0.02 * n * (n - 1) / 2
@@ -319,8 +334,7 @@ def test_pruning_loses_no_conflict():
     x, y = rng.uniform(-1e5, 1e5, n), rng.uniform(-1e5, 1e5, n)
     hd, sp = rng.uniform(0, 2 * np.pi, n), rng.uniform(100, 300, n)
     fl = rng.integers(300, 320, n).astype(float)
-    tr = TrackArrays(np.arange(n), np.ones(n, bool), x, y, sp * np.sin(hd), sp * np.cos(hd), np.zeros(n),
-                     np.zeros(n), fl, np.zeros(n), *PLANE.to_geodetic(x, y))
+    tr = columns(np.arange(n), x, y, sp * np.sin(hd), sp * np.cos(hd), np.zeros(n), np.zeros(n), fl, np.zeros(n))
     net = nets(stca_confirm_periods=1, stca_confirm_periods_far=1)
     got = {tuple(a["track_ids"]) for a in net.update(0.0, tr)}
     i, j = np.triu_indices(n, 1)
@@ -329,7 +343,7 @@ def test_pruning_loses_no_conflict():
         np.column_stack([x[j] - x[i], x[j] - x[i] + (tr.vx_mps[j] - tr.vx_mps[i]) * T]),
         np.column_stack([y[j] - y[i], y[j] - y[i] + (tr.vy_mps[j] - tr.vy_mps[i]) * T]),
         np.column_stack([(fl[j] - fl[i]) * 100] * 2), np.array([0.0, T]),
-        np.full(i.size, 5 * NM_M), np.full(i.size, 900.0),
+        np.full(i.size, 5 * M_PER_NM), np.full(i.size, 900.0),
     )
     expected = {(int(a), int(b)) for a, b in zip(i[res["conflict"]], j[res["conflict"]])}
     assert expected and expected <= got
@@ -399,5 +413,133 @@ def test_a_broken_entry_point_is_logged_not_fatal(monkeypatch):
 
 
 def test_config_rejects_unknown_fields():
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match=r"stca_h_min\n  Extra inputs are not permitted"):
         SafetyNetsConfig(stca_h_min=5)
+
+
+# ------------------------------------------------------------------ point in polygon
+
+
+def _star(rng: np.random.Generator, n: int, r_lo: float, r_hi: float, grid: Optional[float] = None) -> np.ndarray:
+    """A star-shaped ring around the origin (concave for spread radii), optionally snapped to a grid."""
+    ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+    r = rng.uniform(r_lo, r_hi, n)
+    ring = np.column_stack([r * np.cos(ang), r * np.sin(ang)])
+    return np.round(ring / grid) * grid if grid else ring
+
+
+def _mpl_contains(outer: np.ndarray, holes: list[np.ndarray], xy: np.ndarray) -> np.ndarray:
+    from matplotlib.path import Path as MplPath  # the reference implementation, in the test only
+
+    inside = MplPath(outer).contains_points(xy)
+    for h in holes:
+        inside &= ~MplPath(h).contains_points(xy)
+    return inside
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_point_in_polygon_matches_matplotlib_on_concave_polygons_with_holes(seed):
+    rng = np.random.default_rng(seed)
+    grid = 1000.0 if seed % 2 else None  # snapped vertices: horizontal edges, points on edges and vertices
+    outer = _star(rng, 80, 30e3, 60e3, grid)  # above SORT_ABOVE_EDGES: tested on y-sorted points
+    holes = [_star(rng, 12, 5e3, 20e3, grid)]  # below: each edge against every point
+    outer = np.vstack([outer, outer[:1]])  # closed as GeoJSON writes it
+    pts = rng.uniform(-70e3, 70e3, (20_000, 2))
+    if grid:
+        pts = np.round(pts / grid) * grid
+    assert holes[0].shape[0] <= SORT_ABOVE_EDGES < outer.shape[0]
+    pts = np.vstack([pts, outer, holes[0], (outer[:-1] + outer[1:]) / 2, [[np.nan, 0.0], [0.0, np.nan]]])
+    got = Polygon([(outer, holes)]).contains(pts)
+    expected = _mpl_contains(outer, holes, pts)
+    assert 0.1 < expected.mean() < 0.9  # both answers well represented
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(ring_contains(outer, pts), _mpl_contains(outer, [], pts))
+
+
+def test_point_in_multipolygon_from_geojson_is_the_union_of_its_parts():
+    square = [[8.0, 47.0], [8.2, 47.0], [8.2, 47.2], [8.0, 47.2], [8.0, 47.0]]
+    hole = [[8.05, 47.05], [8.15, 47.05], [8.15, 47.15], [8.05, 47.15], [8.05, 47.05]]
+    other = [[7.6, 46.8], [7.8, 46.8], [7.7, 46.95], [7.6, 46.8]]
+    poly = Polygon.from_geojson(PLANE, {"type": "MultiPolygon", "coordinates": [[square, hole], [other]]})
+    lat = np.array([47.02, 47.10, 46.85, 47.30, 46.85])
+    lon = np.array([8.02, 8.10, 7.70, 8.10, 7.61])
+    x, y = PLANE.to_plane(lat, lon)
+    # in the square; in its hole; in the triangle; north of everything; west of the triangle's edge
+    assert poly.contains(np.column_stack([x, y])).tolist() == [True, False, True, False, False]
+
+
+def test_daemon_modules_do_not_import_matplotlib():
+    code = ("import sys, radar_fusion.bus, radar_fusion.cli, radar_fusion.engine, radar_fusion.safety_nets; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+# ------------------------------------------------------------------ track columns
+
+
+def _proximity_pair(status: list[int]) -> TrackColumns:
+    tr = arrays([dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=1000, vx=200, vy=0)])
+    tr.status = np.array(status, np.int8)
+    tr.mode_s = np.array([0x3C0001, 0x3C0002])
+    return tr
+
+
+def test_track_columns_from_message_reads_back_what_to_message_wrote():
+    tr = _proximity_pair([CONFIRMED, COASTING])
+    tr.x[:, 2] = [0.5, -0.25]  # accelerations
+    msg = tr.to_message()
+    for received in (msg, TrackBatch.model_validate(msg), msg["tracks"]):
+        back = TrackColumns.from_message(received, PLANE)
+        np.testing.assert_array_equal(back.track_id, tr.track_id)
+        np.testing.assert_array_equal(back.status, tr.status)
+        np.testing.assert_array_equal(back.x, tr.x)
+        np.testing.assert_array_equal(back.cov_xy, tr.cov_xy)
+        np.testing.assert_array_equal(back.fl, tr.fl)
+        np.testing.assert_array_equal(back.mode_s, tr.mode_s)
+        np.testing.assert_array_equal(back.updates, tr.updates)
+        np.testing.assert_array_equal(back.lat_deg, tr.lat_deg)  # taken from the message
+        np.testing.assert_array_equal(back.lon_deg, tr.lon_deg)
+        assert back.safety_eligible.tolist() == [True, False]  # status == confirmed
+        assert back.to_message()["tracks"] == msg["tracks"]
+    assert TrackColumns.from_message(msg, PLANE).period == msg["period"]
+    assert TrackColumns.from_message(msg["tracks"], PLANE).period == -1
+
+
+def test_coasting_tracks_are_judged_from_the_engine_but_not_from_a_received_batch():
+    # the engine's columns: every track that is not tentative (confirmed or coasting)
+    assert [a["track_ids"] for a in nets().update(0.0, _proximity_pair([CONFIRMED, COASTING]))] == [[1, 2]]
+    assert nets().update(0.0, _proximity_pair([CONFIRMED, TENTATIVE])) == []
+    # a received TrackBatch: status confirmed only, as TrackArrays.from_tracks did
+    received = TrackColumns.from_message(_proximity_pair([CONFIRMED, COASTING]).to_message(), PLANE)
+    assert nets().update(0.0, received) == []
+    received = TrackColumns.from_message(_proximity_pair([CONFIRMED, CONFIRMED]).to_message(), PLANE)
+    assert [a["track_ids"] for a in nets().update(0.0, received)] == [[1, 2]]
+
+
+# ------------------------------------------------------------------ health counters
+
+
+def test_safety_net_counters_reach_the_health_message():
+    from radar_fusion.config import settings_from_dict
+    from radar_fusion.engine import Engine
+
+    settings = settings_from_dict({
+        "system": {"center_lat": 47.0, "center_lon": 8.0},
+        "radars": [dict(id="r1", lat=47.0, lon=8.0, sigma_range_m=50, sigma_azimuth_deg=0.1, rotation_period_s=4)],
+    })
+    net = nets()
+    engine = Engine(settings, safety_nets=net)
+    assert engine.health()["counters"]["safety_nets_alerts_new_stca"] == 0  # present before any alert
+    pair = _proximity_pair([CONFIRMED, CONFIRMED])
+    net.update(0.0, pair)  # separation lost now: new at once
+    net.update(4.0, pair)  # ongoing
+    net.update(8.0, arrays([dict(id=1, x=0, y=0, vx=200, vy=0)]))  # track 2 gone: ended
+    counters = engine.health()["counters"]
+    assert {k: counters[f"safety_nets_{k}"] for k in
+            ("periods", "hits_stca", "alerts_new", "alerts_new_stca", "alerts_ended_stca", "alerts_new_apw")} == {
+        "periods": 3, "hits_stca": 2, "alerts_new": 1, "alerts_new_stca": 1, "alerts_ended_stca": 1,
+        "alerts_new_apw": 0}
+    h = engine.health()
+    h.pop("newest_period_t")
+    Health.model_validate({"v": 1, "t": 0.0, "uptime_s": 0.0, **h})  # the wire contract takes them as they are

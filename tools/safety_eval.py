@@ -3,7 +3,8 @@
 ``radar-fusion safety-eval`` builds each scenario as truth trajectories (a 4 Hz
 kinematic integration: constant-rate turns, climbs and descents with an exponential
 altitude capture), turns the truth into system tracks, runs :class:`SafetyNets` on them
-period by period, and prints per scenario and in total:
+period by period through its public API (``update`` with the period's
+:class:`~radar_fusion.engine.columns.TrackColumns`), and prints per scenario and in total:
 
 * conflict scenarios: detected or missed (an alert of the expected kind for the expected
   aircraft, issued before the truth loss of separation / area entry / MSA violation)
@@ -14,14 +15,17 @@ Goal (issue 5): every conflict detected, median warning ≥ 60 s, no nuisance al
 
 Tracks come from one of two trackers (``--tracker``):
 
-* ``engine`` (default): the project's own pipeline. Two rotating Mode S radars observe
-  the truth (range σ 50/70 m, azimuth σ 0.08°/0.10°, Mode C flight level quantised to
-  100 ft), their plots go through ``Engine.ingest_plots`` / ``poll`` (outlier gate,
-  clustering, fusion, Singer filter, altitude filter, track management) with the safety
-  nets attached — exactly what the daemon runs, without the bus.
+* ``engine`` (default; ``auto`` is the same): the project's own pipeline. Two rotating
+  Mode S radars observe the truth (range σ 50/70 m, azimuth σ 0.08°/0.10°, Mode C flight
+  level quantised to 100 ft), their plots go through ``Engine.ingest_plots`` / ``poll``
+  (outlier gate, clustering, fusion, Singer filter, altitude filter, track management)
+  with the safety nets attached — exactly what the daemon runs, without the bus. The
+  engine hands the safety nets its track columns, Mode S addresses included, so two
+  tracks of one aircraft are never paired by STCA.
 * ``emulated``: truth + tracker-like errors (position σ 100 m, velocity σ 5 m/s with a
   6 s lag, acceleration from that lag, flight level ±50 ft, vertical rate with an 8 s lag
-  and σ 150 fpm). Used automatically when the engine cannot be imported.
+  and σ 150 fpm), sent as TrackBatch-like track dicts and read back with
+  ``TrackColumns.from_message``, as a consumer of the tracks topic would.
 """
 
 from __future__ import annotations
@@ -34,8 +38,12 @@ from typing import Any, Optional
 
 import numpy as np
 
-from radar_fusion.geo.coordinates import SystemPlane
-from radar_fusion.safety_nets import NM_M, SafetyNets, SafetyNetsConfig, TrackArrays, load_areas, load_msa
+from radar_fusion.config import settings_from_dict
+from radar_fusion.engine import Engine, TrackColumns
+from radar_fusion.geo.coordinates import RadarSites, SystemPlane, geodetic_to_polar
+from radar_fusion.geo.units import FT_PER_FL, M_PER_FL, M_PER_NM
+from radar_fusion.safety_nets import SafetyNets, SafetyNetsConfig, load_areas, load_msa
+from radar_fusion.wire import KIND_CODES, DecodedPlots
 
 CENTER_LAT_DEG, CENTER_LON_DEG = 47.0, 8.0
 PERIOD_S = 4.0
@@ -133,7 +141,7 @@ def scenarios() -> list[Scenario]:
                  [Aircraft("A", 0, 10, 180, 150, 120, climbs=[(40, 1500, 60)])], 320, "msaw", ("A",), msaw),
         # ---- no conflict
         Scenario("parallel 6 NM apart",
-                 [Aircraft("A", -60, 0, 90, 240, 200), Aircraft("B", 60, 6 * NM_M / 1000, 270, 240, 200)],
+                 [Aircraft("A", -60, 0, 90, 240, 200), Aircraft("B", 60, 6 * M_PER_NM / 1000, 270, 240, 200)],
                  320, None),
         Scenario("levelling off 1,000 ft apart",
                  [Aircraft("A", -60, 0, 90, 240, 150, climbs=[(0, 1500, 110)]),
@@ -149,7 +157,7 @@ def truth_event_time(sc: Scenario, truth: Truth, plane: SystemPlane, cfg: Safety
     if sc.kind == "stca":
         i, j = (next(k for k, a in enumerate(sc.aircraft) if a.name == n) for n in sc.involved)
         d = np.hypot(truth.x_m[i] - truth.x_m[j], truth.y_m[i] - truth.y_m[j])
-        lost = (d < cfg.stca_h_min_nm * NM_M) & (np.abs(truth.fl[i] - truth.fl[j]) * 100.0 < cfg.stca_v_min_ft)
+        lost = (d < cfg.stca_h_min_nm * M_PER_NM) & (np.abs(truth.fl[i] - truth.fl[j]) * FT_PER_FL < cfg.stca_v_min_ft)
     elif sc.kind == "apw":
         areas = load_areas(cfg.areas_file, plane)
         pts = np.column_stack([truth.x_m[0], truth.y_m[0]])
@@ -158,7 +166,7 @@ def truth_event_time(sc: Scenario, truth: Truth, plane: SystemPlane, cfg: Safety
             lost |= a.polygon.contains(pts) & (truth.fl[0] >= a.lower_fl) & (truth.fl[0] <= a.upper_fl)
     elif sc.kind == "msaw":
         msa, _ = load_msa(cfg.msa_file, plane).lookup(np.column_stack([truth.x_m[0], truth.y_m[0]]), None)
-        lost = truth.fl[0] * 100.0 < msa
+        lost = truth.fl[0] * FT_PER_FL < msa
     else:
         return None
     return float(truth.t_s[np.argmax(lost)]) if lost.any() else None
@@ -184,11 +192,16 @@ def run_emulated(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.ran
         x = truth.x_m[:, k] + rng.normal(0, 100, A)
         y = truth.y_m[:, k] + rng.normal(0, 100, A)
         lat, lon = plane.to_geodetic(x, y)
-        tr = TrackArrays(
-            np.arange(1, A + 1), np.ones(A, bool), x, y, vx_l + rng.normal(0, 5, A), vy_l + rng.normal(0, 5, A),
-            ax, ay, truth.fl[:, k] + rng.uniform(-0.5, 0.5, A), vr_l + rng.normal(0, 150, A), lat, lon,
-        )
-        alerts += nets.update(float(truth.t_s[k]), tr)
+        vx, vy = vx_l + rng.normal(0, 5, A), vy_l + rng.normal(0, 5, A)
+        fl, vr = truth.fl[:, k] + rng.uniform(-0.5, 0.5, A), vr_l + rng.normal(0, 150, A)
+        t_s = float(truth.t_s[k])
+        tracks = [
+            {"track_id": i + 1, "t": t_s, "status": "confirmed", "lat_deg": lat[i], "lon_deg": lon[i],
+             "x_m": x[i], "y_m": y[i], "vx_mps": vx[i], "vy_mps": vy[i], "ax_mps2": ax[i], "ay_mps2": ay[i],
+             "fl": fl[i], "vrate_fpm": vr[i]}
+            for i in range(A)
+        ]
+        alerts += nets.update(t_s, TrackColumns.from_message(tracks, plane))
     return alerts, {i + 1: i for i in range(A)}
 
 
@@ -200,28 +213,12 @@ RADARS = [  # id, lat, lon, alt_m, sigma_range_m, sigma_azimuth_deg, rotation_pe
 
 def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.random.Generator) -> tuple[list, dict]:
     """Plots from two rotating Mode S radars → the real Engine with the safety nets attached."""
-    from radar_fusion.config import settings_from_dict
-    from radar_fusion.geo.coordinates import RadarSites, geodetic_to_polar
-    from radar_fusion.engine import Engine
-    from radar_fusion.wire import KIND_CODES, DecodedPlots
-
     settings = settings_from_dict({
         "system": {"center_lat": CENTER_LAT_DEG, "center_lon": CENTER_LON_DEG, "period_s": PERIOD_S},
         "radars": [dict(id=r[0], lat=r[1], lon=r[2], alt_m=r[3], sigma_range_m=r[4], sigma_azimuth_deg=r[5],
                         rotation_period_s=r[6]) for r in RADARS],
     })
     engine = Engine(settings, safety_nets=nets)
-    if "mode_s" not in engine._safety_nets.__code__.co_names:
-        # Until the engine passes its Mode S column to TrackArrays (asked of the lead), add it
-        # here: the engine builds TrackArrays from engine.tracks in row order.
-        inner = nets.update
-
-        def update_with_mode_s(t_s: float, tracks: TrackArrays) -> list[dict]:
-            if np.all(tracks.mode_s < 0) and len(engine.tracks) == len(tracks):
-                tracks.mode_s = np.asarray(engine.tracks.mode_s, dtype=np.int64)
-            return inner(t_s, tracks)
-
-        nets.update = update_with_mode_s  # type: ignore[method-assign]
     sites = RadarSites.from_configs(settings.radars)
     A = truth.x_m.shape[0]
     t0 = 1.7e9
@@ -239,12 +236,12 @@ def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.rando
         rot = RADARS[ri][6]
         k0 = int(round(s / DT_S))
         lat, lon = plane.to_geodetic(truth.x_m[:, k0], truth.y_m[:, k0])
-        _, az, _ = geodetic_to_polar(sites, np.full(A, ri), lat, lon, truth.fl[:, k0] * 30.48)
+        _, az, _ = geodetic_to_polar(sites, np.full(A, ri), lat, lon, truth.fl[:, k0] * M_PER_FL)
         t_det = s + az / 360.0 * rot  # when the beam sweeps each aircraft
         k = np.clip(np.round(t_det / DT_S).astype(int), 0, truth.t_s.size - 1)
         lat, lon = plane.to_geodetic(truth.x_m[np.arange(A), k], truth.y_m[np.arange(A), k])
         fl = truth.fl[np.arange(A), k]
-        rng_m, az, _ = geodetic_to_polar(sites, np.full(A, ri), lat, lon, fl * 30.48)
+        rng_m, az, _ = geodetic_to_polar(sites, np.full(A, ri), lat, lon, fl * M_PER_FL)
         rng_m = rng_m + rng.normal(0, RADARS[ri][4], A)
         az = np.mod(az + rng.normal(0, RADARS[ri][5], A), 360.0)
         order = np.argsort(t_det)
@@ -305,26 +302,20 @@ def evaluate_scenario(sc: Scenario, tracker: str, seed: int) -> Result:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tracker", choices=("auto", "engine", "emulated"), default="auto",
-                        help="engine: plots through the real Engine; emulated: truth + tracker errors (default auto)")
+                        help="engine (= auto, the default): plots through the real Engine; "
+                             "emulated: truth + tracker errors")
     parser.add_argument("--seeds", type=int, default=3, help="noise seeds per scenario (default 3)")
     parser.add_argument("--alerts", action="store_true", help="print every new/ended alert")
 
 
 def run(args: argparse.Namespace) -> int:
-    tracker = args.tracker
-    if tracker == "auto":
-        try:
-            import radar_fusion.engine  # noqa: F401
-
-            tracker = "engine"
-        except Exception:
-            tracker = "emulated"
+    tracker = "engine" if args.tracker == "auto" else args.tracker
     print(f"safety-net evaluation: tracker = {tracker}"
           + (" (real Engine on simulated Mode S plots of 2 radars)" if tracker == "engine"
              else " (truth + emulated tracker errors: σ 100 m, 5 m/s, ±50 ft, lagged velocity and vertical rate)"))
     if tracker == "engine":
-        print("(STCA gets each track's Mode S address so duplicate tracks of one aircraft are not paired; the eval "
-              "adds it while the engine's TrackArrays lacks it)")
+        print("(STCA gets each track's Mode S address from the engine, so duplicate tracks of one aircraft are "
+              "not paired)")
     print(f"period {PERIOD_S:.0f} s, seeds {args.seeds}, defaults: {SafetyNetsConfig().look_ahead_s:.0f} s look-ahead, "
           f"{SafetyNetsConfig().stca_h_min_nm} NM / {SafetyNetsConfig().stca_v_min_ft:.0f} ft")
     header = f"{'scenario':32} {'kind':5} {'detected':>9} {'warning s (per seed)':>24} {'nuisance':>8}"

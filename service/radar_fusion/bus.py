@@ -34,6 +34,7 @@ import zenoh
 from .config import BusConfig, Settings
 from .engine import Engine, PeriodOutput
 from .metrics import DaemonMetrics
+from .safety_nets import SafetyNets
 from .wire import Rejection, RadarStatus, decode_message, decode_plot_batch
 
 log = logging.getLogger("radar_fusion.bus")
@@ -124,8 +125,6 @@ class FusionDaemon:
 
     def __init__(self, settings: Settings, queue_size: int = 50_000, idle_flush_s: Optional[float] = None,
                  base_dir: Optional[Path] = None, outbox_size: int = 1024):
-        from .safety_nets import SafetyNets
-
         self.settings = settings
         self.prefix = settings.bus.prefix
         # base_dir: where the config file lives; relative areas/MSA file paths resolve there

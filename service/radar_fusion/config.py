@@ -24,6 +24,7 @@ from typing import Any, Literal, Optional
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from .safety_nets.config import SafetyNetsConfig
 from .tracking.clustering import ClusteringParams
 from .tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2
 from .tracking.track_management import LifeCycle
@@ -168,7 +169,7 @@ class Settings(BaseSettings):
     life_cycle: LifeCycle = Field(default_factory=LifeCycle)
     outliers: OutlierConfig = Field(default_factory=OutlierConfig)
     metrics: MetricsConfig = Field(default_factory=MetricsConfig)
-    safety_nets: dict[str, Any] = Field(default_factory=dict)
+    safety_nets: SafetyNetsConfig = Field(default_factory=SafetyNetsConfig)
 
     @classmethod
     def settings_customise_sources(cls, settings_cls, init_settings, env_settings, dotenv_settings, file_secret_settings):
@@ -216,17 +217,10 @@ def _config_error(exc: ValidationError, source: str, section: str = "") -> Confi
 
 def settings_from_dict(data: dict[str, Any], source: str = "<dict>") -> Settings:
     """Validate a configuration mapping; errors name the source and the field."""
-    from .safety_nets import SafetyNetsConfig  # its own model; imported late, it imports no config
-
     try:
-        settings = Settings(**data)
+        return Settings(**data)
     except ValidationError as exc:
         raise _config_error(exc, source) from None
-    try:
-        SafetyNetsConfig.model_validate(settings.safety_nets)
-    except ValidationError as exc:
-        raise _config_error(exc, source, "safety_nets") from None
-    return settings
 
 
 def load_settings(path: str | Path) -> Settings:

@@ -4,22 +4,24 @@
 * :class:`ConvertedPlots`: a closing period's plots after the gate, in the system plane;
 * :class:`ClusterMeasurements`: one fused measurement per cluster of the period;
 * :class:`TrackColumns`: every track at a period's reference time, the engine's output
-  (the TrackBatch message and the safety nets are built from it).
+  (the TrackBatch message is built from it, the safety nets read it; ``from_message``
+  rebuilds it from a received TrackBatch).
 
 The filter's own mutable track store is :class:`radar_fusion.tracking.track_management.TrackTable`.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from itertools import repeat
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
 from ..geo.coordinates import SystemPlane
-from ..tracking.track_management import STATUS_NAMES
+from ..tracking.track_management import STATUS_NAMES, TENTATIVE
 from ..wire import mode_s_to_str
 
 # Columns a buffered plot carries (all numpy arrays of one length). Plots are buffered
@@ -80,9 +82,49 @@ class TrackColumns:
     age_s: np.ndarray
     ended: np.ndarray  # ids of tracks ended in this period
     names: "RadarNames"
+    # Optional columns (None: not known). selected_fl: the selected or cleared level (float
+    # FL, NaN unknown; Mode S BDS 4,0 or the flight plan's CFL), which caps the safety
+    # nets' vertical prediction. safety_eligible: which tracks the safety nets judge (bool);
+    # None means every track that is not tentative (see safety_nets.prediction.eligible).
+    selected_fl: Optional[np.ndarray] = None
+    safety_eligible: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         return int(self.track_id.shape[0])
+
+    # The state's columns by their wire names (views, no copy): what the safety nets and
+    # their hooks read.
+    @property
+    def x_m(self) -> np.ndarray:
+        return self.x[:, 0]
+
+    @property
+    def vx_mps(self) -> np.ndarray:
+        return self.x[:, 1]
+
+    @property
+    def ax_mps2(self) -> np.ndarray:
+        return self.x[:, 2]
+
+    @property
+    def y_m(self) -> np.ndarray:
+        return self.x[:, 3]
+
+    @property
+    def vy_mps(self) -> np.ndarray:
+        return self.x[:, 4]
+
+    @property
+    def ay_mps2(self) -> np.ndarray:
+        return self.x[:, 5]
+
+    @property
+    def lat_deg(self) -> np.ndarray:
+        return self.geodetic[0]
+
+    @property
+    def lon_deg(self) -> np.ndarray:
+        return self.geodetic[1]
 
     @cached_property
     def geodetic(self) -> tuple[np.ndarray, np.ndarray]:
@@ -113,12 +155,80 @@ class TrackColumns:
         tracks = [dict(zip(TRACK_KEYS, row)) for row in zip(*cols)]
         return {"v": 1, "t": self.t_s, "period": self.period, "tracks": tracks, "ended": self.ended.tolist()}
 
+    @classmethod
+    def from_message(
+        cls, message: Any, plane: SystemPlane, radar_ids: Optional[Sequence[str]] = None
+    ) -> "TrackColumns":
+        """Columns from a received TrackBatch (dict or ``wire.TrackBatch``) or a list of wire Tracks.
+
+        For a consumer of the tracks topic (a stand-alone safety-nets process, a display):
+        positions, lat/lon, levels and rates are taken from the message as sent, not
+        recomputed. Absent optional fields read as unknown (NaN; −1 for Mode S and 3/A; zero
+        acceleration). ``radar_ids`` orders the ``sources`` bits (default: the ids in the
+        order the message names them). A list of tracks has no period (−1) or ended ids.
+
+        ``safety_eligible`` is status == confirmed, the rule received tracks have always had;
+        the engine's own columns leave it None, so the safety nets also judge its coasting
+        tracks. The two differ on coasting tracks only.
+        """
+        if isinstance(message, dict) and "tracks" in message:
+            tracks, batch = list(message["tracks"]), message
+        elif hasattr(message, "tracks"):
+            tracks, batch = list(message.tracks), message.model_dump()
+        else:
+            tracks, batch = list(message), None
+
+        def get(tr: Any, name: str, default: Any = None) -> Any:
+            v = tr.get(name, default) if isinstance(tr, dict) else getattr(tr, name, default)
+            return default if v is None else v
+
+        n = len(tracks)
+
+        def col(name: str, default: float = math.nan) -> np.ndarray:
+            return np.fromiter((float(get(t, name, default)) for t in tracks), float, n)
+
+        def int_col(name: str, parse: Any = int) -> np.ndarray:
+            return np.fromiter((-1 if get(t, name) is None else parse(get(t, name)) for t in tracks), np.int64, n)
+
+        ids = list(radar_ids) if radar_ids is not None else list(
+            dict.fromkeys(r for t in tracks for r in get(t, "sources", ()))
+        )
+        if len(ids) > 64:
+            raise ValueError("at most 64 radars (sources are a 64-bit mask)")
+        bit = {rid: 1 << b for b, rid in enumerate(ids)}
+        status_names = [get(t, "status") for t in tracks]
+        cov = np.array([get(t, "cov_xy", (math.nan,) * 3) for t in tracks], float).reshape(n, 3)
+        t_first = float(get(tracks[0], "t", math.nan)) if tracks else math.nan
+        columns = cls(
+            period=int(batch["period"]) if batch is not None else -1,
+            t_s=float(batch["t"]) if batch is not None else t_first,
+            track_id=np.fromiter((int(get(t, "track_id")) for t in tracks), np.int64, n),
+            status=np.fromiter((_STATUS_CODES.get(s, TENTATIVE) for s in status_names), np.int8, n),
+            x=np.column_stack([col("x_m"), col("vx_mps"), col("ax_mps2", 0.0), col("y_m"), col("vy_mps"),
+                               col("ay_mps2", 0.0)]).reshape(n, 6),
+            cov_xy=cov,
+            fl=col("fl"),
+            vrate_fpm=col("vrate_fpm"),
+            sources=np.fromiter((sum(bit[r] for r in get(t, "sources", ())) for t in tracks), np.uint64, n),
+            mode3a=int_col("mode3a"),
+            mode_s=int_col("mode_s", lambda v: int(v, 16)),
+            updates=np.fromiter((int(get(t, "updates", 0)) for t in tracks), np.int64, n),
+            age_s=col("age_s"),
+            ended=np.asarray(batch.get("ended", []) if batch is not None else [], dtype=np.int64),
+            names=RadarNames(ids, plane),
+            safety_eligible=np.fromiter((s == "confirmed" for s in status_names), bool, n),
+        )
+        # positions on the earth as the sender computed them (the cached_property's slot)
+        columns.__dict__["geodetic"] = (col("lat_deg"), col("lon_deg"))
+        return columns
+
 
 # wire.Track fields in the order TrackColumns.to_message builds them
 TRACK_KEYS = ("track_id", "t", "status", "lat_deg", "lon_deg", "x_m", "y_m", "vx_mps", "vy_mps", "fl", "cov_xy",
               "sources", "mode3a", "mode_s", "updates", "age_s", "vrate_fpm", "ax_mps2", "ay_mps2")
 
 _STATUS_NAMES = np.array(STATUS_NAMES, dtype=object)
+_STATUS_CODES = {name: code for code, name in enumerate(STATUS_NAMES)}
 
 
 class RadarNames:

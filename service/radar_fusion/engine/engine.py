@@ -44,6 +44,7 @@ import numpy as np
 from ..config import Settings
 from ..geo.coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
 from ..geo.units import FT_PER_FL, M_PER_FT
+from ..safety_nets import SafetyNets
 from ..tracking.clustering import ClusterResult, cluster_plots
 from ..tracking.fusion import fuse_clusters
 from ..tracking.initiation import one_point_initiation, two_point_initiation, unknown_velocity_var_m2ps2
@@ -52,7 +53,6 @@ from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.singer_filter import AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
-    TENTATIVE,
     TrackTable,
     apply_life_cycle,
     cov_pos_m2,
@@ -101,7 +101,7 @@ class Prediction:
 class Engine:
     """Sans-I/O multi-radar fusion engine (DESIGN.md §2)."""
 
-    def __init__(self, settings: Settings, safety_nets: Any = None):
+    def __init__(self, settings: Settings, safety_nets: Optional[SafetyNets] = None):
         self.settings = settings
         sysc, trk = settings.system, settings.tracking
         self.radar_ids = [r.id for r in settings.radars]
@@ -222,7 +222,8 @@ class Engine:
             alive = ~np.isin(ids, ended)
             out = Prediction(out.x[alive], out.P[alive], out.alt_x[alive], out.alt_P[alive])
         columns = self._output(period, t_ref_s, ended, out)
-        alerts = self._safety_nets(columns) if self.safety_nets is not None else []
+        # the safety nets judge every track that is not tentative (safety_nets.prediction.eligible)
+        alerts = self.safety_nets.update(t_ref_s, columns) if self.safety_nets is not None else []
         dt = time.perf_counter() - t0
         self.processing_s.append(dt)
         self.periods_closed += 1
@@ -415,19 +416,6 @@ class Engine:
             names=self._names,
         )
 
-    def _safety_nets(self, columns: TrackColumns) -> list[dict[str, Any]]:
-        from ..safety_nets import TrackArrays
-
-        x = columns.x
-        lat, lon = columns.geodetic
-        arrays = TrackArrays(
-            track_id=columns.track_id, confirmed=columns.status != TENTATIVE,
-            x_m=x[:, 0], y_m=x[:, 3], vx_mps=x[:, 1], vy_mps=x[:, 4],
-            ax_mps2=x[:, 2], ay_mps2=x[:, 5], fl=columns.fl,
-            vrate_fpm=columns.vrate_fpm, lat_deg=lat, lon_deg=lon, mode_s=columns.mode_s,
-        )
-        return self.safety_nets.update(columns.t_s, arrays)
-
     # ================================================================= health
     def health(self) -> dict[str, Any]:
         """Counters and per-radar state for the health message (wire.Health fields)."""
@@ -449,6 +437,8 @@ class Engine:
         counters = dict(self.counters)
         counters["tracks_confirmed"] = int((self.tracks.status == CONFIRMED).sum())
         counters["plots_buffered"] = self.buffer.buffered_plots
+        if self.safety_nets is not None:  # its event counts, as safety_nets_<name>
+            counters.update({f"safety_nets_{k}": int(v) for k, v in self.safety_nets.counters.items()})
         return {
             "counters": counters,
             "rejected": dict(self.rejected),

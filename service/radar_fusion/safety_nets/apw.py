@@ -1,0 +1,52 @@
+"""Area Proximity Warning [APW-GUID]: a track inside a notified volume, or predicted to enter it."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..geo.units import FT_PER_FL
+from .areas import Area
+from .config import SafetyNetsConfig
+from .life_cycle import Hit
+from .prediction import eligible, moving, sampled_paths
+
+if TYPE_CHECKING:
+    from ..engine.columns import TrackColumns
+
+
+def apw_hits(cfg: SafetyNetsConfig, areas: list[Area], tr: "TrackColumns", accel: np.ndarray) -> list[Hit]:
+    """[APW-GUID]: inside a volume now, or predicted to enter it within the look-ahead.
+
+    The horizontal path is the turn prediction for turning tracks, linear otherwise;
+    samples every ``sample_step_s``; inside = in the polygon and lower ≤ FL ≤ upper.
+    """
+    e = np.flatnonzero(eligible(tr) & moving(tr))
+    if e.size == 0:
+        return []
+    pred = sampled_paths(tr, e, accel, cfg.apw_horizon_s, cfg)
+    xs, ys, fl = pred.x_turn, pred.y_turn, pred.z_ft / FT_PER_FL
+    xmin, xmax, ymin, ymax = xs.min(axis=1), xs.max(axis=1), ys.min(axis=1), ys.max(axis=1)
+    out = []
+    for area in areas:
+        x0, y0, x1, y1 = area.polygon.bbox
+        cand = np.flatnonzero((xmax >= x0) & (xmin <= x1) & (ymax >= y0) & (ymin <= y1))
+        if cand.size == 0:
+            continue
+        m = pred.t_s.size
+        pts = np.column_stack([xs[cand].ravel(), ys[cand].ravel()])
+        lat_in = area.polygon.contains(pts).reshape(cand.size, m)
+        f = fl[cand]
+        with np.errstate(invalid="ignore"):
+            vert = (f >= area.lower_fl) & (f <= area.upper_fl)
+        if cfg.apw_unknown_fl_inside:
+            vert |= ~np.isfinite(f)
+        inside = lat_in & vert
+        any_in = inside.any(axis=1)
+        first = np.argmax(inside, axis=1)
+        for k in np.flatnonzero(any_in):
+            tid = int(tr.track_id[e[cand[k]]])
+            figures = {"area_id": area.area_id, "time_to_entry_s": float(pred.t_s[first[k]])}
+            out.append(Hit(("apw", tid, area.area_id), "apw", [tid], figures))
+    return out

@@ -1,0 +1,196 @@
+"""Short Term Conflict Alert [STCA-SPEC]: linear and turn prediction, current proximity.
+
+The conflict test itself (exact on piecewise-linear paths) is
+:func:`~radar_fusion.safety_nets.prediction.segment_conflicts`; the minima may differ
+per airspace volume (``stca_overrides``, e.g. 3 NM in a TMA, 5 NM en route).
+
+Pair pruning (no all-pairs matrix)
+----------------------------------
+Let m_i = p_i + v_i T/2 be the midpoint of track i's linear predicted segment. Every
+point of the segment is within |v_i| T/2 of m_i, so if the pair is ever closer than S
+within [0, T], |m_i − m_j| < S + (|v_i| + |v_j|) T/2 ≤ S + v_max T, with v_max the
+fastest eligible ground speed of the period. ``cKDTree.query_pairs`` on the midpoints
+with r = S_max + v_max T (S_max the largest horizontal minimum or proximity threshold in
+use) therefore returns *every* pair that the linear filter could flag — pruning loses
+no conflict. A turning path has arc length |v| T and is not a straight segment, so pairs
+with a turning member come from a second query around current positions with
+r = S_max + 2 v_max T (each aircraft moves at most |v| T from where it is). The current
+proximity test (t = 0) is covered because |m_i − m_j| ≤ |d0| + v_max T.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..geo.coordinates import SystemPlane
+from ..geo.units import FT_PER_FL, M_PER_NM
+from .config import SafetyNetsConfig
+from .life_cycle import Hit
+from .polygon import Polygon, ring_xy
+from .prediction import (
+    eligible,
+    horizontal_paths,
+    moving,
+    segment_conflicts,
+    selected_fl,
+    turn_rate_rps,
+    vertical_paths,
+)
+
+if TYPE_CHECKING:
+    from ..engine.columns import TrackColumns
+
+
+class Stca:
+    """STCA over all eligible tracks of a period; ``last_candidate_pairs`` is the pair count after pruning."""
+
+    def __init__(self, config: SafetyNetsConfig, plane: SystemPlane) -> None:
+        self.config = config
+        self._overrides = [
+            (Polygon([(ring_xy(plane, [(lon, lat) for lat, lon in o.polygon_latlon_deg]), [])]), o)
+            for o in config.stca_overrides
+        ]
+        self.last_candidate_pairs = 0
+
+    def _pair_minima(
+        self, tr: "TrackColumns", e: np.ndarray, ia: np.ndarray, ib: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal (m) and vertical (ft) minima per pair: the first override volume holding both."""
+        cfg = self.config
+        h = np.full(ia.shape[0], cfg.stca_h_min_nm * M_PER_NM)
+        v = np.full(ia.shape[0], cfg.stca_v_min_ft)
+        if not self._overrides or ia.size == 0:
+            return h, v
+        region = np.full(e.size, -1, dtype=np.int64)
+        xy = np.column_stack([tr.x_m[e], tr.y_m[e]])
+        fl = tr.fl[e]
+        for r in range(len(self._overrides) - 1, -1, -1):  # first listed wins
+            poly, o = self._overrides[r]
+            inside = poly.contains(xy) & ~(fl < o.lower_fl) & ~(fl > o.upper_fl)
+            region[inside] = r
+        same = (region[ia] == region[ib]) & (region[ia] >= 0)
+        for r, (_, o) in enumerate(self._overrides):
+            m = same & (region[ia] == r)
+            h[m] = o.h_min_nm * M_PER_NM
+            v[m] = o.v_min_ft
+        return h, v
+
+    def hits(self, tr: "TrackColumns", accel: np.ndarray) -> list[Hit]:
+        """This period's STCA hits; ``accel`` is the vertical acceleration per track (fpm/s)."""
+        cfg = self.config
+        elig = eligible(tr) & moving(tr)
+        if cfg.stca_unknown_fl == "ignore":
+            elig &= np.isfinite(tr.fl)
+        e = np.flatnonzero(elig)
+        self.last_candidate_pairs = 0
+        if e.size < 2:
+            return []
+        T = cfg.look_ahead_s
+        speed = np.hypot(tr.vx_mps[e], tr.vy_mps[e])
+        v_max = float(speed.max())
+        s_max = max([cfg.stca_h_min_nm] + [o.h_min_nm for o in cfg.stca_overrides]) * M_PER_NM
+        if cfg.stca_proximity_h_nm is not None:
+            s_max = max(s_max, cfg.stca_proximity_h_nm * M_PER_NM)
+        w = turn_rate_rps(tr, e, cfg)
+        # pruning: linear paths via segment midpoints, turning tracks via current positions
+        mid = np.column_stack([tr.x_m[e] + tr.vx_mps[e] * T / 2, tr.y_m[e] + tr.vy_mps[e] * T / 2])
+        pairs = cKDTree(mid).query_pairs(s_max + v_max * T + 1.0, output_type="ndarray")
+        turning = np.flatnonzero(w != 0.0)
+        if turning.size:
+            p0 = np.column_stack([tr.x_m[e], tr.y_m[e]])
+            near = cKDTree(p0).query_ball_point(p0[turning], s_max + 2.0 * v_max * T + 1.0)
+            lens = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+            j = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=int(lens.sum()))
+            i = np.repeat(turning.astype(np.int64), lens)
+            if (i != j).any():
+                ex = np.sort(np.column_stack([i, j])[i != j], axis=1)
+                pairs = np.vstack([pairs.reshape(-1, 2).astype(np.int64), ex]) if pairs.size else ex
+                # unique pairs via one int64 key each (np.unique(axis=0) sorts a void dtype: 10x slower)
+                key = np.unique(pairs[:, 0] * np.int64(e.size) + pairs[:, 1])
+                pairs = np.column_stack([key // e.size, key % e.size])
+        if pairs.size:  # the same Mode S address twice is a duplicate track, not a pair
+            ms = tr.mode_s[e]
+            pairs = pairs[~((ms[pairs[:, 0]] >= 0) & (ms[pairs[:, 0]] == ms[pairs[:, 1]]))]
+        if pairs.size == 0:
+            return []
+        n_knots = max(1, int(math.ceil(T / cfg.prediction_step_s)))
+        knots = np.linspace(0.0, T, n_knots + 1)
+        fl = tr.fl[e]
+        z, bent = vertical_paths(
+            np.nan_to_num(fl * FT_PER_FL), tr.vrate_fpm[e], accel[e], selected_fl(tr, e), knots, cfg, return_bent=True
+        )
+        unknown = ~np.isfinite(fl)
+        # vertical pruning (exact): between knots the paths are linear, so a pair whose
+        # vertical path ranges over the look-ahead stay apart by at least the largest
+        # vertical minimum can have neither a conflict nor a proximity alert
+        v_gate = max([cfg.stca_v_min_ft] + [o.v_min_ft for o in cfg.stca_overrides])
+        if cfg.stca_proximity_v_ft is not None:
+            v_gate = max(v_gate, cfg.stca_proximity_v_ft)
+        z_lo, z_hi = z.min(axis=1), z.max(axis=1)
+        a0, b0 = pairs[:, 0], pairs[:, 1]
+        gap = np.maximum(z_lo[b0] - z_hi[a0], z_lo[a0] - z_hi[b0])
+        pairs = pairs[(gap < v_gate) | unknown[a0] | unknown[b0]]
+        if pairs.size == 0:
+            return []
+        ia, ib = pairs[:, 0], pairs[:, 1]
+        self.last_candidate_pairs = int(ia.size)
+
+        x_lin, y_lin, x_turn, y_turn = horizontal_paths(
+            tr.x_m[e], tr.y_m[e], tr.vx_mps[e], tr.vy_mps[e], w, knots, math.radians(cfg.turn_max_heading_change_deg)
+        )
+        h_min, v_min = self._pair_minima(tr, e, ia, ib)
+        v_eff = np.maximum(v_min - cfg.stca_v_tolerance_ft, 0.0)
+        dz = z[ib] - z[ia]
+        dz[unknown[ia] | unknown[ib]] = 0.0  # only with stca_unknown_fl == "conflict"
+        # linear prediction filter: one segment [0, T] when both vertical paths are straight
+        # (the relative motion is then exactly linear), the knots otherwise
+        lin = {}
+        seg = bent[ia] | bent[ib]
+        for sel, cols in ((~seg, [0, n_knots]), (seg, slice(None))):
+            if not sel.any():
+                continue
+            a1, b1 = ia[sel], ib[sel]
+            r = segment_conflicts(
+                (x_lin[b1] - x_lin[a1])[:, cols], (y_lin[b1] - y_lin[a1])[:, cols], dz[sel][:, cols],
+                knots[cols], h_min[sel], v_eff[sel],
+            )
+            for k, v in r.items():
+                lin.setdefault(k, np.empty(ia.size, dtype=v.dtype))[sel] = v
+        conflict = lin["conflict"].copy()
+        fig = {k: v.copy() for k, v in lin.items() if k != "conflict"}
+        tp = np.flatnonzero((w[ia] != 0.0) | (w[ib] != 0.0))
+        if tp.size:
+            a2, b2 = ia[tp], ib[tp]
+            turn = segment_conflicts(
+                x_turn[b2] - x_turn[a2], y_turn[b2] - y_turn[a2], dz[tp], knots, h_min[tp], v_eff[tp]
+            )
+            better = turn["conflict"] & (~conflict[tp] | (turn["t_violation_s"] < fig["t_violation_s"][tp]))
+            sel = tp[better]
+            for k in fig:
+                fig[k][sel] = turn[k][better]
+            conflict[tp] |= turn["conflict"]
+        # current proximity filter: separation lost now (confirmed at once)
+        prox_h = h_min if cfg.stca_proximity_h_nm is None else np.full(ia.size, cfg.stca_proximity_h_nm * M_PER_NM)
+        prox_v = v_eff if cfg.stca_proximity_v_ft is None else np.full(ia.size, cfg.stca_proximity_v_ft)
+        d0 = np.hypot(x_lin[ib, 0] - x_lin[ia, 0], y_lin[ib, 0] - y_lin[ia, 0])
+        prox = (d0 < prox_h) & (np.abs(dz[:, 0]) < prox_v)
+        hit = np.flatnonzero(conflict | prox)
+        out = []
+        ids = tr.track_id[e]
+        for k in hit:
+            i, j = sorted((int(ids[ia[k]]), int(ids[ib[k]])))
+            tv = fig["t_violation_s"][k]
+            mv = fig["min_vsep_ft"][k]
+            figures = {
+                "time_to_cpa_s": float(fig["t_cpa_s"][k]),
+                "min_sep_m": float(fig["min_sep_m"][k]),
+                "min_vsep_ft": float(mv) if np.isfinite(mv) else float(abs(dz[k, 0])),
+                "time_to_violation_s": float(tv) if np.isfinite(tv) else 0.0,
+            }
+            out.append(Hit(("stca", i, j), "stca", [i, j], figures, immediate=bool(prox[k])))
+        return out
