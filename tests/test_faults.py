@@ -23,6 +23,8 @@ from radar_fusion.tools.demo import TrackCollector, wait_until
 from radar_fusion.recording import Record
 from radar_fusion.tools.replay import replay_records
 
+pytestmark = pytest.mark.bus  # every test here opens Zenoh sessions
+
 
 def with_bus(settings, port, mode="router", **system):
     """``settings`` with the daemon on 127.0.0.1:``port`` (listening, or connecting in

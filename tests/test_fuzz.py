@@ -448,6 +448,7 @@ def hostile_messages(rng: random.Random, prefix: str, sent: list[tuple[str, byte
     return out
 
 
+@pytest.mark.bus
 def test_daemon_survives_hostile_bus_traffic_and_keeps_tracking(free_port):
     rng = random.Random(20240808)
     cfg = {**CONFIG, "bus": {**CONFIG["bus"], "mode": "router", "listen": [f"tcp/127.0.0.1:{free_port}"],

@@ -31,6 +31,8 @@ def short(tmp_path_factory):
     return rec, cfg
 
 
+@pytest.mark.bus
+@pytest.mark.slow  # a soak
 def test_short_soak_loses_nothing_and_reports_memory_and_latency(short):
     rec, cfg = short
     report = soak.run_soak(rec, cfg, lead_periods=2)
@@ -48,6 +50,8 @@ def test_short_soak_loses_nothing_and_reports_memory_and_latency(short):
     assert 0 < report.latency_ms["first_p50"] < 5000 and 0 < report.latency_ms["last_p50"] < 5000
 
 
+@pytest.mark.bus
+@pytest.mark.slow  # a soak
 def test_soak_reports_a_message_the_daemon_did_not_take(short, tmp_path):
     """A plot batch sent twice is refused by the daemon as a duplicate: the soak sees that
     the daemon counted fewer batches than were sent and fails its loss check."""
