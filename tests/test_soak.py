@@ -17,8 +17,10 @@ def test_soak_traffic_is_steady_with_flights_entering_throughout():
     scenario = soak.soak_scenario(n_aircraft=40, duration_s=1200.0, n_radars=3, seed=4)
     truth = sim.simulate(scenario).truth
     t0 = scenario.start_t_s
-    airborne = [len(np.unique(truth.target_index[(truth.t_s >= t0 + m) & (truth.t_s < t0 + m + 1)]))
-                for m in range(0, 1200, 120)]
+    airborne = [
+        len(np.unique(truth.target_index[(truth.t_s >= t0 + m) & (truth.t_s < t0 + m + 1)]))
+        for m in range(0, 1200, 120)
+    ]
     assert min(airborne) >= 0.7 * 40 and max(airborne) <= 1.3 * 40, airborne
     offsets = np.array([t.plan.t_offset_s for t in scenario.targets])
     assert (offsets > 600.0).sum() >= 5  # new flights keep coming in the second half
