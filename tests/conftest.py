@@ -1,4 +1,8 @@
-"""Shared test fixtures: paths to the shared data, free loopback ports."""
+"""Shared test fixtures: paths to the shared data, free loopback ports; the tier guard.
+
+Tiers (markers registered in pyproject.toml): ``bus`` tests open real Zenoh sessions,
+``slow`` tests take more than ~5 s or are long runs. ``make test-fast`` runs
+``-m "not bus and not slow"``; ``make test`` runs every tier."""
 
 from __future__ import annotations
 
@@ -23,3 +27,20 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is not present")
     return SHARED_DATA
+
+
+@pytest.fixture(autouse=True)
+def zenoh_sessions_only_in_bus_tests(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A test that opens a Zenoh session without the ``bus`` marker fails, saying so: the
+    fast tier promises no bus. Every session of the service and the tools is opened by
+    ``zenoh.open`` (``radar_fusion.bus.open_session`` calls it), which this replaces for an
+    unmarked test. Not seen: module-scoped fixtures (they run first) and child processes;
+    the modules that have those are marked ``bus`` as a whole."""
+    if request.node.get_closest_marker("bus") is not None:
+        return
+    import zenoh
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise AssertionError(f"{request.node.nodeid} opens a Zenoh session: mark it @pytest.mark.bus")
+
+    monkeypatch.setattr(zenoh, "open", refuse)

@@ -490,6 +490,7 @@ def free_tcp_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.bus
 def test_bridges_over_zenoh(tmp_path):
     """asterix-in publishes every message on the bus; asterix-out turns tracks into CAT062."""
     zenoh = pytest.importorskip("zenoh")

@@ -124,6 +124,8 @@ def test_accuracy_job_scores_ours_and_each_radar_alone(tmp_path):
     assert same["aircraft"] > 0 and same["fused_m"] > 0 and same["single_m"] > 0
 
 
+@pytest.mark.bus
+@pytest.mark.slow
 def test_bench_side_by_side_end_to_end(tmp_path, capsys):
     report = tmp_path / "report"
     rc = bench.main([

@@ -17,6 +17,8 @@ from radar_fusion.tools import evaluate as ev
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, run_pipeline, wait_until
 
+pytestmark = pytest.mark.bus  # every test here opens Zenoh sessions
+
 
 @pytest.fixture(scope="module")
 def scenario(tmp_path_factory):

@@ -18,18 +18,24 @@ import zenoh
 from radar_fusion.bus import FusionDaemon, open_session, zenoh_config
 from radar_fusion.config import load_settings
 from radar_fusion.geo.coordinates import SystemPlane
+from radar_fusion.recording import Record
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, wait_until
-from radar_fusion.recording import Record
 from radar_fusion.tools.replay import replay_records
+
+pytestmark = pytest.mark.bus  # every test here opens Zenoh sessions
 
 
 def with_bus(settings, port, mode="router", **system):
     """``settings`` with the daemon on 127.0.0.1:``port`` (listening, or connecting in
     client mode), health every 0.2 s, and [system] overrides."""
     endpoint = [f"tcp/127.0.0.1:{port}"]
-    bus = dict(mode=mode, listen=endpoint if mode == "router" else [], connect=[] if mode == "router" else endpoint,
-               health_period_s=0.2)
+    bus = dict(
+        mode=mode,
+        listen=endpoint if mode == "router" else [],
+        connect=[] if mode == "router" else endpoint,
+        health_period_s=0.2,
+    )
     update = {"bus": settings.bus.model_copy(update=bus)}
     if system:
         update["system"] = settings.system.model_copy(update=system)
@@ -74,8 +80,16 @@ RADAR_TIMEOUT_S = 12.0
 KM = 1000.0
 # aircraft flying north or south along x = const: W* only west sees, B* both, E* only east
 # (none passes within 20 km of a radar: the cone of silence above it is part of the simulation)
-LANES_X_M = {"W1": -100 * KM, "W2": -90 * KM, "W3": -80 * KM, "B1": -10 * KM, "B2": 0.0, "B3": 12 * KM,
-             "E1": 80 * KM, "E2": 90 * KM}
+LANES_X_M = {
+    "W1": -100 * KM,
+    "W2": -90 * KM,
+    "W3": -80 * KM,
+    "B1": -10 * KM,
+    "B2": 0.0,
+    "B3": 12 * KM,
+    "E1": 80 * KM,
+    "E2": 90 * KM,
+}
 MODE_S_BASE = 0x4B0000
 
 
@@ -87,19 +101,42 @@ def two_radar_scenario() -> sim.Scenario:
 
     def radar(rid, x_m, phase_deg):
         lat, lon = plane.to_geodetic(x_m, 0.0)
-        return sim.RadarSpec(rid, float(lat), float(lon), alt_m=500.0, rotation_period_s=PERIOD_S,
-                             sigma_range_m=40.0, sigma_azimuth_deg=0.06, max_range_m=90_000.0, n_sectors=16,
-                             start_phase_deg=phase_deg)
+        return sim.RadarSpec(
+            rid,
+            float(lat),
+            float(lon),
+            alt_m=500.0,
+            rotation_period_s=PERIOD_S,
+            sigma_range_m=40.0,
+            sigma_azimuth_deg=0.06,
+            max_range_m=90_000.0,
+            n_sectors=16,
+            start_phase_deg=phase_deg,
+        )
 
     targets = [
-        sim.Target(name, callsign=name, mode_s=MODE_S_BASE + k, mode3a=0o1000 + k,
-                   plan=sim.FlightPlan(x_m, -20 * KM + 3 * KM * k, 0.0 if k % 2 else 180.0, 200.0,
-                                       30000.0 + 1000.0 * k, (sim.Leg(200.0),)))
+        sim.Target(
+            name,
+            callsign=name,
+            mode_s=MODE_S_BASE + k,
+            mode3a=0o1000 + k,
+            plan=sim.FlightPlan(
+                x_m, -20 * KM + 3 * KM * k, 0.0 if k % 2 else 180.0, 200.0, 30000.0 + 1000.0 * k, (sim.Leg(200.0),)
+            ),
+        )
         for k, (name, x_m) in enumerate(LANES_X_M.items())
     ]
     rates = sim.Rates(pd=0.97, false_plots_per_scan=0.5, wild_plot_prob=0.0, wild_run_prob=0.0)
-    return sim.Scenario("two-radars", *center, [radar("west", -60 * KM, 10.0), radar("east", 60 * KM, 200.0)],
-                        targets, duration_s=150.0, seed=5, period_s=PERIOD_S, rates=rates)
+    return sim.Scenario(
+        "two-radars",
+        *center,
+        [radar("west", -60 * KM, 10.0), radar("east", 60 * KM, 200.0)],
+        targets,
+        duration_s=150.0,
+        seed=5,
+        period_s=PERIOD_S,
+        rates=rates,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -109,8 +146,11 @@ def silent_radar_run(tmp_path_factory):
     simulation = sim.simulate(two_radar_scenario())
     sim.write_outputs(simulation, out)
     t0 = simulation.scenario.start_t_s
-    records = [r for r in records_of(simulation.messages)
-               if not (r.key.startswith("radar/west/") and t0 + SILENT_FROM_S <= r.t_s < t0 + SILENT_UNTIL_S)]
+    records = [
+        r
+        for r in records_of(simulation.messages)
+        if not (r.key.startswith("radar/west/") and t0 + SILENT_FROM_S <= r.t_s < t0 + SILENT_UNTIL_S)
+    ]
     pause_t = t0 + 85.0  # west has been silent for 45 s here
     relocked_t = t0 + SILENT_UNTIL_S + 20.0  # west has been back for 20 s here
     part1 = [r for r in records if r.t_s < pause_t]
@@ -140,8 +180,15 @@ def silent_radar_run(tmp_path_factory):
         if not daemon.stopped.is_set():
             daemon.stop()
         client.close()
-    return dict(t0=t0, pause_t=pause_t, batches=client.out.batches, batches_at_pause=batches_at_pause,
-                health_at_pause=health_at_pause, health_back=health_back, health_at_end=health_at_end)
+    return dict(
+        t0=t0,
+        pause_t=pause_t,
+        batches=client.out.batches,
+        batches_at_pause=batches_at_pause,
+        health_at_pause=health_at_pause,
+        health_back=health_back,
+        health_at_end=health_at_end,
+    )
 
 
 def free_loopback_port() -> int:
@@ -190,7 +237,7 @@ def test_silent_radar_tracks_coast_then_end_and_the_period_clock_runs_on(silent_
     assert set(ended_at) == west_ids
     for tid, history in status.items():
         assert "coasting" in history, (tid, history)
-        assert history[-1] == "coasting" and "confirmed" not in history[history.index("coasting"):]
+        assert history[-1] == "coasting" and "confirmed" not in history[history.index("coasting") :]
     # ended after delete_after_scans (6.5) of 4 s without an update, and not much later
     assert all(silent_from + 20.0 <= t <= silent_from + 40.0 for t in ended_at.values()), ended_at
 
@@ -198,12 +245,13 @@ def test_silent_radar_tracks_coast_then_end_and_the_period_clock_runs_on(silent_
     mid = during[len(during) // 2]
     mid_tracks = tracks_by_id(mid)
     assert shared_ids <= set(mid_tracks)
-    assert all(mid_tracks[tid]["sources"] == ["east"] and mid_tracks[tid]["status"] == "confirmed"
-               for tid in shared_ids)
+    assert all(
+        mid_tracks[tid]["sources"] == ["east"] and mid_tracks[tid]["status"] == "confirmed" for tid in shared_ids
+    )
 
     # the period clock is not held hostage: replay paused 45 s into the silence, and
     # every period up to east's newest time (less the allowed lateness) was closed
-    at_pause = batches[:run["batches_at_pause"]]
+    at_pause = batches[: run["batches_at_pause"]]
     assert at_pause[-1]["t"] >= run["pause_t"] - 1.0 - PERIOD_S
     periods = [b["period"] for b in batches]
     assert periods == list(range(periods[0], periods[0] + len(periods)))  # no period skipped
@@ -321,7 +369,7 @@ def test_client_daemon_reconnects_when_the_router_restarts(demo_80s, free_port):
         time.sleep(0.3)
         n1 = client.replay(part1)
         assert wait_until(lambda: daemon.messages_processed >= n1, 20)
-        client.wait_new_health()
+        health_before = client.wait_new_health()
         n_before = len(client.out.batches)
         confirmed_before = {t["track_id"] for t in client.out.batches[-1]["tracks"] if t["status"] == "confirmed"}
 
@@ -330,9 +378,12 @@ def test_client_daemon_reconnects_when_the_router_restarts(demo_80s, free_port):
         assert daemon._thread.is_alive()
         t_reopen = time.monotonic()
         router = open_session(zenoh_config("router", listen=[endpoint]))
-        # the daemon's and our sessions reconnect by themselves: health flows again
-        client.wait_new_health(timeout_s=15.0)
+        # the daemon's and our sessions reconnect by themselves: health flows again, from
+        # the same daemon (its uptime and counters carry on; nothing was sent meanwhile)
+        health_after = client.wait_new_health(timeout_s=15.0)
         reconnect_s = time.monotonic() - t_reopen
+        assert health_after["uptime_s"] > health_before["uptime_s"]
+        assert health_after["counters"]["messages_processed"] == n1
         n2 = client.replay(part2)
         assert wait_until(lambda: daemon.messages_processed >= n1 + n2, 20)
         daemon.stop()
@@ -342,7 +393,7 @@ def test_client_daemon_reconnects_when_the_router_restarts(demo_80s, free_port):
             daemon.stop()
         client.close()
         router.close()
-    assert reconnect_s < 10.0
+    print(f"\nrouter restart: health again {reconnect_s:.2f} s (wall) after the router reopened")
     after = client.out.batches[n_before:]
     assert after and after[-1]["t"] >= part2[-1].t_s
     periods = [b["period"] for b in client.out.batches]
@@ -364,10 +415,18 @@ def test_a_stalled_track_consumer_does_not_block_ingest(tmp_path, free_port):
     simulation = sim.simulate(sim.preset("benchmark", n_aircraft=300, n_radars=3, duration_s=60.0, seed=2))
     sim.write_outputs(simulation, tmp_path)
     zenoh_file = tmp_path / "zenoh.json5"
-    zenoh_file.write_text(json.dumps({"transport": {"link": {
-        "tcp": {"so_sndbuf": 16384},
-        "tx": {"queue": {"congestion_control": {"block": {"wait_before_close": 60_000_000}}}},
-    }}}))
+    zenoh_file.write_text(
+        json.dumps(
+            {
+                "transport": {
+                    "link": {
+                        "tcp": {"so_sndbuf": 16384},
+                        "tx": {"queue": {"congestion_control": {"block": {"wait_before_close": 60_000_000}}}},
+                    }
+                }
+            }
+        )
+    )
     settings = with_bus(load_settings(tmp_path / "config.toml"), free_port)
     bus = settings.bus.model_copy(update={"zenoh_config_file": str(zenoh_file)})
     settings = settings.model_copy(update={"bus": bus})
@@ -441,8 +500,9 @@ def test_restarted_daemon_resumes_within_two_periods_and_reinitiates_tracks(tmp_
         before = client.out.batches[-1]
         t_start = time.monotonic()
         second = FusionDaemon(settings).start()  # same port: our client reconnects by itself
-        client.wait_new_health(timeout_s=15.0)
+        health = client.wait_new_health(timeout_s=15.0)
         ready_s = time.monotonic() - t_start
+        assert health["counters"]["messages_processed"] == 0  # from the new daemon, which is up
         n2 = client.replay(part2)
         assert wait_until(lambda: second.messages_processed >= n2, 20)
         second.stop()
@@ -452,7 +512,6 @@ def test_restarted_daemon_resumes_within_two_periods_and_reinitiates_tracks(tmp_
             if daemon is not None and not daemon.stopped.is_set():
                 daemon.stop()
         client.close()
-    assert ready_s < 10.0
     after = client.out.batches[n_first:]
     # service resumes within two periods of event time after the first plot it gets
     assert after[0]["t"] - part2[0].t_s <= 2 * period_s
@@ -463,6 +522,8 @@ def test_restarted_daemon_resumes_within_two_periods_and_reinitiates_tracks(tmp_
     recovered = next(b for b in after if len(confirmed_ids(b)) >= 0.9 * n_confirmed_before)
     reinit_s = recovered["t"] - part2[0].t_s
     assert reinit_s <= 4 * period_s, reinit_s  # 3 updates to confirm, one period to close
-    print(f"\nrestart: ready after {ready_s:.2f} s (wall), first batch {after[0]['t'] - part2[0].t_s:.1f} s and "
-          f"{len(confirmed_ids(recovered))}/{n_confirmed_before} tracks confirmed again {reinit_s:.1f} s "
-          f"(event time) after the first plot")
+    print(
+        f"\nrestart: ready after {ready_s:.2f} s (wall), first batch {after[0]['t'] - part2[0].t_s:.1f} s and "
+        f"{len(confirmed_ids(recovered))}/{n_confirmed_before} tracks confirmed again {reinit_s:.1f} s "
+        f"(event time) after the first plot"
+    )

@@ -48,6 +48,7 @@ def scrape(url: str) -> dict[tuple[str, tuple], float]:
             for fam in text_string_to_metric_families(text) for s in fam.samples}
 
 
+@pytest.mark.bus
 def test_metrics_endpoint_counts_received_rejected_late_and_closed_periods(simulation, free_port):
     base = tomllib.loads(sim.config_toml(simulation.scenario))
     metrics_port = other_free_port()
@@ -156,6 +157,7 @@ def test_json_formatter_keeps_extra_fields_and_exceptions():
     assert second["level"] == "ERROR" and "ValueError: bad plot" in second["exception"]
 
 
+@pytest.mark.bus
 def test_serve_writes_json_logs_and_serves_metrics(simulation, free_port, tmp_path):
     """`serve --log-format json` as a process, with a [metrics] section in its file."""
     metrics_port = other_free_port()

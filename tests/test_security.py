@@ -32,6 +32,8 @@ from radar_fusion.config import settings_from_dict
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, wait_until
 
+pytestmark = pytest.mark.bus  # every test here opens Zenoh sessions
+
 DEPLOY_ZENOH = Path(__file__).resolve().parents[1] / "deploy" / "zenoh"
 DEPLOY_TLS_DIR = "/etc/radar-fusion/tls/"
 # The demo scenario's radars under the names the deploy/ access control uses.

@@ -26,6 +26,8 @@ from radar_fusion.tools.record import Recorder
 from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools.replay import replay_records
 
+pytestmark = pytest.mark.bus  # every test here opens Zenoh sessions
+
 
 @pytest.fixture(scope="module")
 def short_scenario(tmp_path_factory):
@@ -241,6 +243,7 @@ def feed_then_signal(proc: subprocess.Popen, port: int, records, sig) -> dict:
             session.close()
 
 
+@pytest.mark.slow
 def test_serve_process_flushes_and_exits_on_sigint_and_sigterm_and_refuses_a_taken_port(
         short_scenario, free_port, tmp_path):
     out, _ = short_scenario

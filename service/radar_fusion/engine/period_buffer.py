@@ -17,9 +17,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+from numpy.typing import NDArray
+
 from .columns import PlotChunk
 
-import numpy as np
 
 @dataclass
 class PeriodBuffer:
@@ -28,11 +30,11 @@ class PeriodBuffer:
     radar_timeout_s: float
     n_radars: int
     max_plots_per_radar: int = 200_000
-    watermark_s: np.ndarray = field(init=False)
+    watermark_s: NDArray[np.float64] = field(init=False)
     next_period: int | None = field(init=False, default=None)  # index of the oldest open period
     _chunks: list[PlotChunk] = field(init=False, default_factory=list)
     _buffered: int = field(init=False, default=0)
-    _per_radar: np.ndarray = field(init=False)
+    _per_radar: NDArray[np.int64] = field(init=False)
     _min_t_s: float = field(init=False, default=math.inf)  # earliest buffered plot time
 
     def __post_init__(self) -> None:
@@ -71,8 +73,8 @@ class PeriodBuffer:
         self._min_t_s = min(self._min_t_s, t_min_s)
 
     # ----------------------------------------------------------------- output
-    def live_mask(self) -> np.ndarray:
-        newest = self.watermark_s.max()
+    def live_mask(self) -> NDArray[np.bool_]:
+        newest = float(self.watermark_s.max())
         return np.isfinite(self.watermark_s) & (self.watermark_s >= newest - self.radar_timeout_s)
 
     def closable_until_s(self) -> float:

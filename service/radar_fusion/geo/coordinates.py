@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 import pyproj
+from numpy.typing import NDArray
 
 from .units import M_PER_FL
 
@@ -66,11 +67,11 @@ __all__ = [
 WGS84_GEOD = pyproj.Geod(ellps="WGS84")
 """Geodesic calculator on the WGS-84 ellipsoid (Karney's algorithms, nm accuracy)."""
 
-_WGS84_A_M = WGS84_GEOD.a
-_WGS84_E2 = WGS84_GEOD.es
+_WGS84_A_M: float = WGS84_GEOD.a
+_WGS84_E2: float = WGS84_GEOD.es
 
 
-def gaussian_earth_radius_m(lat_deg: np.ndarray | float) -> np.ndarray:
+def gaussian_earth_radius_m(lat_deg: np.ndarray | float) -> NDArray[np.float64]:
     """Gaussian mean radius of curvature of WGS-84 at latitude ``lat_deg``.
 
     R = sqrt(M N) = a sqrt(1 - e^2) / (1 - e^2 sin^2 phi), where M is the meridian and
@@ -78,7 +79,8 @@ def gaussian_earth_radius_m(lat_deg: np.ndarray | float) -> np.ndarray:
     fits the ellipsoid around that latitude in all directions (≈ 6 381 km at 45°).
     """
     s = np.sin(np.radians(np.asarray(lat_deg, dtype=float)))
-    return _WGS84_A_M * np.sqrt(1.0 - _WGS84_E2) / (1.0 - _WGS84_E2 * s * s)
+    radius_m: NDArray[np.float64] = _WGS84_A_M * np.sqrt(1.0 - _WGS84_E2) / (1.0 - _WGS84_E2 * s * s)
+    return radius_m
 
 
 class SystemPlane:
@@ -319,7 +321,8 @@ def ground_to_slant_range(
     b = r + np.asarray(target_alt_m, dtype=float)
     half = 0.5 * np.asarray(ground_range_m, dtype=float) / r
     s = np.sin(half)
-    return np.sqrt((a - b) ** 2 + 4.0 * a * b * s * s)
+    rho2: NDArray[np.float64] = (a - b) ** 2 + 4.0 * a * b * s * s
+    return np.sqrt(rho2)
 
 
 def polar_to_plane(

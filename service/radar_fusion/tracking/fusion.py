@@ -34,6 +34,8 @@ Python loop over clusters or plots.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
+from numpy.typing import NDArray
 
 from .singer_filter import inv_2x2
 
@@ -42,7 +44,7 @@ __all__ = ["fuse_clusters", "FUSION_METHODS"]
 FUSION_METHODS = ("scalar", "matrix")
 
 
-def _cluster_sum(labels: np.ndarray, values: np.ndarray, n_clusters: int) -> np.ndarray:
+def _cluster_sum(labels: NDArray[np.intp], values: NDArray[np.float64], n_clusters: int) -> NDArray[np.float64]:
     """Sum ``values`` (M, ...) over plots of each cluster → (K, ...)."""
     flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
     out = np.empty((n_clusters, flat.shape[1]))
@@ -51,7 +53,9 @@ def _cluster_sum(labels: np.ndarray, values: np.ndarray, n_clusters: int) -> np.
     return out.reshape((n_clusters,) + values.shape[1:])
 
 
-def fuse_clusters(labels, z_m, R, n_clusters: int, method: str = "scalar"):
+def fuse_clusters(
+    labels: npt.ArrayLike, z_m: npt.ArrayLike, R: npt.ArrayLike, n_clusters: int, method: str = "scalar"
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
     """Fuse the plots of each cluster into one position measurement.
 
     Parameters

@@ -7,7 +7,11 @@ recent plots of its own radar track, as :class:`LiveOutlierGate` describes.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
+from numpy.typing import NDArray
 
 
 class LiveOutlierGate:
@@ -45,9 +49,24 @@ class LiveOutlierGate:
     time order, one "round" per occurrence.
     """
 
+    # Per-key rows, (re)allocated by _alloc: the ring buffer of accepted plots (x, y, t),
+    # the rejected plots kept aside (px, py, pt), counters, and each row's key.
+    _x: NDArray[np.float64]
+    _y: NDArray[np.float64]
+    _t: NDArray[np.float64]
+    _px: NDArray[np.float64]
+    _py: NDArray[np.float64]
+    _pt: NDArray[np.float64]
+    _count: NDArray[np.int64]
+    _head: NDArray[np.int64]
+    _npend: NDArray[np.int64]
+    _last_t: NDArray[np.float64]
+    _row_key: NDArray[np.int64]
+    _cap: int
+
     def __init__(self, window: int = 8, k: int = 3, threshold: float = 6.0, enabled: bool = True,
                  min_history: int = 4, sigma_floor_m: float = 150.0, relock_after: int = 6,
-                 max_gap_s: float = 60.0, evict_after_s: float = 300.0, max_keys: int = 100_000):
+                 max_gap_s: float = 60.0, evict_after_s: float = 300.0, max_keys: int = 100_000) -> None:
         if window < 3:
             raise ValueError("window must be >= 3")
         if not 1 <= k <= min_history <= window:
@@ -80,14 +99,14 @@ class LiveOutlierGate:
         """Grow the per-key arrays to `capacity` rows, keeping the rows held."""
         old = getattr(self, "_cap", 0)
         w, p = self.window, self.relock_after - 1
-        specs = {
+        specs: dict[str, tuple[tuple[int, ...], float, type]] = {
             "_x": ((w,), 0.0, float), "_y": ((w,), 0.0, float), "_t": ((w,), 0.0, float),
             "_px": ((p,), 0.0, float), "_py": ((p,), 0.0, float), "_pt": ((p,), 0.0, float),
             "_count": ((), 0, np.int64), "_head": ((), 0, np.int64), "_npend": ((), 0, np.int64),
             "_last_t": ((), -np.inf, float), "_row_key": ((), -1, np.int64),
         }
         for name, (tail, fill, dtype) in specs.items():
-            arr = np.full((capacity,) + tail, fill, dtype=dtype)
+            arr: NDArray[Any] = np.full((capacity,) + tail, fill, dtype=dtype)
             if old:
                 arr[:old] = getattr(self, name)
             setattr(self, name, arr)
@@ -110,7 +129,7 @@ class LiveOutlierGate:
         return sum(a.nbytes for a in (self._x, self._y, self._t, self._px, self._py, self._pt,
                                       self._count, self._head, self._npend, self._last_t, self._row_key))
 
-    def _evict_rows(self, rows: np.ndarray) -> None:
+    def _evict_rows(self, rows: NDArray[np.int64]) -> None:
         gone = np.isin(self._skeys, self._row_key[rows])
         self._skeys, self._srows = self._skeys[~gone], self._srows[~gone]
         self._free.extend(rows.tolist())
@@ -126,7 +145,7 @@ class LiveOutlierGate:
             self._evict_rows(stale)
         self._last_sweep_t = t_now
 
-    def _rows_for(self, ukeys: np.ndarray, t_now: float) -> np.ndarray:
+    def _rows_for(self, ukeys: NDArray[np.int64], t_now: float) -> NDArray[np.int64]:
         rows = np.full(ukeys.size, -1, dtype=np.int64)
         if self._skeys.size:
             pos = np.minimum(np.searchsorted(self._skeys, ukeys), self._skeys.size - 1)
@@ -163,7 +182,8 @@ class LiveOutlierGate:
         return rows  # keys beyond max_keys keep row -1: they are accepted untracked
 
     # -- decision ------------------------------------------------------------------
-    def filter(self, keys: np.ndarray, t_s: np.ndarray, range_m: np.ndarray, azimuth_deg: np.ndarray) -> np.ndarray:
+    def filter(self, keys: npt.ArrayLike, t_s: npt.ArrayLike, range_m: npt.ArrayLike,
+               azimuth_deg: npt.ArrayLike) -> NDArray[np.bool_]:
         """Boolean mask `accept` for a batch of plots (True = pass on to clustering).
 
         keys: int64 per plot; t_s: detection time (s); range_m; azimuth_deg (clockwise
@@ -200,7 +220,8 @@ class LiveOutlierGate:
         self.rejected += int(n - accept.sum())
         return accept
 
-    def _decide(self, rows: np.ndarray, t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    def _decide(self, rows: NDArray[np.int64], t: NDArray[np.float64], x: NDArray[np.float64],
+                y: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Decide one plot per row (rows unique), update the rows, return accept."""
         w = self.window
         stale = (t - self._last_t[rows]) > self.max_gap_s

@@ -51,6 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
+from numpy.typing import NDArray
 
 __all__ = [
     "OutlierParams",
@@ -129,7 +130,7 @@ class OutlierAnalysis:
     wild: np.ndarray
 
 
-def window_start_indices(n: int, v: int) -> np.ndarray:
+def window_start_indices(n: int, v: int) -> NDArray[np.intp]:
     """(n, v) start index of each of the v windows summed for each sample (eq. 1).
 
     Window j covers samples [j, j + v). For sample i the windows are j = i-v+1 .. i,
@@ -140,10 +141,11 @@ def window_start_indices(n: int, v: int) -> np.ndarray:
         raise ValueError(f"window v={v} must satisfy 2 <= v <= n={n}")
     i = np.arange(n)[:, None]
     m = np.arange(v)[None, :]
-    return np.clip(i - v + 1 + m, 0, n - v)
+    starts: NDArray[np.intp] = np.clip(i - v + 1 + m, 0, n - v)
+    return starts
 
 
-def soft_edge_weight(s: np.ndarray, v: int, epsilon: float = 1e-9) -> np.ndarray:
+def soft_edge_weight(s: np.ndarray, v: int, epsilon: float = 1e-9) -> NDArray[np.float64]:
     """Soft edge-weight factor W(i) = |sum_j w_j(i)|, w_j(i) = (s_i-E_j)/(sigma_j+eps*delta) (eq. 1).
 
     E_j, sigma_j: mean and population standard deviation of window j; delta(sigma_j) = 1
@@ -156,10 +158,11 @@ def soft_edge_weight(s: np.ndarray, v: int, epsilon: float = 1e-9) -> np.ndarray
     denom_j = std_j + epsilon * (std_j == 0.0)
     j = window_start_indices(s.size, v)
     w = (s[:, None] - mean_j[j]) / denom_j[j]
-    return np.abs(w.sum(axis=1))
+    total: NDArray[np.float64] = w.sum(axis=1)
+    return np.abs(total)
 
 
-def hard_edge_weight(s: np.ndarray, v: int) -> np.ndarray:
+def hard_edge_weight(s: np.ndarray, v: int) -> NDArray[np.float64]:
     """K-MODF hard edge-weight factor W(i) = |sum_j w_j(i)| over the same windows as eq. 1.
 
     w_j(i) = +1 if s_i is the maximum of window j, -1 if it is the minimum, 0 otherwise
@@ -173,16 +176,17 @@ def hard_edge_weight(s: np.ndarray, v: int) -> np.ndarray:
     si = s[:, None]
     varies = max_j[j] > min_j[j]
     w = np.where(varies & (si == max_j[j]), 1, 0) - np.where(varies & (si == min_j[j]), 1, 0)
-    return np.abs(w.sum(axis=1)).astype(float)
+    total: NDArray[np.int64] = w.sum(axis=1)
+    return np.abs(total).astype(float)
 
 
-def edge_points(weight: np.ndarray, v: int, edge_quantile: float, edge_level: float) -> np.ndarray:
+def edge_points(weight: np.ndarray, v: int, edge_quantile: float, edge_level: float) -> NDArray[np.bool_]:
     """Edge points, "the points of large W" (text after eq. 1).
 
     Rule: W(i) >= quantile(W, edge_quantile) and W(i) / v >= edge_level, and W(i) > 0.
     """
     weight = np.asarray(weight, dtype=float)
-    q = np.quantile(weight, edge_quantile)
+    q: float = np.quantile(weight, edge_quantile)  # a numpy.float64, a subclass of float
     return (weight >= q) & (weight / v >= edge_level) & (weight > 0.0)
 
 
@@ -231,20 +235,22 @@ def subsequence_features(s: np.ndarray, starts: np.ndarray, stops: np.ndarray) -
     return np.column_stack((height, length, mean, std))
 
 
-def minmax_normalise(c: np.ndarray, epsilon: float = 1e-9) -> np.ndarray:
+def minmax_normalise(c: np.ndarray, epsilon: float = 1e-9) -> NDArray[np.float64]:
     """d(c) = (c - min c) / (max c - min c + eps * delta(c)), per column (eq. 6)."""
     c = np.asarray(c, dtype=float)
-    lo = c.min(axis=0)
+    lo: NDArray[np.float64] = c.min(axis=0)
     span = c.max(axis=0) - lo
-    return (c - lo) / (span + epsilon * (span == 0.0))
+    normalised: NDArray[np.float64] = (c - lo) / (span + epsilon * (span == 0.0))
+    return normalised
 
 
-def _pairwise_distances(x: np.ndarray) -> np.ndarray:
+def _pairwise_distances(x: np.ndarray) -> NDArray[np.float64]:
     x = np.asarray(x, dtype=float)
     if x.ndim == 1:
         x = x[:, None]
     diff = x[:, None, :] - x[None, :, :]
-    return np.sqrt((diff * diff).sum(axis=2))
+    squared: NDArray[np.float64] = (diff * diff).sum(axis=2)
+    return np.sqrt(squared)
 
 
 def k_distance(x: np.ndarray, k: int) -> np.ndarray:
@@ -258,7 +264,7 @@ def k_distance(x: np.ndarray, k: int) -> np.ndarray:
     return np.partition(d, k - 1, axis=1)[:, k - 1]
 
 
-def k_mean_distance(x: np.ndarray, k: int) -> np.ndarray:
+def k_mean_distance(x: np.ndarray, k: int) -> NDArray[np.float64]:
     """k-mean distance (1/k) * sum_{j=1..k} dist_j(p): mean of the k smallest distances
     from each point to the other points."""
     d = _pairwise_distances(x)
@@ -266,7 +272,8 @@ def k_mean_distance(x: np.ndarray, k: int) -> np.ndarray:
     if not 1 <= k <= m - 1:
         raise ValueError(f"k={k} needs 1 <= k <= m-1 with m={m} points")
     np.fill_diagonal(d, np.inf)
-    return np.partition(d, k - 1, axis=1)[:, :k].mean(axis=1)
+    kmd: NDArray[np.float64] = np.partition(d, k - 1, axis=1)[:, :k].mean(axis=1)
+    return kmd
 
 
 def outlier_factor(features_normalised: np.ndarray, k: int, epsilon: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:

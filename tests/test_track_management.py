@@ -1,0 +1,276 @@
+"""The track life cycle of radar_fusion.tracking.track_management, rule by rule: the
+TrackTable's rows and ids, M-of-N confirmation within its window, coasting after a number
+of scans of the track's own revisit time, recovery, deletion, the fixed-seconds overrides,
+and ended ids (reported once, never reused). Every expected status and id below is worked
+out by hand from the rule it tests, in the comment beside it."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from radar_fusion.tracking.track_management import (
+    COASTING,
+    CONFIRMED,
+    TENTATIVE,
+    LifeCycle,
+    TrackTable,
+    apply_life_cycle,
+)
+
+T, C, K = TENTATIVE, CONFIRMED, COASTING
+
+
+def rules(**overrides: Any) -> LifeCycle:
+    """Every rule spelled out here, so that the tests do not depend on the defaults."""
+    values: dict[str, Any] = dict(
+        confirm_updates=3,
+        confirm_window_s=12.0,
+        coast_after_scans=1.5,
+        delete_tentative_after_scans=2.5,
+        delete_after_scans=6.5,
+        coast_after_s=None,
+        delete_tentative_after_s=None,
+        delete_after_s=None,
+    )
+    values.update(overrides)
+    return LifeCycle(**values)
+
+
+def table_of(rows: list[dict[str, float]]) -> TrackTable:
+    """A table with one row per dict: status, updates, first_t_s, last_update_t_s, revisit_s."""
+    table = TrackTable()
+    table.append(len(rows))
+    for i, row in enumerate(rows):
+        for name, value in row.items():
+            getattr(table, name)[i] = value
+    return table
+
+
+def row(
+    status: int, since_s: float, *, t_s: float, revisit_s: float = 4.0, updates: int = 3, age_s: float = 0.0
+) -> dict[str, float]:
+    """A track last updated ``since_s`` before ``t_s``, first seen ``max(age_s, since_s)`` before it."""
+    return dict(
+        status=status,
+        updates=updates,
+        last_update_t_s=t_s - since_s,
+        first_t_s=t_s - max(age_s, since_s),
+        revisit_s=revisit_s,
+    )
+
+
+# ------------------------------------------------------------------ the table
+
+
+def test_append_gives_fresh_consecutive_ids_and_default_rows():
+    table = TrackTable()
+    assert len(table) == 0 and table.track_id.shape == (0,) and table.P.shape == (0, 6, 6)
+    assert table.append(3) == slice(0, 3)
+    assert table.track_id.tolist() == [1, 2, 3] and len(table) == 3
+    assert table.status.tolist() == [T, T, T] and table.updates.tolist() == [0, 0, 0]
+    assert table.x.shape == (3, 6) and not table.x.any() and table.P.shape == (3, 6, 6)
+    assert np.isnan(table.first_t_s).all() and np.isnan(table.last_update_t_s).all()
+    assert table.append(2) == slice(3, 5)
+    assert table.track_id.tolist() == [1, 2, 3, 4, 5]
+
+
+def test_keep_keeps_each_row_with_its_own_id_and_ids_are_never_reused():
+    table = TrackTable()
+    table.append(5)
+    table.x[:, 0] = 10.0 * table.track_id  # a value that follows its row
+    table.P[:, 0, 0] = table.track_id
+    table.keep(np.array([True, False, True, False, True]))
+    assert len(table) == 3 and table.track_id.tolist() == [1, 3, 5]
+    assert table.x[:, 0].tolist() == [10.0, 30.0, 50.0] and table.P[:, 0, 0].tolist() == [1.0, 3.0, 5.0]
+    table.keep(np.array([False, True, True]))
+    assert table.track_id.tolist() == [3, 5]
+    new = table.append(2)
+    assert table.track_id[new].tolist() == [6, 7]  # 1, 2 and 4 are gone, not handed out again
+    assert table.x[new].tolist() == [[0.0] * 6, [0.0] * 6] and table.x[:2, 0].tolist() == [30.0, 50.0]
+
+
+# ------------------------------------------------------------------ confirmation
+
+
+def test_m_of_n_confirmation_within_the_window():
+    # 3 updates within 12 s of the first plot confirm; at t = 100 every track was just updated
+    t = 100.0
+    table = table_of(
+        [
+            row(T, 0.0, t_s=t, updates=3, age_s=8.0),  # 3 in 8 s: confirmed
+            row(T, 0.0, t_s=t, updates=2, age_s=8.0),  # 2 so far, window open: still tentative
+            row(T, 0.0, t_s=t, updates=3, age_s=12.0),  # 3 in exactly 12 s: confirmed (the window includes its end)
+            row(T, 0.0, t_s=t, updates=3, age_s=12.5),  # 3, but the window ran out: ends
+            row(T, 0.0, t_s=t, updates=2, age_s=13.0),  # 2 and the window ran out: ends
+            row(T, 0.0, t_s=t, updates=5, age_s=4.0),  # more than M: confirmed
+        ]
+    )
+    ended = apply_life_cycle(table, t, rules())
+    assert ended.tolist() == [4, 5]
+    assert table.track_id.tolist() == [1, 2, 3, 6] and table.status.tolist() == [C, T, C, C]
+
+
+def test_confirmation_counts_the_rule_not_a_fixed_three():
+    t = 50.0
+    table = table_of([row(T, 0.0, t_s=t, updates=2, age_s=3.0), row(T, 0.0, t_s=t, updates=3, age_s=3.0)])
+    apply_life_cycle(table, t, rules(confirm_updates=4))
+    assert table.status.tolist() == [T, T]  # 2 and 3 of 4
+    table.updates[:] = [4, 4]
+    apply_life_cycle(table, t, rules(confirm_updates=4))
+    assert table.status.tolist() == [C, C]
+
+
+# ------------------------------------------------------------------ coasting
+
+
+def test_a_confirmed_track_coasts_after_coast_after_scans_of_its_own_revisit_time():
+    # 1.5 scans: 6 s for a track seen by a 4 s radar, 18 s for one seen by a 12 s radar
+    t = 1000.0
+    table = table_of(
+        [
+            row(C, 5.0, t_s=t, revisit_s=4.0),  # 5 <= 6: confirmed
+            row(C, 6.0, t_s=t, revisit_s=4.0),  # 6 = 6, not more: confirmed
+            row(C, 7.0, t_s=t, revisit_s=4.0),  # 7 > 6: coasting
+            row(C, 7.0, t_s=t, revisit_s=12.0),  # 7 <= 18: confirmed, the same silence in its scans is short
+            row(C, 19.0, t_s=t, revisit_s=12.0),  # 19 > 18: coasting
+            row(K, 9.0, t_s=t, revisit_s=4.0),  # coasting, not updated: still coasting (9 <= 26, not ended)
+        ]
+    )
+    ended = apply_life_cycle(table, t, rules())
+    assert ended.tolist() == []
+    assert table.status.tolist() == [C, C, K, C, K, K]
+
+
+def test_a_coasting_track_updated_in_this_period_is_confirmed_again():
+    t = 200.0
+    table = table_of(
+        [
+            row(K, 0.0, t_s=t, age_s=60.0),  # updated at t: confirmed again
+            row(K, 4.0, t_s=t, age_s=60.0),  # last update 4 s ago: stays coasting
+            row(K, 0.0, t_s=t, age_s=60.0, revisit_s=12.0),
+        ]
+    )
+    apply_life_cycle(table, t, rules())
+    assert table.status.tolist() == [C, K, C]
+
+
+# ------------------------------------------------------------------ deletion
+
+
+def test_tentative_tracks_end_after_delete_tentative_after_scans():
+    # 2.5 scans of 4 s = 10 s; of 12 s = 30 s. A wide window, so that only silence ends them.
+    t = 300.0
+    table = table_of(
+        [
+            row(T, 10.0, t_s=t, updates=1),  # 10 = 10: kept
+            row(T, 10.5, t_s=t, updates=1),  # 10.5 > 10: ends
+            row(T, 10.5, t_s=t, updates=1, revisit_s=12.0),  # 10.5 <= 30: kept
+            row(T, 31.0, t_s=t, updates=2, revisit_s=12.0),  # 31 > 30: ends
+        ]
+    )
+    ended = apply_life_cycle(table, t, rules(confirm_window_s=100.0))
+    assert ended.tolist() == [2, 4]
+    assert table.track_id.tolist() == [1, 3] and table.status.tolist() == [T, T]
+
+
+def test_confirmed_and_coasting_tracks_end_after_delete_after_scans():
+    # 6.5 scans of 4 s = 26 s; of 12 s = 78 s
+    t = 500.0
+    table = table_of(
+        [
+            row(K, 26.0, t_s=t),  # 26 = 26: kept, coasting
+            row(K, 27.0, t_s=t),  # 27 > 26: ends
+            row(C, 27.0, t_s=t),  # confirmed, silent 27 s: coasts and ends in one step
+            row(C, 27.0, t_s=t, revisit_s=12.0),  # 27 > 18 coasts, 27 <= 78 kept
+            row(K, 79.0, t_s=t, revisit_s=12.0),  # 79 > 78: ends
+        ]
+    )
+    ended = apply_life_cycle(table, t, rules())
+    assert ended.tolist() == [2, 3, 5]
+    assert table.track_id.tolist() == [1, 4] and table.status.tolist() == [K, K]
+
+
+# ------------------------------------------------------------------ fixed seconds
+
+
+@pytest.mark.parametrize("revisit_s", [4.0, 12.0])
+def test_fixed_seconds_override_the_scans_whatever_the_revisit_time(revisit_s):
+    # coast after 5 s, a tentative track ends after 3 s, any other after 20 s; the scan
+    # counts (6 / 18 s, 10 / 30 s, 26 / 78 s) no longer matter
+    t = 700.0
+    table = table_of(
+        [
+            row(C, 4.9, t_s=t, revisit_s=revisit_s),  # 4.9 <= 5: confirmed
+            row(C, 5.5, t_s=t, revisit_s=revisit_s),  # 5.5 > 5: coasting
+            row(T, 3.0, t_s=t, revisit_s=revisit_s, updates=1),  # 3 = 3: kept
+            row(T, 3.5, t_s=t, revisit_s=revisit_s, updates=1),  # 3.5 > 3: ends
+            row(K, 20.0, t_s=t, revisit_s=revisit_s),  # 20 = 20: kept
+            row(K, 21.0, t_s=t, revisit_s=revisit_s),  # 21 > 20: ends
+        ]
+    )
+    ended = apply_life_cycle(table, t, rules(coast_after_s=5.0, delete_tentative_after_s=3.0, delete_after_s=20.0))
+    assert ended.tolist() == [4, 6]
+    assert table.track_id.tolist() == [1, 2, 3, 5] and table.status.tolist() == [C, K, T, K]
+
+
+def test_each_fixed_override_replaces_only_its_own_rule():
+    # only coast_after_s is fixed (2 s); deletion still counts 6.5 scans of 4 s = 26 s
+    t = 800.0
+    table = table_of([row(C, 2.5, t_s=t), row(K, 25.0, t_s=t), row(K, 27.0, t_s=t)])
+    ended = apply_life_cycle(table, t, rules(coast_after_s=2.0))
+    assert ended.tolist() == [3] and table.status.tolist() == [K, K]
+
+
+# ------------------------------------------------------------------ a whole life
+
+
+def update(table: TrackTable, i: int, t_s: float) -> None:
+    """What an update does to the life-cycle fields (the filter's part left out)."""
+    if math.isnan(table.first_t_s[i]):
+        table.first_t_s[i] = t_s
+    table.last_update_t_s[i] = t_s
+    table.updates[i] += 1
+    table.revisit_s[i] = 4.0
+
+
+def test_one_track_from_birth_to_end_and_its_id_reported_once():
+    """Periods of 4 s, a 4 s radar: coast after 6 s of silence, end after 26 s."""
+    table = TrackTable()
+    table.append(1)
+    updated_at = {0.0, 4.0, 8.0, 20.0}
+    # hand-worked: t=0, 4 tentative (1, 2 updates); t=8 the 3rd update in 8 <= 12 s confirms;
+    # t=12 silent 4 s; t=16 silent 8 > 6 coasts; t=20 updated, confirmed again; t=24
+    # silent 4; t=28 silent 8 coasts; t=44 silent 24 <= 26 still coasting; t=48 silent 28 > 26 ends
+    expected = {0.0: T, 4.0: T, 8.0: C, 12.0: C, 16.0: K, 20.0: C, 24.0: C, 28.0: K, 32.0: K, 36.0: K, 40.0: K, 44.0: K}
+    reported: list[int] = []
+    for t in np.arange(0.0, 60.0, 4.0):
+        t = float(t)
+        if t in updated_at:
+            update(table, 0, t)
+        ended = apply_life_cycle(table, t, rules())
+        reported += ended.tolist()
+        if t in expected:
+            assert len(table) == 1 and int(table.status[0]) == expected[t], t
+        else:
+            assert len(table) == 0, t
+        if t == 48.0:
+            assert ended.tolist() == [1]
+    assert reported == [1]  # once, at t = 48, and never again
+    new = table.append(1)
+    assert table.track_id[new].tolist() == [2]
+
+
+def test_ended_ids_are_a_copy_and_later_tracks_get_new_ids():
+    t = 100.0
+    table = table_of([row(T, 11.0, t_s=t, updates=1), row(C, 0.0, t_s=t), row(T, 11.0, t_s=t, updates=1)])
+    ended = apply_life_cycle(table, t, rules(confirm_window_s=100.0))
+    assert ended.tolist() == [1, 3] and table.track_id.tolist() == [2]
+    table.track_id[:] = 99  # the table's columns are its own; the report stays as it was
+    assert ended.tolist() == [1, 3]
+    table.track_id[:] = 2
+    new = table.append(2)
+    assert table.track_id[new].tolist() == [4, 5]
