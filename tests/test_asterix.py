@@ -14,14 +14,14 @@ import struct
 import threading
 import tomllib
 from collections import Counter, defaultdict
-from datetime import date, datetime, timezone
+from datetime import UTC, date, datetime
 from pathlib import Path
 
+import asterix.generated as gen
 import numpy as np
 import pytest
-
-import asterix.generated as gen
 from asterix.base import Bits, RawDatablock
+
 from radar_fusion.asterix import (
     AsterixToWire,
     Cat062Encoder,
@@ -41,9 +41,9 @@ from radar_fusion.asterix import (
 )
 from radar_fusion.config import load_settings, settings_from_dict
 from radar_fusion.geo.units import M_PER_NM, MPS_PER_KT
-from radar_fusion.tools import asterix_bridge
 from radar_fusion.recording import read_recording
-from radar_fusion.wire import TrackBatch, decode_message, decode_plot_batch, RadarStatus
+from radar_fusion.tools import asterix_bridge
+from radar_fusion.wire import RadarStatus, TrackBatch, decode_message, decode_plot_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "asterix"
@@ -134,7 +134,7 @@ def test_jahorina_bridge_plots_are_valid_wire_messages():
             assert isinstance(status, RadarStatus) and status.kind == "north"
     assert seqs == list(range(len(seqs)))
     assert len(modes) == 106
-    day0 = datetime(2020, 1, 1, tzinfo=timezone.utc).timestamp()
+    day0 = datetime(2020, 1, 1, tzinfo=UTC).timestamp()
     assert day0 + 33_932 <= min(times) and max(times) <= day0 + 34_013  # 80 s, 09:25:32-09:26:53
     assert np.all(np.diff(times) > -2.0)  # time-ordered up to the radar's own jitter
 
@@ -156,7 +156,7 @@ def test_croatia_pcap_decodes_and_flows():
         if m.key.endswith("/plots"):
             assert decode_plot_batch(m.payload).rejected == {}
     # the day comes from the capture time stamps (2016-05-05, ~07:36 UTC)
-    t = datetime.fromtimestamp(messages[0].t_s, timezone.utc)
+    t = datetime.fromtimestamp(messages[0].t_s, UTC)
     assert (t.date(), t.hour) == (date(2016, 5, 5), 7)
     assert len({m.key.split("/")[1] for m in messages}) == 7
 
@@ -216,7 +216,7 @@ def test_malformed_blocks_are_counted_and_skipped():
 def test_raw_stream_resynchronises_after_garbage(tmp_path):
     good = jahorina_blocks(4)
     path = tmp_path / "damaged.ast"
-    path.write_bytes(good[0] + b"\x30\xff\xff\x00garbage" + good[1] + good[2] + b"\x30\x00" )
+    path.write_bytes(good[0] + b"\x30\xff\xff\x00garbage" + good[1] + good[2] + b"\x30\x00")
     counters = DecodeCounters()
     blocks = [b for _, b in iter_file(path, counters, "raw")]
     assert blocks == [good[0], good[1], good[2]]
@@ -229,7 +229,9 @@ def test_pcap_skips_non_udp_frames(tmp_path):
 
     def frame(ethertype: int, proto: int, payload: bytes) -> bytes:
         udp = struct.pack(">HHHH", 5000, 8600, 8 + len(payload), 0) + payload
-        ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), 0, 0, 64, proto, 0, b"\x0a\0\0\1", b"\xe8\2\1\1") + udp
+        ip = (
+            struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), 0, 0, 64, proto, 0, b"\x0a\0\0\1", b"\xe8\2\1\1") + udp
+        )
         return b"\x01\x00\x5e\x02\x01\x01" + b"\x02" * 6 + struct.pack(">H", ethertype) + ip
 
     frames = [frame(0x0806, 17, b"arp"), frame(0x0800, 6, b"tcp"), frame(0x0800, 17, asterix_block)]
@@ -246,7 +248,7 @@ def test_pcap_skips_non_udp_frames(tmp_path):
 
 
 def test_time_of_day_midnight_roll_over():
-    day0 = datetime(2024, 3, 1, tzinfo=timezone.utc).timestamp()
+    day0 = datetime(2024, 3, 1, tzinfo=UTC).timestamp()
     clock = TimeOfDayResolver(date(2024, 3, 1))
     assert clock.resolve(86_390.0) == day0 + 86_390.0
     assert clock.resolve(2.0) == day0 + 86_400.0 + 2.0  # wrapped: next day
@@ -269,8 +271,20 @@ def mb_field(fields: list[tuple[int, int, int]]) -> int:
 def test_bds50_and_bds60_fields():
     # track angle -30 deg (= 330), ground speed 450 kt, TAS 460 kt, roll +10 deg
     track_raw = round(-30 / (90 / 512))
-    mb = mb_field([(1, 1, 1), (2, 1, 0), (3, 9, round(10 / (45 / 256))), (12, 1, 1), (13, 1, 1),
-                   (14, 10, track_raw), (24, 1, 1), (25, 10, 225), (46, 1, 1), (47, 10, 230)])
+    mb = mb_field(
+        [
+            (1, 1, 1),
+            (2, 1, 0),
+            (3, 9, round(10 / (45 / 256))),
+            (12, 1, 1),
+            (13, 1, 1),
+            (14, 10, track_raw),
+            (24, 1, 1),
+            (25, 10, 225),
+            (46, 1, 1),
+            (47, 10, 230),
+        ]
+    )
     v = decode_bds50(mb)
     assert v["track_angle_deg"] == pytest.approx(330.0, abs=0.18)
     assert v["ground_speed_mps"] == pytest.approx(450 * MPS_PER_KT)
@@ -295,19 +309,48 @@ def test_bds50_reference_from_jahorina():
 
 
 def track(**kw):
-    base = dict(track_id=5, t=1_700_000_123.4, status="confirmed", lat_deg=44.1234567, lon_deg=17.7654321,
-                x_m=-12_345.6, y_m=54_321.1, vx_mps=-120.3, vy_mps=200.7, fl=350.25, cov_xy=[400.0, -30.0, 900.0],
-                sources=["jahorina", "hr-11"], mode3a=0o7700, mode_s="4249B9", updates=7, age_s=30.0)
+    base = dict(
+        track_id=5,
+        t=1_700_000_123.4,
+        status="confirmed",
+        lat_deg=44.1234567,
+        lon_deg=17.7654321,
+        x_m=-12_345.6,
+        y_m=54_321.1,
+        vx_mps=-120.3,
+        vy_mps=200.7,
+        fl=350.25,
+        cov_xy=[400.0, -30.0, 900.0],
+        sources=["jahorina", "hr-11"],
+        mode3a=0o7700,
+        mode_s="4249B9",
+        updates=7,
+        age_s=30.0,
+    )
     base.update(kw)
     return base
 
 
 def test_cat062_round_trip_with_libasterix():
-    batch = TrackBatch.model_validate({
-        "t": 1_700_000_123.4, "period": 9, "ended": [77],
-        "tracks": [track(), track(track_id=70_001, status="coasting", sources=["jahorina"], mode3a=None,
-                                  mode_s=None, fl=None, cov_xy=[1e12, 0.0, 1e12])],
-    })
+    batch = TrackBatch.model_validate(
+        {
+            "t": 1_700_000_123.4,
+            "period": 9,
+            "ended": [77],
+            "tracks": [
+                track(),
+                track(
+                    track_id=70_001,
+                    status="coasting",
+                    sources=["jahorina"],
+                    mode3a=None,
+                    mode_s=None,
+                    fl=None,
+                    cov_xy=[1e12, 0.0, 1e12],
+                ),
+            ],
+        }
+    )
     enc = Cat062Encoder(sac=25, sic=200, service_id=3)
     blocks = enc.encode(batch)
     assert len(blocks) == 1 and blocks[0][0] == 62
@@ -396,7 +439,7 @@ def test_udp_input_on_localhost():
     assert bridge.counters.counts["cat048_records"] > 150
     assert received and all(decode_plot_batch(p).rejected == {} for p in received)
     # the day was inferred from the receive time: plots are stamped today (UTC) or near it
-    now = datetime.now(timezone.utc).timestamp()
+    now = datetime.now(UTC).timestamp()
     batch = decode_plot_batch(received[0])
     assert abs(float(batch.t_s[0]) - now) <= 43_200
 
@@ -406,13 +449,14 @@ def test_asterix_in_writes_a_recording(tmp_path):
     parser = argparse.ArgumentParser()
     asterix_bridge.add_arguments_in(parser)
     out = tmp_path / "jahorina.rec"
-    args = parser.parse_args(["--config", str(EXAMPLE), "--file", str(JAHORINA), "--date", "2020-01-01",
-                              "--out", str(out), "--quiet"])
+    args = parser.parse_args(
+        ["--config", str(EXAMPLE), "--file", str(JAHORINA), "--date", "2020-01-01", "--out", str(out), "--quiet"]
+    )
     assert asterix_bridge.run_in(args) == 0
     keys = Counter(r.key for r in read_recording(out))
     assert keys == {"radar/jahorina/plots": 497, "radar/jahorina/status": 16}
     times = [r.t_s for r in read_recording(out)]
-    assert times[0] == pytest.approx(datetime(2020, 1, 1, tzinfo=timezone.utc).timestamp() + 33_932.2, abs=0.5)
+    assert times[0] == pytest.approx(datetime(2020, 1, 1, tzinfo=UTC).timestamp() + 33_932.2, abs=0.5)
 
 
 def test_asterix_out_writer_appends_cat062(tmp_path):
@@ -436,7 +480,7 @@ def test_jahorina_through_engine_one_track_per_aircraft():
     need(JAHORINA)
     settings = example_settings({"jahorina"})
     engine = engine_mod.Engine(settings)
-    bridge, messages, _ = bridge_file(JAHORINA, settings, DAY)
+    _bridge, messages, _ = bridge_file(JAHORINA, settings, DAY)
     outputs = []
     for m in messages:
         if m.key.endswith("/plots"):
@@ -476,9 +520,11 @@ def test_jahorina_through_engine_one_track_per_aircraft():
     d_speed, d_track = np.array(d_speed), np.array(d_track)
     rms_speed = float(np.sqrt(np.mean(d_speed**2)))
     rms_track = float(np.sqrt(np.mean(d_track**2)))
-    print(f"BDS 5,0 comparison: n={d_speed.size} ground-speed RMS {rms_speed:.1f} m/s "
-          f"(median |d| {np.median(np.abs(d_speed)):.1f}), track-angle RMS {rms_track:.2f} deg "
-          f"(median |d| {np.median(np.abs(d_track)):.2f})")
+    print(
+        f"BDS 5,0 comparison: n={d_speed.size} ground-speed RMS {rms_speed:.1f} m/s "
+        f"(median |d| {np.median(np.abs(d_speed)):.1f}), track-angle RMS {rms_track:.2f} deg "
+        f"(median |d| {np.median(np.abs(d_track)):.2f})"
+    )
     assert d_speed.size > 300
     assert np.median(np.abs(d_speed)) < 20.0 and np.median(np.abs(d_track)) < 3.0
     assert rms_track < 6.0 and rms_speed < 40.0
@@ -510,8 +556,21 @@ def test_bridges_over_zenoh(tmp_path):
     try:
         p_in = argparse.ArgumentParser()
         asterix_bridge.add_arguments_in(p_in)
-        args = p_in.parse_args(["--config", str(EXAMPLE), "--file", str(JAHORINA), "--date", "2020-01-01",
-                                "--speed", "max", "--connect", endpoint, "--quiet"])
+        args = p_in.parse_args(
+            [
+                "--config",
+                str(EXAMPLE),
+                "--file",
+                str(JAHORINA),
+                "--date",
+                "2020-01-01",
+                "--speed",
+                "max",
+                "--connect",
+                endpoint,
+                "--quiet",
+            ]
+        )
         assert asterix_bridge.run_in(args) == 0
         deadline = time.monotonic() + 5.0
         while sum(got.values()) < 513 and time.monotonic() < deadline:
@@ -521,8 +580,23 @@ def test_bridges_over_zenoh(tmp_path):
         out = tmp_path / "tracks.ast"
         p_out = argparse.ArgumentParser()
         asterix_bridge.add_arguments_out(p_out)
-        args = p_out.parse_args(["--config", str(EXAMPLE), "--file", str(out), "--connect", endpoint,
-                                 "--duration-s", "3", "--quiet", "--sac", "7", "--sic", "9"])
+        args = p_out.parse_args(
+            [
+                "--config",
+                str(EXAMPLE),
+                "--file",
+                str(out),
+                "--connect",
+                endpoint,
+                "--duration-s",
+                "3",
+                "--quiet",
+                "--sac",
+                "7",
+                "--sic",
+                "9",
+            ]
+        )
         result: list[int] = []
         t = threading.Thread(target=lambda: result.append(asterix_bridge.run_out(args)))
         t.start()

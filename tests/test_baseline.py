@@ -11,11 +11,13 @@ import pytest
 
 pytest.importorskip("stonesoup")
 
-from radar_fusion import config  # noqa: E402
-from radar_fusion.tools import baseline_stonesoup as bs  # noqa: E402
-from radar_fusion.tools import bench  # noqa: E402
-from radar_fusion.tools.bench import compare  # noqa: E402
-from radar_fusion.tools import simulate as sm  # noqa: E402
+import itertools
+
+from radar_fusion import config
+from radar_fusion.tools import baseline_stonesoup as bs
+from radar_fusion.tools import bench
+from radar_fusion.tools import simulate as sm
+from radar_fusion.tools.bench import compare
 
 
 def _small_case(n_aircraft: int = 8, n_radars: int = 3, duration_s: float = 48.0, seed: int = 3):
@@ -38,7 +40,7 @@ def test_steps_are_time_ordered_single_radar_and_within_periods(case):
     rotation = np.array([r.rotation_period_s for r in settings.radars])
     steps = bs.time_ordered_steps(plots, rotation, settings.system.period_s)
     assert steps[0][0] == 0 and steps[-1][1] == plots.t_s.size
-    assert all(a[1] == b[0] for a, b in zip(steps, steps[1:]))  # contiguous cover
+    assert all(a[1] == b[0] for a, b in itertools.pairwise(steps))  # contiguous cover
     period = np.floor(plots.t_s / settings.system.period_s)
     for s, e in steps:
         assert np.unique(plots.radar[s:e]).size == 1
@@ -128,10 +130,26 @@ def test_accuracy_job_scores_ours_and_each_radar_alone(tmp_path):
 @pytest.mark.slow
 def test_bench_side_by_side_end_to_end(tmp_path, capsys):
     report = tmp_path / "report"
-    rc = bench.main([
-        "--report", str(report), "--sizes", "6x2", "--duration-s", "20", "--warmup-s", "6", "--settle-s", "8",
-        "--no-adsb", "--no-accuracy", "--latency-speed", "0", "--bus-timeout-s", "60",
-    ])  # fmt: skip
+    rc = bench.main(
+        [
+            "--report",
+            str(report),
+            "--sizes",
+            "6x2",
+            "--duration-s",
+            "20",
+            "--warmup-s",
+            "6",
+            "--settle-s",
+            "8",
+            "--no-adsb",
+            "--no-accuracy",
+            "--latency-speed",
+            "0",
+            "--bus-timeout-s",
+            "60",
+        ]
+    )
     assert rc == 0
     for name in ("report.md", "summary.md", "results.json", "throughput.png"):
         assert (report / name).stat().st_size > 0, name

@@ -17,18 +17,19 @@ import pytest
 from radar_fusion import cli, wire
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
-from radar_fusion.tracking.outliers import analyse
+from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools import clean as cl
 from radar_fusion.tools import evaluate as ev
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.detrend import polar_residuals
-from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools.replay import replay_into_engine
+from radar_fusion.tracking.outliers import analyse
 
 # Wild plots 5x (isolated) and 6x (runs of 3-5 scans) the demo's rates, so that a
 # 600 s run holds ~160 of them among ~7,000 identified plots.
-WILD_RATES = sim.Rates(pd=0.95, pd_psr=0.85, false_plots_per_scan=1.0, wild_plot_prob=0.01,
-                       wild_run_prob=0.003, wild_run_scans=(3, 5))  # fmt: skip
+WILD_RATES = sim.Rates(
+    pd=0.95, pd_psr=0.85, false_plots_per_scan=1.0, wild_plot_prob=0.01, wild_run_prob=0.003, wild_run_scans=(3, 5)
+)
 
 
 def _truth_wild(simulation: sim.Simulation, table: cl.PlotTable) -> np.ndarray:
@@ -65,8 +66,10 @@ def test_clean_removes_most_wild_plots_and_few_good_ones(cleaned):
     mask = np.array([(m, j) in removed for m, j in zip(table.message.tolist(), table.plot.tolist())], bool)
     tp, fp = int((mask & truth).sum()), int((mask & ~truth).sum())
     precision, recall = tp / (tp + fp), tp / n_wild
-    print(f"soft: {tp} wild removed of {n_wild}, {fp} good removed of {len(table) - int(truth.sum())}: "
-          f"precision {precision:.3f} recall {recall:.3f}")  # fmt: skip
+    print(
+        f"soft: {tp} wild removed of {n_wild}, {fp} good removed of {len(table) - int(truth.sum())}: "
+        f"precision {precision:.3f} recall {recall:.3f}"
+    )
     # Measured with seed 1: precision 0.87, recall 0.87, 22 good plots removed of 7,016
     # (0.3 %); seeds 1-6: precision 0.82-0.93, recall 0.82-0.91.
     assert summary.removed == len(rows) == tp + fp
@@ -142,8 +145,10 @@ def test_cleaned_recording_replays_with_fewer_false_tracks_and_the_same_accuracy
         scores[name] = ev.evaluate([o.track_batch for o in replay_into_engine(engine, records)], truth)
         assert sum(engine.health()["rejected"].values()) == 0
     raw, clean = scores["raw"], scores["clean"]
-    print(f"false tracks {raw.false_tracks} -> {clean.false_tracks}, "
-          f"settled RMS {raw.pos_rms_settled_m:.1f} -> {clean.pos_rms_settled_m:.1f} m")
+    print(
+        f"false tracks {raw.false_tracks} -> {clean.false_tracks}, "
+        f"settled RMS {raw.pos_rms_settled_m:.1f} -> {clean.pos_rms_settled_m:.1f} m"
+    )
     assert clean.false_tracks < raw.false_tracks
     assert clean.pos_rms_settled_m <= 1.02 * raw.pos_rms_settled_m
     assert clean.completeness_mean >= raw.completeness_mean - 0.005
@@ -230,13 +235,32 @@ def test_cli_writes_the_recording_and_a_json_report(tmp_path, capsys):
         for rec in records:
             w.write(*rec)
     report = tmp_path / "removed.json"
-    rc = cli.main(["clean", str(src), "--out", str(tmp_path / "out.rec"), "--report", str(report),
-                   "--method", "soft", "--window", "12", "--k", "5", "--threshold", "1.0", "--min-series-length", "20"])
+    rc = cli.main(
+        [
+            "clean",
+            str(src),
+            "--out",
+            str(tmp_path / "out.rec"),
+            "--report",
+            str(report),
+            "--method",
+            "soft",
+            "--window",
+            "12",
+            "--k",
+            "5",
+            "--threshold",
+            "1.0",
+            "--min-series-length",
+            "20",
+        ]
+    )
     assert rc == 0
     assert "removed: 1 plots" in capsys.readouterr().out
     rows = json.loads(report.read_text())
     assert [(r["radar"], r["key"], r["series"], r["message_index"]) for r in rows] == [
-        ("a", "track_no:7", "range", where["wild_message"])]
+        ("a", "track_no:7", "range", where["wild_message"])
+    ]
     assert len(list(read_recording(tmp_path / "out.rec"))) == len(records)
     # Refusals: not a recording, output over input, bad parameters.
     assert cli.main(["clean", str(report), "--out", str(tmp_path / "x.rec")]) == 2

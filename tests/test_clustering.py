@@ -80,7 +80,7 @@ def make_plots(xy, radar, t=None, sigma_m=100.0, mode_s=None, mode3a=None):
     return xy, cov, t, np.asarray(radar), ms, m3
 
 
-def run(plots, tracks, params=ClusteringParams()):
+def run(plots, tracks, params=None):
     return cluster_plots(*plots, *tracks, T_REF, params)
 
 
@@ -167,9 +167,7 @@ def random_dense_scenario(rng, n_targets=12, n_radars=3, spacing_m=1500.0, pd=0.
         t.append(tp)
         truth.append(np.arange(n_targets))
     seen = rng.random(n_radars * n_targets) < pd
-    plots = make_plots(
-        np.concatenate(xy)[seen], np.concatenate(rad)[seen], np.concatenate(t)[seen], sigma_m=300.0
-    )
+    plots = make_plots(np.concatenate(xy)[seen], np.concatenate(rad)[seen], np.concatenate(t)[seen], sigma_m=300.0)
     tracks = make_tracks(
         pos + rng.normal(scale=200.0, size=pos.shape),
         vel + rng.normal(scale=10.0, size=vel.shape),
@@ -445,7 +443,7 @@ def test_gate_ten_sigma_starts_new_cluster_two_sigma_joins():
     for d2, joins in ((13.0, True), (14.5, False)):
         res = run(make_plots([[np.sqrt(d2) * sigma_s, 0.0]], [0]), tracks)
         assert (res.cluster_track[0] == 0) == joins
-    assert CHI2_2DOF_P999 == pytest.approx(-2 * np.log(0.001))
+    assert pytest.approx(-2 * np.log(0.001)) == CHI2_2DOF_P999
 
 
 def test_absolute_gate_cap_in_metres():
@@ -513,9 +511,7 @@ def test_brute_force_small_exhaustive_e_check():
             if y @ np.linalg.solve(s, y) > params.gate_chi2:
                 continue
             c_to = track_cluster.get(j)
-            if c_to is not None and any(
-                radar[q] == radar[p] for q in np.flatnonzero(res.labels == c_to)
-            ):
+            if c_to is not None and any(radar[q] == radar[p] for q in np.flatnonzero(res.labels == c_to)):
                 continue
             labels = res.labels.copy()
             cluster_track = res.cluster_track.copy()

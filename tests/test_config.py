@@ -73,7 +73,7 @@ def test_errors_name_the_file_and_the_field(tmp_path, change, field):
 
 
 def test_duplicate_radar_ids_refused(tmp_path):
-    text = GOOD + GOOD[GOOD.index("[[radars]]"):]
+    text = GOOD + GOOD[GOOD.index("[[radars]]") :]
     with pytest.raises(ConfigError, match="unique"):
         load_settings(write(tmp_path, text))
 

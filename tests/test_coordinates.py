@@ -197,11 +197,9 @@ def test_ground_range_matches_independent_spherical_formula_and_geodesic():
 def test_slant_range_matches_ecef_distance_on_the_ellipsoid():
     """The spherical model (Gaussian radius at the site) vs the true 3-D distance in
     ECEF between antenna and target: within 1 m out to 250 NM."""
-    sites, idx, lat, lon, h, g, a = _grid_targets()
+    sites, idx, lat, lon, h, _g, _a = _grid_targets()
     rho, _, _ = geodetic_to_polar(sites, idx, lat, lon, h)
-    to_ecef = pyproj.Transformer.from_crs(
-        "+proj=longlat +ellps=WGS84", "+proj=geocent +ellps=WGS84", always_xy=True
-    )
+    to_ecef = pyproj.Transformer.from_crs("+proj=longlat +ellps=WGS84", "+proj=geocent +ellps=WGS84", always_xy=True)
     p_site = np.array(to_ecef.transform(sites.lon_deg[idx], sites.lat_deg[idx], sites.alt_m[idx]))
     p_tgt = np.array(to_ecef.transform(lon, lat, h))
     d = np.linalg.norm(p_tgt - p_site, axis=0)
@@ -286,7 +284,7 @@ def _monte_carlo(sites, plane, rho, az, h_true, n_draws, seed, h_used=None, sigm
 def test_cross_range_sigma_at_100nm_is_323m():
     plane = SystemPlane(CENTER_LAT, CENTER_LON)
     sites = RadarSites([CENTER_LAT], [CENTER_LON], [0.0], [50.0], [0.1])
-    _, _, cov, ground = polar_to_plane(plane, sites, [0], [100 * NM], [90.0], [0.0])
+    _, _, cov, _ground = polar_to_plane(plane, sites, [0], [100 * NM], [90.0], [0.0])
     eig = np.linalg.eigvalsh(cov[0])
     assert np.sqrt(eig[1]) == pytest.approx(100 * NM * np.radians(0.1), abs=1.0)  # 323.2 m
     assert np.sqrt(eig[1]) == pytest.approx(323.2, abs=1.0)
@@ -332,8 +330,14 @@ def test_covariance_monte_carlo_unknown_altitude_close_range():
     rho = float(ref_slant_from_ground(ref_radius(51.0), 100.0, assumed, g_nom))
     az = 250.0
     _, _, cov, _ = polar_to_plane(
-        plane, sites, [0], [rho], [az], [np.nan],
-        assumed_altitude_m=assumed, sigma_unknown_altitude_m=sigma_h,
+        plane,
+        sites,
+        [0],
+        [rho],
+        [az],
+        [np.nan],
+        assumed_altitude_m=assumed,
+        sigma_unknown_altitude_m=sigma_h,
     )
     emp = _monte_carlo(sites, plane, rho, az, assumed, 20000, seed=13, h_used=assumed, sigma_h=sigma_h)
     np.testing.assert_allclose(whitened(emp, cov[0]), np.eye(2), atol=0.05)
@@ -454,10 +458,10 @@ def test_vectorised_10000_plots_5_radars_equals_per_plot_loop():
     inside = rho < np.abs(h_used - sites.alt_m[idx])
     assert inside.any() and np.array_equal(valid, ~inside)
     lat_t, lon_t = plane.to_geodetic(x, y)
-    r2, a2, g2 = geodetic_to_polar(sites, idx, lat_t, lon_t, np.where(np.isnan(h), 3000.0, h))
+    r2, a2, _g2 = geodetic_to_polar(sites, idx, lat_t, lon_t, np.where(np.isnan(h), 3000.0, h))
     tr = ref_transformer()
     for i in np.concatenate([rng.choice(n, 40, replace=False), np.flatnonzero(inside)[:3]]):
-        xi, yi, ci, gi = polar_to_plane(plane, sites, [idx[i]], [rho[i]], [az[i]], [h[i]])
+        xi, yi, ci, _gi = polar_to_plane(plane, sites, [idx[i]], [rho[i]], [az[i]], [h[i]])
         assert xi[0] == pytest.approx(x[i], abs=1e-6) and yi[0] == pytest.approx(y[i], abs=1e-6)
         np.testing.assert_allclose(ci[0], cov[i], rtol=1e-9)
         ri, ai, _ = geodetic_to_polar(sites, [idx[i]], [lat_t[i]], [lon_t[i]], [np.nan_to_num(h[i], nan=3000.0)])
@@ -467,8 +471,13 @@ def test_vectorised_10000_plots_5_radars_equals_per_plot_loop():
         # ... and with the independent reference converter.
         k = idx[i]
         xr, yr, gr = ref_polar_to_xy(
-            tr, sites.lat_deg[k], sites.lon_deg[k], sites.alt_m[k], np.array([rho[i]]),
-            np.array([az[i]]), np.array([np.nan_to_num(h[i], nan=3000.0)]),
+            tr,
+            sites.lat_deg[k],
+            sites.lon_deg[k],
+            sites.alt_m[k],
+            np.array([rho[i]]),
+            np.array([az[i]]),
+            np.array([np.nan_to_num(h[i], nan=3000.0)]),
         )
         assert abs(xr[0] - x[i]) < 1e-3 and abs(yr[0] - y[i]) < 1e-3 and abs(gr[0] - ground[i]) < 1e-3
     np.testing.assert_allclose(r2[valid], rho[valid], atol=1e-3)

@@ -30,7 +30,9 @@ def scenario(tmp_path_factory):
 
 def settings_on_port(path, port):
     s = load_settings(path)
-    return s.model_copy(update={"bus": s.bus.model_copy(update={"mode": "router", "listen": [f"tcp/127.0.0.1:{port}"]})})
+    return s.model_copy(
+        update={"bus": s.bus.model_copy(update={"mode": "router", "listen": [f"tcp/127.0.0.1:{port}"]})}
+    )
 
 
 def plot_error_rms_m(simulation) -> float:
@@ -45,8 +47,14 @@ def plot_error_rms_m(simulation) -> float:
         if not m.any():
             continue
         st = simulation.trajectories.state(pc.target_index[m], pc.t_s[m])
-        x, y, _, _ = polar_to_plane(simulation.plane, simulation.sites, np.full(int(m.sum()), pc.radar_index),
-                                    pc.range_m[m], pc.azimuth_deg[m], flight_level_to_altitude_m(pc.fl[m]))
+        x, y, _, _ = polar_to_plane(
+            simulation.plane,
+            simulation.sites,
+            np.full(int(m.sum()), pc.radar_index),
+            pc.range_m[m],
+            pc.azimuth_deg[m],
+            flight_level_to_altitude_m(pc.fl[m]),
+        )
         err2.append((x - st.x_m) ** 2 + (y - st.y_m) ** 2)
     return float(np.sqrt(np.mean(np.concatenate(err2))))
 
@@ -94,8 +102,16 @@ def test_hostile_payloads_are_counted_and_good_plots_still_track(scenario, free_
         bad.put(b"\xc1\xc1 not msgpack")
         bad.put(msgpack.packb([1, 2, 3]))
         bad.put(msgpack.packb({"v": 1, "radar_id": radar, "seq": "one", "plots": []}))
-        bad.put(msgpack.packb({"v": 1, "radar_id": radar, "seq": 10**9, "plots": [
-            dict(good_plot, range_m=math.nan), dict(good_plot, azimuth_deg=400.0)]}))
+        bad.put(
+            msgpack.packb(
+                {
+                    "v": 1,
+                    "radar_id": radar,
+                    "seq": 10**9,
+                    "plots": [dict(good_plot, range_m=math.nan), dict(good_plot, azimuth_deg=400.0)],
+                }
+            )
+        )
         stranger.put(msgpack.packb({"v": 1, "radar_id": "intruder", "seq": 1, "plots": [good_plot]}))
         bad_status.put(msgpack.packb({"v": 1, "radar_id": radar, "t": "noon", "kind": "north"}))
         for pub in (bad, stranger, bad_status):
@@ -104,7 +120,9 @@ def test_hostile_payloads_are_counted_and_good_plots_still_track(scenario, free_
         n_sent = sum(sent.values()) + 6
         assert wait_until(lambda: daemon.messages_processed >= n_sent, 60)
         daemon.publish_health()
-        assert wait_until(lambda: collector.health and collector.health[-1]["counters"]["messages_processed"] >= n_sent, 10)
+        assert wait_until(
+            lambda: collector.health and collector.health[-1]["counters"]["messages_processed"] >= n_sent, 10
+        )
     finally:
         daemon.stop()
         wait_until(lambda: len(collector.batches) >= daemon.batches_published, 10)

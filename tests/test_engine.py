@@ -25,8 +25,13 @@ def demo():
     scenario = sim.preset("demo", seed=3, duration_s=300.0)
     simulation = sim.simulate(scenario)
     truth = ev.Truth.from_columns(
-        simulation.truth.t_s, simulation.truth.target_id, simulation.truth.x_m, simulation.truth.y_m,
-        simulation.truth.vx_mps, simulation.truth.vy_mps, detectable=simulation.truth.detectable,
+        simulation.truth.t_s,
+        simulation.truth.target_id,
+        simulation.truth.x_m,
+        simulation.truth.y_m,
+        simulation.truth.vx_mps,
+        simulation.truth.vy_mps,
+        detectable=simulation.truth.detectable,
     )
     return scenario, simulation, truth
 
@@ -54,7 +59,9 @@ def test_fused_tracks_beat_the_best_single_radar(demo):
         _, batches = run(scenario, simulation.messages, radars={radar.id})
         single[radar.id] = ev.evaluate(batches, truth)
     best = min(s.pos_rms_settled_m for s in single.values())
-    print({k: round(s.pos_rms_settled_m, 1) for k, s in single.items()}, "fused", round(fused_scores.pos_rms_settled_m, 1))
+    print(
+        {k: round(s.pos_rms_settled_m, 1) for k, s in single.items()}, "fused", round(fused_scores.pos_rms_settled_m, 1)
+    )
     assert fused_scores.pos_rms_settled_m < best
     assert fused_scores.completeness_mean > max(s.completeness_mean for s in single.values()) - 0.01
     assert fused_scores.pos_rms_settled_m < 300.0  # ESASSP 3 NM bar
@@ -91,7 +98,7 @@ def test_a_radar_dropping_out_only_degrades_accuracy(demo):
 
 
 def test_a_run_of_five_wild_plots_does_not_pull_the_track_off(demo):
-    scenario, simulation, truth = demo
+    scenario, _simulation, _truth = demo
     import dataclasses
 
     quiet = sim.Rates(wild_plot_prob=0.0, wild_run_prob=0.0, false_plots_per_scan=0.0)
@@ -110,17 +117,31 @@ def test_a_run_of_five_wild_plots_does_not_pull_the_track_off(demo):
             decoded = wire.decode_plot_batch(payload)
             if decoded.seq in wild_seqs:
                 plots = [
-                    {"t": t, "range_m": r + 6000.0, "azimuth_deg": a, "fl": f, "mode_s": wire.mode_s_to_str(m),
-                     "track_no": int(n)}
-                    for t, r, a, f, m, n in zip(decoded.t_s, decoded.range_m, decoded.azimuth_deg, decoded.fl,
-                                                decoded.mode_s, decoded.track_no)
+                    {
+                        "t": t,
+                        "range_m": r + 6000.0,
+                        "azimuth_deg": a,
+                        "fl": f,
+                        "mode_s": wire.mode_s_to_str(m),
+                        "track_no": int(n),
+                    }
+                    for t, r, a, f, m, n in zip(
+                        decoded.t_s, decoded.range_m, decoded.azimuth_deg, decoded.fl, decoded.mode_s, decoded.track_no
+                    )
                 ]
                 payload = wire.encode({"v": 1, "radar_id": decoded.radar_id, "seq": decoded.seq, "plots": plots})
         messages.append((t_s, key, payload))
     engine, batches = run(sc, messages)
     assert engine.counters["plots_wild"] == 5
-    t_truth = ev.Truth.from_columns(s.truth.t_s, s.truth.target_id, s.truth.x_m, s.truth.y_m, s.truth.vx_mps,
-                                   s.truth.vy_mps, detectable=s.truth.detectable)
+    t_truth = ev.Truth.from_columns(
+        s.truth.t_s,
+        s.truth.target_id,
+        s.truth.x_m,
+        s.truth.y_m,
+        s.truth.vx_mps,
+        s.truth.vy_mps,
+        detectable=s.truth.detectable,
+    )
     scores = ev.evaluate(batches, t_truth)
     assert scores.targets[0].n_track_ids == 1 and scores.false_tracks == 0
     assert scores.pos_rms_settled_m < 150.0

@@ -28,17 +28,31 @@ V_MPS = np.array([150.0, 80.0])  # east, north
 
 
 def settings():
-    return settings_from_dict({
-        "system": {"center_lat": 46.0, "center_lon": 8.0, "period_s": 4.0, "allowed_lateness_s": 1.0},
-        "radars": [
-            {"id": "a", "lat": 46.3, "lon": 7.6, "sigma_range_m": 40, "sigma_azimuth_deg": 0.05,
-             "rotation_period_s": 4.0},
-            {"id": "b", "lat": 45.7, "lon": 8.5, "sigma_range_m": 40, "sigma_azimuth_deg": 0.05,
-             "rotation_period_s": 4.0},
-        ],
-        "outliers": {"enabled": False},
-        "life_cycle": {"confirm_updates": 3},
-    })
+    return settings_from_dict(
+        {
+            "system": {"center_lat": 46.0, "center_lon": 8.0, "period_s": 4.0, "allowed_lateness_s": 1.0},
+            "radars": [
+                {
+                    "id": "a",
+                    "lat": 46.3,
+                    "lon": 7.6,
+                    "sigma_range_m": 40,
+                    "sigma_azimuth_deg": 0.05,
+                    "rotation_period_s": 4.0,
+                },
+                {
+                    "id": "b",
+                    "lat": 45.7,
+                    "lon": 8.5,
+                    "sigma_range_m": 40,
+                    "sigma_azimuth_deg": 0.05,
+                    "rotation_period_s": 4.0,
+                },
+            ],
+            "outliers": {"enabled": False},
+            "life_cycle": {"confirm_updates": 3},
+        }
+    )
 
 
 def truth_xy(t_s):
@@ -50,8 +64,18 @@ def plot_of(engine, radar, seq, t_s):
     lat, lon = engine.plane.to_geodetic(np.array([x]), np.array([y]))
     r_m, az_deg, _ = geodetic_to_polar(engine.sites, radar, lat, lon, np.array([FL * M_PER_FL]))
     rid = engine.radar_ids[radar]
-    return DecodedPlots(rid, seq, np.array([t_s]), r_m, az_deg, np.array([FL]), np.array([-1]),
-                        np.array([0x4B1234]), np.array([-1]), np.zeros(1, np.int8))
+    return DecodedPlots(
+        rid,
+        seq,
+        np.array([t_s]),
+        r_m,
+        az_deg,
+        np.array([FL]),
+        np.array([-1]),
+        np.array([0x4B1234]),
+        np.array([-1]),
+        np.zeros(1, np.int8),
+    )
 
 
 def feed_period(engine, k):
@@ -152,8 +176,7 @@ def test_the_velocity_prior_lets_any_aircraft_direction_into_the_next_gate():
     xp, Pp = f.predict(x, P, dt_s)
     heading = np.linspace(0, 2 * np.pi, 73)
     z = (v_max * dt_s) * np.stack([np.sin(heading), np.cos(heading)], axis=1)
-    d2 = f.mahalanobis_sq(np.repeat(xp, z.shape[0], 0), np.repeat(Pp, z.shape[0], 0), z,
-                          np.repeat(R, z.shape[0], 0))
+    d2 = f.mahalanobis_sq(np.repeat(xp, z.shape[0], 0), np.repeat(Pp, z.shape[0], 0), z, np.repeat(R, z.shape[0], 0))
     assert (d2 <= 13.8155).all() and d2.max() > 1.0
 
 
@@ -180,7 +203,7 @@ def test_manoeuvring_prediction_is_a_singer_model_with_k_times_sigma():
     base = SingerFilter(alpha_per_s=1 / 30, sigma_m_mps2=2.5)
     xm, Pm = det.predict(base, x, P.copy(), dt, man)
     x_slow, P_slow = base.predict(x, P, dt)
-    x_fast, P_fast = SingerFilter(alpha_per_s=1 / 30, sigma_m_mps2=7.5).predict(x, P, dt)
+    _x_fast, P_fast = SingerFilter(alpha_per_s=1 / 30, sigma_m_mps2=7.5).predict(x, P, dt)
     assert xm == pytest.approx(x_slow)
     assert Pm[man] == pytest.approx(P_fast[man], rel=1e-10)
     assert Pm[~man] == pytest.approx(P_slow[~man], rel=1e-12)
@@ -211,8 +234,11 @@ def test_engine_health_reports_the_clock_suspect():
     assert radars["a"]["clock_offset_s"] == pytest.approx(-1.5, abs=0.3)  # two radars: split
     assert radars["b"]["clock_offset_s"] == pytest.approx(1.5, abs=0.3)
     assert not radars["a"]["clock_suspect"] and not radars["b"]["clock_suspect"]
-    eng2 = Engine(settings_from_dict({**settings().model_dump(), "system": {
-        **settings().system.model_dump(), "clock_offset_limit_s": 1.0}}))
+    eng2 = Engine(
+        settings_from_dict(
+            {**settings().model_dump(), "system": {**settings().system.model_dump(), "clock_offset_limit_s": 1.0}}
+        )
+    )
     for k in range(40):
         eng2.ingest_plots(plot_of(eng2, 0, k + 1, T0 + k))
         eng2.ingest_plots(plot_of(eng2, 1, k + 1, T0 + k + 0.5 + 3.0))

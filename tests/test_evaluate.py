@@ -12,8 +12,8 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 
 from radar_fusion import wire
-from radar_fusion.tools import evaluate as ev
 from radar_fusion.recording import RecordingWriter
+from radar_fusion.tools import evaluate as ev
 
 T0 = 1_700_000_000.0
 
@@ -23,11 +23,23 @@ T0 = 1_700_000_000.0
 
 def track(track_id, t, x_m, y_m, vx_mps=0.0, vy_mps=0.0, status="confirmed"):
     return {
-        "track_id": int(track_id), "t": float(t), "status": status, "lat_deg": 0.0, "lon_deg": 0.0,
-        "x_m": float(x_m), "y_m": float(y_m), "vx_mps": float(vx_mps), "vy_mps": float(vy_mps),
-        "fl": None, "cov_xy": [1e4, 0.0, 1e4], "sources": ["r1"], "mode3a": None, "mode_s": None,
-        "updates": 1, "age_s": 0.0,
-    }  # fmt: skip
+        "track_id": int(track_id),
+        "t": float(t),
+        "status": status,
+        "lat_deg": 0.0,
+        "lon_deg": 0.0,
+        "x_m": float(x_m),
+        "y_m": float(y_m),
+        "vx_mps": float(vx_mps),
+        "vy_mps": float(vy_mps),
+        "fl": None,
+        "cov_xy": [1e4, 0.0, 1e4],
+        "sources": ["r1"],
+        "mode3a": None,
+        "mode_s": None,
+        "updates": 1,
+        "age_s": 0.0,
+    }
 
 
 def batch(t, tracks, period=0):
@@ -138,9 +150,14 @@ def test_cutoff_assignment_matches_dense_assignment(seed):
 def test_truth_interpolation_to_track_times():
     t = T0 + np.array([0.0, 1.0, 2.0, 3.0, 20.0, 21.0])
     cols = dict(
-        t_s=t, target_id=["a"] * 6, x_m=(t - T0) ** 2, y_m=-(t - T0), vx_mps=2 * (t - T0),
-        vy_mps=np.full(6, -1.0), detectable=[1, 1, 0, 1, 1, 1],
-    )  # fmt: skip
+        t_s=t,
+        target_id=["a"] * 6,
+        x_m=(t - T0) ** 2,
+        y_m=-(t - T0),
+        vx_mps=2 * (t - T0),
+        vy_mps=np.full(6, -1.0),
+        detectable=[1, 1, 0, 1, 1, 1],
+    )
     # Rows given in a shuffled order, plus a second target: sorting is the reader's job.
     perm = np.random.default_rng(0).permutation(6)
     shuffled = {k: np.asarray(v)[perm] for k, v in cols.items()}
@@ -173,7 +190,6 @@ def test_load_truth_csv_and_row_dicts(tmp_path):
         rows = [dict(r) for r in csv.DictReader(f)]
     again = ev.as_truth(rows)
     np.testing.assert_allclose(again.y_m, truth.y_m)
-
 
 
 def test_load_truth_needs_only_the_scored_columns(tmp_path):
@@ -232,9 +248,7 @@ def test_rms_with_constant_offset_and_known_noise():
     assert s.pos_rms_settled_m == pytest.approx(math.sqrt(150.0**2 + 2 * sigma**2), rel=0.05)
     assert s.vel_rms_settled_mps == pytest.approx(math.sqrt(2.5**2 + 2 * vsigma**2), rel=0.1)
     assert s.false_tracks == 0 and s.duplicate_tracks == 0 and s.id_swaps == 0
-    assert s.track_ids_per_target_mean == 1.0 and s.completeness_mean == pytest.approx(
-        (7 * 30 + 25) / (8 * 30)
-    )
+    assert s.track_ids_per_target_mean == 1.0 and s.completeness_mean == pytest.approx((7 * 30 + 25) / (8 * 30))
     assert s.targets[7].completeness == pytest.approx(25 / 30)
     # GOSPA per time: every target assigned, so it is the root of the summed squared errors.
     b = 10
@@ -257,7 +271,9 @@ def test_track_swapping_between_targets_is_a_swap(keep_previous):
     batches = []
     for b, t in enumerate(BATCH_TIMES):
         first, second = ("A", "B") if b < 15 else ("B", "A")
-        batches.append(batch(t, [track(1, t, *truth_pos(targets, first, t)), track(2, t, *truth_pos(targets, second, t))]))  # fmt: skip
+        batches.append(
+            batch(t, [track(1, t, *truth_pos(targets, first, t)), track(2, t, *truth_pos(targets, second, t))])
+        )
     s = ev.evaluate(batches, truth, ev.EvalParams(keep_previous=keep_previous))
     assert s.id_swaps == 2  # both tracks jumped once
     assert s.id_changes == 2
@@ -276,7 +292,7 @@ def test_crossing_targets_keep_their_tracks():
     targets = {"A": (-12_000.0, 0.0, 200.0, 0.0), "B": (12_000.0, 300.0, -200.0, 0.0)}
     truth = straight_truth(targets, SECONDS)
     batches = []
-    for b, t in enumerate(BATCH_TIMES):
+    for _b, t in enumerate(BATCH_TIMES):
         xa, ya = truth_pos(targets, "A", t)
         xb, yb = truth_pos(targets, "B", t)
         batches.append(batch(t, [track(1, t, xa, ya + 250.0, 200, 0), track(2, t, xb, yb - 250.0, -200, 0)]))
@@ -331,7 +347,7 @@ def test_undetectable_target_neither_missed_nor_false():
     targets = {"A": (0.0, 0.0, 200.0, 0.0), "B": (0.0, 50_000.0, 200.0, 0.0)}
     truth = straight_truth(targets, SECONDS, detectable=lambda tid, t: int(tid == "A" and t < T0 + 60))
     batches = []
-    for b, t in enumerate(BATCH_TIMES):
+    for _b, t in enumerate(BATCH_TIMES):
         trs = []
         if t < T0 + 60 + 12:
             trs.append(track(1, t, *truth_pos(targets, "A", t), status="confirmed" if t < T0 + 60 else "coasting"))
@@ -354,7 +370,7 @@ def test_end_to_end_recording_run_and_png(tmp_path, capsys):
         w = csv.writer(f)
         w.writerow(ev.TRUTH_COLUMNS)
         for t in SECONDS:
-            for tid, (x0, y0, vx, vy) in targets.items():
+            for tid, (_x0, _y0, vx, vy) in targets.items():
                 x, y = truth_pos(targets, tid, t)
                 w.writerow([t, tid, "4CA123" if tid == "A" else "", "", 50, 8, 30000, x, y, vx, vy, 0, 1])
     rec_path = tmp_path / "run.rec.gz"
@@ -378,9 +394,19 @@ def test_end_to_end_recording_run_and_png(tmp_path, capsys):
     ev.add_arguments(parser)
     png = tmp_path / "out" / "eval.png"
     args = parser.parse_args(
-        ["--tracks", str(rec_path), "--truth", str(truth_path), "--png", str(png), "--gospa-c-m", "1000",
-         "--json", str(tmp_path / "scores.json")]
-    )  # fmt: skip
+        [
+            "--tracks",
+            str(rec_path),
+            "--truth",
+            str(truth_path),
+            "--png",
+            str(png),
+            "--gospa-c-m",
+            "1000",
+            "--json",
+            str(tmp_path / "scores.json"),
+        ]
+    )
     assert ev.run(args) == 0
     out = capsys.readouterr().out
     assert "GOSPA mean (c = 1000 m, p = 2, alpha = 2" in out and "position RMS" in out

@@ -9,9 +9,7 @@ from radar_fusion.tracking.fusion import fuse_clusters
 def polar_cov(range_m, az_rad, sigma_r_m, sigma_az_rad):
     """Cartesian covariance of a radar plot (azimuth from north, clockwise)."""
     # x = r sin θ, y = r cos θ: Jacobian columns d/dr, d/dθ
-    J = np.array(
-        [[np.sin(az_rad), range_m * np.cos(az_rad)], [np.cos(az_rad), -range_m * np.sin(az_rad)]]
-    )
+    J = np.array([[np.sin(az_rad), range_m * np.cos(az_rad)], [np.cos(az_rad), -range_m * np.sin(az_rad)]])
     return J @ np.diag([sigma_r_m**2, sigma_az_rad**2]) @ J.T
 
 
@@ -107,8 +105,7 @@ def test_matrix_fused_covariance_never_larger_than_scalar():
     ranges = rng.uniform(5e3, 250e3, m)
     az = rng.uniform(0, 2 * np.pi, m)
     R = np.array(
-        [polar_cov(r, a, rng.uniform(30, 120), np.radians(rng.uniform(0.05, 0.2)))
-         for r, a in zip(ranges, az)]
+        [polar_cov(r, a, rng.uniform(30, 120), np.radians(rng.uniform(0.05, 0.2))) for r, a in zip(ranges, az)]
     )
     z = rng.normal(0, 1e5, (m, 2))
     _, Rs, _ = fuse_clusters(labels, z, R, k, "scalar")
@@ -147,10 +144,7 @@ def test_vectorised_equals_per_cluster_loop_with_ignored_and_empty_clusters():
     k, m = 12, 60
     labels = rng.integers(-1, k - 2, m)  # clusters k−2, k−1 stay empty; −1 ignored
     z = rng.normal(0, 5e4, (m, 2))
-    R = np.array(
-        [polar_cov(rng.uniform(5e3, 2e5), rng.uniform(0, 6.3), 60.0, np.radians(0.1))
-         for _ in range(m)]
-    )
+    R = np.array([polar_cov(rng.uniform(5e3, 2e5), rng.uniform(0, 6.3), 60.0, np.radians(0.1)) for _ in range(m)])
     for method in ("scalar", "matrix"):
         zf, Rf, n = fuse_clusters(labels, z, R, k, method)
         for c in range(k):

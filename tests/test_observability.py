@@ -44,8 +44,11 @@ def scrape(url: str) -> dict[tuple[str, tuple], float]:
     with urllib.request.urlopen(url, timeout=5) as resp:
         assert resp.status == 200
         text = resp.read().decode()
-    return {(s.name, tuple(sorted(s.labels.items()))): s.value
-            for fam in text_string_to_metric_families(text) for s in fam.samples}
+    return {
+        (s.name, tuple(sorted(s.labels.items()))): s.value
+        for fam in text_string_to_metric_families(text)
+        for s in fam.samples
+    }
 
 
 @pytest.mark.bus
@@ -80,11 +83,27 @@ def test_metrics_endpoint_counts_received_rejected_late_and_closed_periods(simul
         bad.put(b"\x92\x01")  # an array cut short: truncated msgpack
         # a plot of a period long closed (the scenario's first second), in a fresh batch
         old_t = simulation.scenario.start_t_s + 1.0
-        bad.put(msgpack.packb({"v": 1, "radar_id": first, "seq": 10**6,
-                               "plots": [{"t": old_t, "range_m": 80_000.0, "azimuth_deg": 30.0}]}))
+        bad.put(
+            msgpack.packb(
+                {
+                    "v": 1,
+                    "radar_id": first,
+                    "seq": 10**6,
+                    "plots": [{"t": old_t, "range_m": 80_000.0, "azimuth_deg": 30.0}],
+                }
+            )
+        )
         stranger = reliable_publisher(session, "atc/radar/intruder/plots")
-        stranger.put(msgpack.packb({"v": 1, "radar_id": "intruder", "seq": 1,
-                                    "plots": [{"t": old_t, "range_m": 80_000.0, "azimuth_deg": 30.0}]}))
+        stranger.put(
+            msgpack.packb(
+                {
+                    "v": 1,
+                    "radar_id": "intruder",
+                    "seq": 1,
+                    "plots": [{"t": old_t, "range_m": 80_000.0, "azimuth_deg": 30.0}],
+                }
+            )
+        )
         for p in (bad, stranger):
             p.undeclare()
         n_sent = len(simulation.messages) + 4
@@ -126,11 +145,21 @@ def test_metrics_listen_address_is_validated():
     assert parse_listen("127.0.0.1:9108") == ("127.0.0.1", 9108)
     assert parse_listen("[::1]:9108") == ("::1", 9108)
     assert parse_listen(":9108") == ("0.0.0.0", 9108)
-    base = {"system": {"center_lat": 47.0, "center_lon": 8.0},
-            "radars": [{"id": "r1", "lat": 47.0, "lon": 8.0, "sigma_range_m": 50.0, "sigma_azimuth_deg": 0.1,
-                        "rotation_period_s": 4.0}]}
+    base = {
+        "system": {"center_lat": 47.0, "center_lon": 8.0},
+        "radars": [
+            {
+                "id": "r1",
+                "lat": 47.0,
+                "lon": 8.0,
+                "sigma_range_m": 50.0,
+                "sigma_azimuth_deg": 0.1,
+                "rotation_period_s": 4.0,
+            }
+        ],
+    }
     assert settings_from_dict(base).metrics.listen is None  # off by default
-    with pytest.raises(ConfigError, match="metrics.listen"):
+    with pytest.raises(ConfigError, match=r"metrics\.listen"):
         settings_from_dict({**base, "metrics": {"listen": "9108"}})
 
 
@@ -163,14 +192,21 @@ def test_serve_writes_json_logs_and_serves_metrics(simulation, free_port, tmp_pa
     metrics_port = other_free_port()
     config = tmp_path / "config.toml"
     text = sim.config_toml(simulation.scenario).replace(
-        'listen = ["tcp/127.0.0.1:7447"]', f'listen = ["tcp/127.0.0.1:{free_port}"]\nhealth_period_s = 0.2')
+        'listen = ["tcp/127.0.0.1:7447"]', f'listen = ["tcp/127.0.0.1:{free_port}"]\nhealth_period_s = 0.2'
+    )
     config.write_text(text + f'\n[metrics]\nlisten = "127.0.0.1:{metrics_port}"\n')
     # `radar-fusion serve` without the other subcommands' imports (seconds on a busy machine);
     # tests/test_service.py runs the installed command itself
-    serve = ("import argparse, sys; from radar_fusion import cli; p = argparse.ArgumentParser(); "
-             "cli._serve_arguments(p); sys.exit(cli._serve(p.parse_args()))")
-    proc = subprocess.Popen([sys.executable, "-c", serve, "--config", str(config), "--log-format", "json"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    serve = (
+        "import argparse, sys; from radar_fusion import cli; p = argparse.ArgumentParser(); "
+        "cli._serve_arguments(p); sys.exit(cli._serve(p.parse_args()))"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", serve, "--config", str(config), "--log-format", "json"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     session = None
     try:
         deadline = time.monotonic() + 60

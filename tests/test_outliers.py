@@ -6,13 +6,23 @@ import math
 import numpy as np
 import pytest
 
-from radar_fusion.tracking.outliers import (
-    OutlierParams, analyse, decide_wild, edge_points, hard_edge_weight,
-    innovation_gate_3sigma, k_distance, k_mean_distance, minmax_normalise, outlier_factor,
-    segment_at_edges, soft_edge_weight, subsequence_features,
-)
-from radar_fusion.tracking.live_gate import LiveOutlierGate
 from radar_fusion.tools.outlier_experiment import evaluate, make_scenario, run_method, score
+from radar_fusion.tracking.live_gate import LiveOutlierGate
+from radar_fusion.tracking.outliers import (
+    OutlierParams,
+    analyse,
+    decide_wild,
+    edge_points,
+    hard_edge_weight,
+    innovation_gate_3sigma,
+    k_distance,
+    k_mean_distance,
+    minmax_normalise,
+    outlier_factor,
+    segment_at_edges,
+    soft_edge_weight,
+    subsequence_features,
+)
 
 TINY = [1.0, 2.0, 2.0, 9.0, 3.0, 4.0, 4.0]
 V = 3
@@ -38,7 +48,7 @@ def test_eq1_soft_weight_by_hand():
     for i in range(n):
         total = 0.0
         for j in _windows_of(i, n, V):
-            win = TINY[j:j + V]
+            win = TINY[j : j + V]
             sd = _pstd(win)
             total += (TINY[i] - _mean(win)) / (sd + (1e-9 if sd == 0 else 0.0))
         expected.append(abs(total))
@@ -67,7 +77,7 @@ def test_kmodf_hard_weight_by_hand():
     for i in range(n):
         total = 0
         for j in _windows_of(i, n, V):
-            win = TINY[j:j + V]
+            win = TINY[j : j + V]
             if max(win) > min(win):
                 total += (TINY[i] == max(win)) - (TINY[i] == min(win))
         expected.append(abs(total))
@@ -118,14 +128,15 @@ def test_k_distance_and_k_mean_distance_by_hand():
 
 
 def test_eq7_outlier_factor_by_hand():
-    f = np.array([[0.0, 0.0, 0.0, 0.0], [0.1, 0.0, 0.1, 0.0], [0.0, 0.1, 0.0, 0.1],
-                  [1.0, 1.0, 1.0, 1.0]])
+    f = np.array([[0.0, 0.0, 0.0, 0.0], [0.1, 0.0, 0.1, 0.0], [0.0, 0.1, 0.0, 0.1], [1.0, 1.0, 1.0, 1.0]])
     k = 1
     cols = []
     pts = [list(r) for r in f]
+
     # Independent: plain loops for 4-D and each 1-D k-mean distance (k = 1).
     def nn(points, i):
         return min(math.dist(points[i], points[j]) for j in range(len(points)) if j != i)
+
     cols.append([nn(pts, i) for i in range(4)])
     for dim in range(4):
         sub = [[r[dim]] for r in pts]
@@ -135,7 +146,7 @@ def test_eq7_outlier_factor_by_hand():
         lo, hi = min(c), max(c)
         norm.append([(v - lo) / (hi - lo) for v in c])
     expected = [norm[0][i] + max(norm[d][i] for d in range(1, 5)) for i in range(4)]
-    of, dist = outlier_factor(f, k)
+    of, _dist = outlier_factor(f, k)
     np.testing.assert_allclose(of, expected, rtol=1e-9)
     assert of.argmax() == 3 and abs(of[3] - 2.0) < 1e-9
 
@@ -215,8 +226,7 @@ def _track(n, turn_deg_s=0.0, turn=(0.0, 0.0), seed=0):
 
 
 def _feed(gate, key, t, r, az):
-    return np.array([gate.filter(np.array([key]), t[i:i + 1], r[i:i + 1], az[i:i + 1])[0]
-                     for i in range(t.size)])
+    return np.array([gate.filter(np.array([key]), t[i : i + 1], r[i : i + 1], az[i : i + 1])[0] for i in range(t.size)])
 
 
 def test_live_gate_rejects_isolated_wild_and_run_of_five():

@@ -13,24 +13,55 @@ T0 = 1_533_110_400.0  # 2018-08-01 08:00 UTC, a multiple of the 4 s period
 
 
 def settings(**system):
-    return settings_from_dict({
-        "system": {"center_lat": 46.0, "center_lon": 8.0, "period_s": 4.0, "allowed_lateness_s": 1.0,
-                   "radar_timeout_s": 20.0, **system},
-        "radars": [
-            {"id": "a", "lat": 46.2, "lon": 7.8, "sigma_range_m": 50, "sigma_azimuth_deg": 0.1,
-             "rotation_period_s": 4.0, "max_range_m": 200_000},
-            {"id": "b", "lat": 45.8, "lon": 8.3, "sigma_range_m": 50, "sigma_azimuth_deg": 0.1,
-             "rotation_period_s": 4.0},
-        ],
-        "outliers": {"enabled": False},
-    })
+    return settings_from_dict(
+        {
+            "system": {
+                "center_lat": 46.0,
+                "center_lon": 8.0,
+                "period_s": 4.0,
+                "allowed_lateness_s": 1.0,
+                "radar_timeout_s": 20.0,
+                **system,
+            },
+            "radars": [
+                {
+                    "id": "a",
+                    "lat": 46.2,
+                    "lon": 7.8,
+                    "sigma_range_m": 50,
+                    "sigma_azimuth_deg": 0.1,
+                    "rotation_period_s": 4.0,
+                    "max_range_m": 200_000,
+                },
+                {
+                    "id": "b",
+                    "lat": 45.8,
+                    "lon": 8.3,
+                    "sigma_range_m": 50,
+                    "sigma_azimuth_deg": 0.1,
+                    "rotation_period_s": 4.0,
+                },
+            ],
+            "outliers": {"enabled": False},
+        }
+    )
 
 
 def plots(radar_id, seq, t_s, range_m=50_000.0, azimuth_deg=90.0):
     t = np.atleast_1d(np.asarray(t_s, float))
     n = t.size
-    return DecodedPlots(radar_id, seq, t, np.full(n, range_m), np.full(n, azimuth_deg), np.full(n, 300.0),
-                        np.full(n, -1), np.full(n, -1), np.full(n, -1), np.zeros(n, np.int8))
+    return DecodedPlots(
+        radar_id,
+        seq,
+        t,
+        np.full(n, range_m),
+        np.full(n, azimuth_deg),
+        np.full(n, 300.0),
+        np.full(n, -1),
+        np.full(n, -1),
+        np.full(n, -1),
+        np.zeros(n, np.int8),
+    )
 
 
 def test_a_period_closes_only_when_every_live_radar_has_passed_it():

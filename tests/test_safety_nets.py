@@ -9,7 +9,6 @@ import subprocess
 import sys
 from importlib import metadata
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import pytest
@@ -38,27 +37,44 @@ def nets(**cfg) -> SafetyNets:
     return SafetyNets(SafetyNetsConfig(**cfg), PLANE)
 
 
-def columns(
-    track_id, x, y, vx, vy, ax, ay, fl, vrate_fpm, status: Optional[np.ndarray] = None
-) -> TrackColumns:
+def columns(track_id, x, y, vx, vy, ax, ay, fl, vrate_fpm, status: np.ndarray | None = None) -> TrackColumns:
     """The engine's track columns as the safety nets get them (status confirmed unless given)."""
     n = len(track_id)
     return TrackColumns(
-        period=0, t_s=0.0, track_id=np.asarray(track_id, np.int64),
+        period=0,
+        t_s=0.0,
+        track_id=np.asarray(track_id, np.int64),
         status=np.full(n, CONFIRMED, np.int8) if status is None else np.asarray(status, np.int8),
-        x=np.column_stack([x, vx, ax, y, vy, ay]).astype(float), cov_xy=np.full((n, 3), 100.0),
-        fl=np.asarray(fl, float), vrate_fpm=np.asarray(vrate_fpm, float), sources=np.zeros(n, np.uint64),
-        mode3a=np.full(n, -1, np.int64), mode_s=np.full(n, -1, np.int64), updates=np.full(n, 5, np.int64),
-        age_s=np.full(n, 60.0), ended=np.zeros(0, np.int64), names=RadarNames([], PLANE),
+        x=np.column_stack([x, vx, ax, y, vy, ay]).astype(float),
+        cov_xy=np.full((n, 3), 100.0),
+        fl=np.asarray(fl, float),
+        vrate_fpm=np.asarray(vrate_fpm, float),
+        sources=np.zeros(n, np.uint64),
+        mode3a=np.full(n, -1, np.int64),
+        mode_s=np.full(n, -1, np.int64),
+        updates=np.full(n, 5, np.int64),
+        age_s=np.full(n, 60.0),
+        ended=np.zeros(0, np.int64),
+        names=RadarNames([], PLANE),
     )
 
 
 def arrays(rows: list[dict]) -> TrackColumns:
     """rows: dicts with id, x, y, vx, vy and optional fl, vr, ax, ay, confirmed (False: tentative)."""
-    g = lambda k, d=0.0: np.array([r.get(k, d) for r in rows], dtype=float)  # noqa: E731
+    g = lambda k, d=0.0: np.array([r.get(k, d) for r in rows], dtype=float)
     status = [CONFIRMED if r.get("confirmed", True) else TENTATIVE for r in rows]
-    return columns([r["id"] for r in rows], g("x"), g("y"), g("vx"), g("vy"), g("ax"), g("ay"), g("fl", 200.0),
-                   g("vr", 0.0), status)
+    return columns(
+        [r["id"] for r in rows],
+        g("x"),
+        g("y"),
+        g("vx"),
+        g("vy"),
+        g("ax"),
+        g("ay"),
+        g("fl", 200.0),
+        g("vr", 0.0),
+        status,
+    )
 
 
 def fly(acs: list[dict], duration_s: float, net: SafetyNets, t0: float = 1.7e9) -> list[dict]:
@@ -72,8 +88,9 @@ def fly(acs: list[dict], duration_s: float, net: SafetyNets, t0: float = 1.7e9) 
             if "level_at" in a:
                 fl = min(fl, a["level_at"]) if a.get("vr", 0) > 0 else max(fl, a["level_at"])
             vr = a.get("vr", 0.0) if fl != a.get("level_at") else 0.0
-            rows.append(dict(id=a["id"], x=a["x"] + a["vx"] * t, y=a["y"] + a["vy"] * t, vx=a["vx"], vy=a["vy"],
-                             fl=fl, vr=vr))
+            rows.append(
+                dict(id=a["id"], x=a["x"] + a["vx"] * t, y=a["y"] + a["vy"] * t, vx=a["vx"], vy=a["vy"], fl=fl, vr=vr)
+            )
         for al in net.update(t0 + t, arrays(rows)):
             Alert.model_validate(al)
             out.append({**al, "t": al["t"] - t0})
@@ -96,8 +113,12 @@ def first_loss_s(acs: list[dict], h_m: float = 5 * M_PER_NM, v_ft: float = 1000.
 
 @settings(max_examples=60, deadline=None)
 @given(
-    st.floats(-40_000, 40_000), st.floats(-40_000, 40_000), st.floats(-500, 500), st.floats(-500, 500),
-    st.floats(-3000, 3000), st.floats(-60, 60),
+    st.floats(-40_000, 40_000),
+    st.floats(-40_000, 40_000),
+    st.floats(-500, 500),
+    st.floats(-500, 500),
+    st.floats(-3000, 3000),
+    st.floats(-60, 60),
 )
 def test_cpa_matches_brute_force_sampling(x0, y0, vx, vy, z0, vz):
     T, S, V = 120.0, 9260.0, 900.0
@@ -105,8 +126,12 @@ def test_cpa_matches_brute_force_sampling(x0, y0, vx, vy, z0, vz):
     t = np.linspace(0, T, 24001)
     dx, dy, dz = x0 + vx * t, y0 + vy * t, z0 + vz * t
     res = segment_conflicts(
-        np.array([[x0, x0 + vx * T]]), np.array([[y0, y0 + vy * T]]), np.array([[z0, z0 + vz * T]]),
-        knots, np.array([S]), np.array([V]),
+        np.array([[x0, x0 + vx * T]]),
+        np.array([[y0, y0 + vy * T]]),
+        np.array([[z0, z0 + vz * T]]),
+        knots,
+        np.array([S]),
+        np.array([V]),
     )
     d = np.hypot(dx, dy)
     assert res["min_sep_m"][0] == pytest.approx(d.min(), abs=1.0 + 0.005 * math.hypot(vx, vy))  # sampling step 5 ms
@@ -128,10 +153,22 @@ def test_cpa_matches_brute_force_sampling(x0, y0, vx, vy, z0, vz):
 def test_piecewise_segments_equal_single_segment_for_linear_motion():
     x0, y0, vx, vy = -30_000.0, 5_000.0, 400.0, -50.0
     knots = np.linspace(0, 120, 25)
-    one = segment_conflicts(np.array([[x0, x0 + vx * 120]]), np.array([[y0, y0 + vy * 120]]), np.zeros((1, 2)),
-                            np.array([0.0, 120.0]), np.array([9260.0]), np.array([900.0]))
-    many = segment_conflicts((x0 + vx * knots)[None], (y0 + vy * knots)[None], np.zeros((1, 25)),
-                             knots, np.array([9260.0]), np.array([900.0]))
+    one = segment_conflicts(
+        np.array([[x0, x0 + vx * 120]]),
+        np.array([[y0, y0 + vy * 120]]),
+        np.zeros((1, 2)),
+        np.array([0.0, 120.0]),
+        np.array([9260.0]),
+        np.array([900.0]),
+    )
+    many = segment_conflicts(
+        (x0 + vx * knots)[None],
+        (y0 + vy * knots)[None],
+        np.zeros((1, 25)),
+        knots,
+        np.array([9260.0]),
+        np.array([900.0]),
+    )
     for key in ("t_violation_s", "t_cpa_s", "min_sep_m"):
         assert one[key][0] == pytest.approx(many[key][0], abs=1e-6)
 
@@ -142,8 +179,10 @@ CONFLICTS = {
     "head-on": [dict(id=1, x=-50e3, y=0, vx=240, vy=0), dict(id=2, x=50e3, y=500, vx=-240, vy=0)],
     "crossing": [dict(id=1, x=-52e3, y=0, vx=235, vy=0), dict(id=2, x=0, y=-50e3, vx=0, vy=225)],
     "overtaking": [dict(id=1, x=-60e3, y=0, vx=250, vy=0), dict(id=2, x=-20e3, y=500, vx=150, vy=0)],
-    "climbing through": [dict(id=1, x=-45e3, y=0, vx=230, vy=0, fl=110),
-                         dict(id=2, x=0, y=-45e3, vx=0, vy=230, fl=70, vr=1500)],
+    "climbing through": [
+        dict(id=1, x=-45e3, y=0, vx=230, vy=0, fl=110),
+        dict(id=2, x=0, y=-45e3, vx=0, vy=230, fl=70, vr=1500),
+    ],
 }
 
 
@@ -165,16 +204,19 @@ def test_parallel_tracks_6nm_apart_no_alert():
 
 def test_levelling_off_1000ft_apart_no_alert():
     # A descends to FL110, B climbs to FL100; both level 60 s before they pass
-    acs = [dict(id=1, x=-60e3, y=0, vx=240, vy=0, fl=150, vr=-1500, level_at=110),
-           dict(id=2, x=60e3, y=500, vx=-240, vy=0, fl=60, vr=1500, level_at=100)]
+    acs = [
+        dict(id=1, x=-60e3, y=0, vx=240, vy=0, fl=150, vr=-1500, level_at=110),
+        dict(id=2, x=60e3, y=500, vx=-240, vy=0, fl=60, vr=1500, level_at=100),
+    ]
     assert fly(acs, 300, nets()) == []
 
 
 def test_selected_level_caps_the_vertical_prediction():
     # B climbs at 1000 fpm towards FL100, A level at FL110; without the selected level a conflict
     acs = [dict(id=1, x=-30e3, y=0, vx=240, vy=0, fl=110), dict(id=2, x=30e3, y=0, vx=-240, vy=0, fl=90, vr=1000)]
-    base = arrays([dict(id=a["id"], x=a["x"], y=a["y"], vx=a["vx"], vy=a["vy"], fl=a["fl"], vr=a.get("vr", 0))
-                   for a in acs])
+    base = arrays(
+        [dict(id=a["id"], x=a["x"], y=a["y"], vx=a["vx"], vy=a["vy"], fl=a["fl"], vr=a.get("vr", 0)) for a in acs]
+    )
     n1 = nets(stca_confirm_periods=1, stca_confirm_periods_far=1)
     assert n1.update(0.0, base)
     base.selected_fl = np.array([np.nan, 100.0])
@@ -199,9 +241,17 @@ def test_per_area_override_uses_3nm():
     rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=4 * M_PER_NM, vx=200, vy=0)]
     assert nets(stca_confirm_periods=1).update(0.0, arrays(rows))
     lat0, lon0 = 47.0, 8.0
-    tma = dict(name="TMA", h_min_nm=3.0, v_min_ft=1000.0,
-               polygon_latlon_deg=[[lat0 - 0.5, lon0 - 0.5], [lat0 - 0.5, lon0 + 0.5], [lat0 + 0.5, lon0 + 0.5],
-                                   [lat0 + 0.5, lon0 - 0.5]])
+    tma = dict(
+        name="TMA",
+        h_min_nm=3.0,
+        v_min_ft=1000.0,
+        polygon_latlon_deg=[
+            [lat0 - 0.5, lon0 - 0.5],
+            [lat0 - 0.5, lon0 + 0.5],
+            [lat0 + 0.5, lon0 + 0.5],
+            [lat0 + 0.5, lon0 - 0.5],
+        ],
+    )
     assert nets(stca_confirm_periods=1, stca_overrides=[tma]).update(0.0, arrays(rows)) == []
 
 
@@ -260,10 +310,23 @@ def test_single_period_nuisance_hit_is_suppressed_and_ended_when_track_disappear
 
 def _areas_file(tmp_path: Path) -> Path:
     p = tmp_path / "areas.geojson"
-    p.write_text(json.dumps({"type": "FeatureCollection", "features": [{
-        "type": "Feature", "properties": {"id": "R1", "lower_fl": 0, "upper_fl": 95},
-        "geometry": {"type": "Polygon", "coordinates": [[[8.1, 47.1], [8.3, 47.1], [8.3, 47.2], [8.1, 47.2],
-                                                         [8.1, 47.1]]]}}]}))
+    p.write_text(
+        json.dumps(
+            {
+                "type": "FeatureCollection",
+                "features": [
+                    {
+                        "type": "Feature",
+                        "properties": {"id": "R1", "lower_fl": 0, "upper_fl": 95},
+                        "geometry": {
+                            "type": "Polygon",
+                            "coordinates": [[[8.1, 47.1], [8.3, 47.1], [8.3, 47.2], [8.1, 47.2], [8.1, 47.1]]],
+                        },
+                    }
+                ],
+            }
+        )
+    )
     return p
 
 
@@ -295,8 +358,18 @@ def test_msaw_descent_towards_high_terrain_with_vertical_rate():
 
 def test_msaw_grid_map(tmp_path):
     p = tmp_path / "grid.json"
-    p.write_text(json.dumps({"type": "MsaGrid", "lat0_deg": 46.9, "lon0_deg": 7.9, "dlat_deg": 0.1,
-                             "dlon_deg": 0.1, "min_alt_ft": [[3000, 3000], [3000, 9000]]}))
+    p.write_text(
+        json.dumps(
+            {
+                "type": "MsaGrid",
+                "lat0_deg": 46.9,
+                "lon0_deg": 7.9,
+                "dlat_deg": 0.1,
+                "dlon_deg": 0.1,
+                "min_alt_ft": [[3000, 3000], [3000, 9000]],
+            }
+        )
+    )
     net = nets(msa_file=p, msaw_confirm_periods=1)
     x, y = PLANE.to_plane(47.05, 8.05)  # cell (1, 1): 9,000 ft
     out = net.update(0.0, arrays([dict(id=1, x=float(x), y=float(y), vx=0, vy=0, fl=80)]))
@@ -304,7 +377,10 @@ def test_msaw_grid_map(tmp_path):
 
 
 def test_example_files_load():
-    assert [a.area_id for a in sn.load_areas(REPO / "deploy" / "areas-example.geojson", PLANE)] == ["LSR-EX1", "LSD-EX2"]
+    assert [a.area_id for a in sn.load_areas(REPO / "deploy" / "areas-example.geojson", PLANE)] == [
+        "LSR-EX1",
+        "LSD-EX2",
+    ]
     assert sn.load_msa(REPO / "deploy" / "msa-example.geojson", PLANE).max_alt_ft == 10000.0
 
 
@@ -317,9 +393,17 @@ def test_4000_tracks_pruned_far_below_all_pairs():
     hd = rng.uniform(0, 2 * np.pi, n)
     sp = rng.uniform(100, 250, n)
     x, y = rng.uniform(-4e5, 4e5, n), rng.uniform(-4e5, 4e5, n)
-    tr = columns(np.arange(n), x, y, sp * np.sin(hd), sp * np.cos(hd),
-                 rng.normal(0, 0.2, n), rng.normal(0, 0.2, n), rng.integers(50, 400, n).astype(float),
-                 rng.normal(0, 800, n))
+    tr = columns(
+        np.arange(n),
+        x,
+        y,
+        sp * np.sin(hd),
+        sp * np.cos(hd),
+        rng.normal(0, 0.2, n),
+        rng.normal(0, 0.2, n),
+        rng.integers(50, 400, n).astype(float),
+        rng.normal(0, 800, n),
+    )
     net = nets()
     out = net.update(0.0, tr)
     assert 0 < net.last_candidate_pairs < 0.02 * n * (n - 1) / 2
@@ -342,8 +426,10 @@ def test_pruning_loses_no_conflict():
     res = segment_conflicts(
         np.column_stack([x[j] - x[i], x[j] - x[i] + (tr.vx_mps[j] - tr.vx_mps[i]) * T]),
         np.column_stack([y[j] - y[i], y[j] - y[i] + (tr.vy_mps[j] - tr.vy_mps[i]) * T]),
-        np.column_stack([(fl[j] - fl[i]) * 100] * 2), np.array([0.0, T]),
-        np.full(i.size, 5 * M_PER_NM), np.full(i.size, 900.0),
+        np.column_stack([(fl[j] - fl[i]) * 100] * 2),
+        np.array([0.0, T]),
+        np.full(i.size, 5 * M_PER_NM),
+        np.full(i.size, 900.0),
     )
     expected = {(int(a), int(b)) for a, b in zip(i[res["conflict"]], j[res["conflict"]])}
     assert expected and expected <= got
@@ -373,8 +459,17 @@ class _ExtraFunction:
         self.plane = plane
 
     def update(self, t_s, tracks):
-        return [{"v": 1, "kind": "apw", "alert_id": 999, "t": t_s, "track_ids": [int(tracks.track_id[0])],
-                 "status": "new", "area_id": "SITE"}]
+        return [
+            {
+                "v": 1,
+                "kind": "apw",
+                "alert_id": 999,
+                "t": t_s,
+                "track_ids": [int(tracks.track_id[0])],
+                "status": "new",
+                "area_id": "SITE",
+            }
+        ]
 
 
 def _raising(alert):
@@ -383,11 +478,13 @@ def _raising(alert):
 
 def test_entry_point_hooks_receive_alerts_and_a_raising_hook_is_counted(monkeypatch):
     received.clear()
-    eps = _EPs([
-        _EP("good", sn.CONSUMER_GROUP, received.append),
-        _EP("bad", sn.CONSUMER_GROUP, _raising),
-        _EP("extra", sn.FUNCTION_GROUP, _ExtraFunction),
-    ])
+    eps = _EPs(
+        [
+            _EP("good", sn.CONSUMER_GROUP, received.append),
+            _EP("bad", sn.CONSUMER_GROUP, _raising),
+            _EP("extra", sn.FUNCTION_GROUP, _ExtraFunction),
+        ]
+    )
     monkeypatch.setattr(metadata, "entry_points", lambda: eps)
     hooks = load_hooks(SafetyNetsConfig(), PLANE)
     assert [n for n, _ in hooks.consumers] == ["good", "bad"] and [n for n, _ in hooks.functions] == ["extra"]
@@ -405,6 +502,7 @@ def test_a_broken_entry_point_is_logged_not_fatal(monkeypatch):
     class Broken:
         def load(self):
             raise ImportError("no such module")
+
         name, group = "broken", sn.FUNCTION_GROUP
 
     monkeypatch.setattr(metadata, "entry_points", lambda: _EPs([Broken()]))
@@ -420,7 +518,7 @@ def test_config_rejects_unknown_fields():
 # ------------------------------------------------------------------ point in polygon
 
 
-def _star(rng: np.random.Generator, n: int, r_lo: float, r_hi: float, grid: Optional[float] = None) -> np.ndarray:
+def _star(rng: np.random.Generator, n: int, r_lo: float, r_hi: float, grid: float | None = None) -> np.ndarray:
     """A star-shaped ring around the origin (concave for spread radii), optionally snapped to a grid."""
     ang = np.sort(rng.uniform(0, 2 * np.pi, n))
     r = rng.uniform(r_lo, r_hi, n)
@@ -469,8 +567,10 @@ def test_point_in_multipolygon_from_geojson_is_the_union_of_its_parts():
 
 
 def test_daemon_modules_do_not_import_matplotlib():
-    code = ("import sys, radar_fusion.bus, radar_fusion.cli, radar_fusion.engine, radar_fusion.safety_nets; "
-            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))")
+    code = (
+        "import sys, radar_fusion.bus, radar_fusion.cli, radar_fusion.engine, radar_fusion.safety_nets; "
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 
@@ -524,10 +624,12 @@ def test_safety_net_counters_reach_the_health_message():
     from radar_fusion.config import settings_from_dict
     from radar_fusion.engine import Engine
 
-    settings = settings_from_dict({
-        "system": {"center_lat": 47.0, "center_lon": 8.0},
-        "radars": [dict(id="r1", lat=47.0, lon=8.0, sigma_range_m=50, sigma_azimuth_deg=0.1, rotation_period_s=4)],
-    })
+    settings = settings_from_dict(
+        {
+            "system": {"center_lat": 47.0, "center_lon": 8.0},
+            "radars": [dict(id="r1", lat=47.0, lon=8.0, sigma_range_m=50, sigma_azimuth_deg=0.1, rotation_period_s=4)],
+        }
+    )
     net = nets()
     engine = Engine(settings, safety_nets=net)
     assert engine.health()["counters"]["safety_nets_alerts_new_stca"] == 0  # present before any alert
@@ -536,10 +638,17 @@ def test_safety_net_counters_reach_the_health_message():
     net.update(4.0, pair)  # ongoing
     net.update(8.0, arrays([dict(id=1, x=0, y=0, vx=200, vy=0)]))  # track 2 gone: ended
     counters = engine.health()["counters"]
-    assert {k: counters[f"safety_nets_{k}"] for k in
-            ("periods", "hits_stca", "alerts_new", "alerts_new_stca", "alerts_ended_stca", "alerts_new_apw")} == {
-        "periods": 3, "hits_stca": 2, "alerts_new": 1, "alerts_new_stca": 1, "alerts_ended_stca": 1,
-        "alerts_new_apw": 0}
+    assert {
+        k: counters[f"safety_nets_{k}"]
+        for k in ("periods", "hits_stca", "alerts_new", "alerts_new_stca", "alerts_ended_stca", "alerts_new_apw")
+    } == {
+        "periods": 3,
+        "hits_stca": 2,
+        "alerts_new": 1,
+        "alerts_new_stca": 1,
+        "alerts_ended_stca": 1,
+        "alerts_new_apw": 0,
+    }
     h = engine.health()
     h.pop("newest_period_t")
     Health.model_validate({"v": 1, "t": 0.0, "uptime_s": 0.0, **h})  # the wire contract takes them as they are

@@ -38,33 +38,59 @@ DEPLOY_ZENOH = Path(__file__).resolve().parents[1] / "deploy" / "zenoh"
 DEPLOY_TLS_DIR = "/etc/radar-fusion/tls/"
 # The demo scenario's radars under the names the deploy/ access control uses.
 RADAR_NAMES = {"app": "north", "east": "west", "south": "south"}
-IDENTITIES = ("radar-fusion", "router-a", "router-b", "fe-north", "fe-west", "fe-south",
-              "display-1", "display-b1", "intruder")
+IDENTITIES = (
+    "radar-fusion",
+    "router-a",
+    "router-b",
+    "fe-north",
+    "fe-west",
+    "fe-south",
+    "display-1",
+    "display-b1",
+    "intruder",
+)
 
 
 # ------------------------------------------------------------------ certificates
 
+
 def _write(path_stem: Path, key, cert) -> None:
-    path_stem.with_suffix(".key").write_bytes(key.private_bytes(
-        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()))
+    path_stem.with_suffix(".key").write_bytes(
+        key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())
+    )
     path_stem.with_suffix(".pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
 
 
 def make_ca(directory: Path, name: str):
     key = ec.generate_private_key(ec.SECP256R1())
-    now = datetime.datetime.now(datetime.timezone.utc)
+    now = datetime.datetime.now(datetime.UTC)
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)])
     cert = (
-        x509.CertificateBuilder().subject_name(subject).issuer_name(subject).public_key(key.public_key())
+        x509.CertificateBuilder()
+        .subject_name(subject)
+        .issuer_name(subject)
+        .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=1))
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=1))
         .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
-        .add_extension(x509.KeyUsage(digital_signature=False, content_commitment=False, key_encipherment=False,
-                                     data_encipherment=False, key_agreement=False, key_cert_sign=True,
-                                     crl_sign=True, encipher_only=False, decipher_only=False), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=False,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                key_cert_sign=True,
+                crl_sign=True,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
         .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
         .sign(key, hashes.SHA256())
-    )  # fmt: skip
+    )
     _write(directory / name, key, cert)
     return key, cert
 
@@ -74,20 +100,26 @@ def make_identity(directory: Path, ca, common_name: str) -> None:
     loopback names, which a listener's certificate must carry for its clients."""
     ca_key, ca_cert = ca
     key = ec.generate_private_key(ec.SECP256R1())
-    now = datetime.datetime.now(datetime.timezone.utc)
+    now = datetime.datetime.now(datetime.UTC)
     cert = (
         x509.CertificateBuilder()
         .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)]))
-        .issuer_name(ca_cert.subject).public_key(key.public_key()).serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=1))
+        .issuer_name(ca_cert.subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=1))
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(x509.SubjectAlternativeName(
-            [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False)
-        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-                       critical=False)
+        .add_extension(
+            x509.SubjectAlternativeName([x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]),
+            critical=False,
+        )
+        .add_extension(
+            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False
+        )
         .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
         .sign(ca_key, hashes.SHA256())
-    )  # fmt: skip
+    )
     _write(directory / common_name, key, cert)
 
 
@@ -157,6 +189,7 @@ def refused(configs: dict[str, zenoh.Config]) -> dict[str, bool]:
 
 # ------------------------------------------------------------------ traffic
 
+
 @pytest.fixture(scope="module")
 def scenario():
     """The demo scenario (3 radars, 28 aircraft), 60 s of traffic, radars renamed."""
@@ -212,8 +245,12 @@ def check_tracks(collector: TrackCollector, daemon: FusionDaemon, radars: set[st
 def test_one_site_tls_mtls_and_access_control(pki, scenario, free_port, tmp_path):
     simulation, base = scenario
     endpoint = f"tls/127.0.0.1:{free_port}"
-    settings = daemon_settings(base, mode="router", listen=[endpoint],
-                               zenoh_config_file=str(deploy_config("daemon-router.json5", pki, tmp_path)))
+    settings = daemon_settings(
+        base,
+        mode="router",
+        listen=[endpoint],
+        zenoh_config_file=str(deploy_config("daemon-router.json5", pki, tmp_path)),
+    )
     frontend = deploy_config("radar-frontend.json5", pki, tmp_path)
     daemon = FusionDaemon(settings, idle_flush_s=60.0).start()
     sessions: dict[str, zenoh.Session] = {}
@@ -240,11 +277,13 @@ def test_one_site_tls_mtls_and_access_control(pki, scenario, free_port, tmp_path
         tcp = zenoh.Config()
         tcp.insert_json5("mode", '"client"')
         tcp.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{free_port}"]))
-        outcome = refused({
-            "no certificate": client_config(frontend, pki, None, endpoint),
-            "another CA": client_config(frontend, pki, "rogue", endpoint),
-            "plain tcp": tcp,
-        })
+        outcome = refused(
+            {
+                "no certificate": client_config(frontend, pki, None, endpoint),
+                "another CA": client_config(frontend, pki, "rogue", endpoint),
+                "plain tcp": tcp,
+            }
+        )
         assert outcome == {"no certificate": True, "another CA": True, "plain tcp": True}
 
         # At 30x, not at once: each radar has its own session, and sessions overtake one
@@ -283,8 +322,13 @@ def test_two_sites_linked_over_tls_each_router_enforcing_its_site(pki, scenario,
             cfg.insert_json5("listen/endpoints", json.dumps([listen]))
             cfg.insert_json5("connect/endpoints", json.dumps(connect))
             routers.append(open_session(cfg))
-        settings = daemon_settings(base, mode="client", listen=[], connect=[a],
-                                   zenoh_config_file=str(deploy_config("daemon-client.json5", pki, tmp_path)))
+        settings = daemon_settings(
+            base,
+            mode="client",
+            listen=[],
+            connect=[a],
+            zenoh_config_file=str(deploy_config("daemon-client.json5", pki, tmp_path)),
+        )
         daemon = FusionDaemon(settings, idle_flush_s=60.0).start()
         frontend = deploy_config("radar-frontend.json5", pki, tmp_path)
         for radar, endpoint in (("north", a), ("west", a), ("south", b)):  # south is at site B

@@ -20,10 +20,10 @@ import zenoh
 
 from radar_fusion.bus import FusionDaemon, open_session, reliable_publisher, zenoh_config
 from radar_fusion.config import load_settings
+from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, wait_until
 from radar_fusion.tools.record import Recorder
-from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools.replay import replay_records
 
 pytestmark = pytest.mark.bus  # every test here opens Zenoh sessions
@@ -53,8 +53,17 @@ def test_record_writes_what_replay_reads_back_byte_identical(tmp_path, free_port
     garbage = bytes(range(256)) * 3  # every byte value, not msgpack
     big = os.urandom(300_000)  # larger than one Zenoh batch: sent in fragments
     sent = [
-        ("radar/r1/plots", msgpack.packb({"v": 1, "radar_id": "r1", "seq": 0, "plots": [
-            {"t": 1.7e9, "range_m": 5.0e4, "azimuth_deg": 12.5, "fl": 350.0, "mode_s": "4CA1F3"}]})),
+        (
+            "radar/r1/plots",
+            msgpack.packb(
+                {
+                    "v": 1,
+                    "radar_id": "r1",
+                    "seq": 0,
+                    "plots": [{"t": 1.7e9, "range_m": 5.0e4, "azimuth_deg": 12.5, "fl": 350.0, "mode_s": "4CA1F3"}],
+                }
+            ),
+        ),
         ("radar/r1/plots", b"\xc1\xc1 not msgpack \x00\xff"),
         ("radar/r1/status", msgpack.packb({"v": 1, "radar_id": "r1", "t": 1.7e9 + 4.0, "kind": "north"})),
         ("radar/r2/plots", garbage),
@@ -245,7 +254,8 @@ def feed_then_signal(proc: subprocess.Popen, port: int, records, sig) -> dict:
 
 @pytest.mark.slow
 def test_serve_process_flushes_and_exits_on_sigint_and_sigterm_and_refuses_a_taken_port(
-        short_scenario, free_port, tmp_path):
+    short_scenario, free_port, tmp_path
+):
     out, _ = short_scenario
     records = list(read_recording(out / "plots.rec"))[:1200]  # about the first 40 s
     last_plot_t = max(r.t_s for r in records)
@@ -253,8 +263,9 @@ def test_serve_process_flushes_and_exits_on_sigint_and_sigterm_and_refuses_a_tak
 
     def serve(port, name, command):
         config = serve_config(out, port, tmp_path / f"{name}.toml")
-        return subprocess.Popen(command + ["--config", str(config)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        return subprocess.Popen(
+            command + ["--config", str(config)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+        )
 
     # The daemons start at once: a process start costs seconds, mostly imports. The
     # SIGTERM one (what systemd sends) is the `radar-fusion serve` command itself; the
@@ -265,8 +276,10 @@ def test_serve_process_flushes_and_exits_on_sigint_and_sigterm_and_refuses_a_tak
     taken.bind(("127.0.0.1", 0))
     taken.listen()
     serve_only = [sys.executable, "-c", SERVE_ONLY]
-    procs = {signal.SIGINT: serve(ports[signal.SIGINT], "SIGINT", serve_only),
-             signal.SIGTERM: serve(ports[signal.SIGTERM], "SIGTERM", radar_fusion_command() + ["serve"])}
+    procs = {
+        signal.SIGINT: serve(ports[signal.SIGINT], "SIGINT", serve_only),
+        signal.SIGTERM: serve(ports[signal.SIGTERM], "SIGTERM", radar_fusion_command() + ["serve"]),
+    }
     refused = serve(taken.getsockname()[1], "taken", serve_only)
     try:
         rc = refused.wait(timeout=60)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import gzip
+import itertools
 import json
 import math
 import tomllib
@@ -21,9 +22,9 @@ import pytest
 
 from radar_fusion import config, wire
 from radar_fusion.geo.coordinates import SystemPlane
+from radar_fusion.recording import read_recording
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.truth import load_truth
-from radar_fusion.recording import read_recording
 
 GEOD = pyproj.Geod(ellps="WGS84")
 
@@ -36,19 +37,41 @@ def demo():
     return sim.simulate(sim.preset("demo", seed=3, duration_s=240.0))
 
 
-def straight_scenario(rates: sim.Rates, n_targets: int = 60, duration_s: float = 300.0, seed: int = 5,
-                      **radar_kw) -> sim.Scenario:
+def straight_scenario(
+    rates: sim.Rates, n_targets: int = 60, duration_s: float = 300.0, seed: int = 5, **radar_kw
+) -> sim.Scenario:
     """One radar at the centre, targets flying straight and level 60-180 km away."""
     rng = np.random.default_rng(seed)
-    radar = sim.RadarSpec(**{**dict(id="r1", lat_deg=47.0, lon_deg=8.0, alt_m=500.0, rotation_period_s=4.0,
-                                    sigma_range_m=60.0, sigma_azimuth_deg=0.08, range_bias_m=45.0,
-                                    azimuth_bias_deg=-0.05, max_range_m=400_000.0, n_sectors=16,
-                                    start_phase_deg=None), **radar_kw})  # fmt: skip
+    radar = sim.RadarSpec(
+        **{
+            **dict(
+                id="r1",
+                lat_deg=47.0,
+                lon_deg=8.0,
+                alt_m=500.0,
+                rotation_period_s=4.0,
+                sigma_range_m=60.0,
+                sigma_azimuth_deg=0.08,
+                range_bias_m=45.0,
+                azimuth_bias_deg=-0.05,
+                max_range_m=400_000.0,
+                n_sectors=16,
+                start_phase_deg=None,
+            ),
+            **radar_kw,
+        }
+    )
     targets = []
     for k in range(n_targets):
         r, b = rng.uniform(60_000, 180_000), rng.uniform(0, 2 * math.pi)
-        plan = sim.FlightPlan(r * math.sin(b), r * math.cos(b), float(rng.uniform(0, 360)), float(rng.uniform(120, 260)),
-                              float(rng.integers(200, 400) * 100), (sim.Leg(duration_s + 60.0),))  # fmt: skip
+        plan = sim.FlightPlan(
+            r * math.sin(b),
+            r * math.cos(b),
+            float(rng.uniform(0, 360)),
+            float(rng.uniform(120, 260)),
+            float(rng.integers(200, 400) * 100),
+            (sim.Leg(duration_s + 60.0),),
+        )
         targets.append(sim.Target(f"S{k:03d}", mode_s=0x400000 + k, mode3a=0o1000 + k, plan=plan))
     return sim.Scenario("straight", 47.0, 8.0, [radar], targets, duration_s=duration_s, seed=seed, rates=rates)
 
@@ -82,9 +105,21 @@ def wrap180(a):
 
 def plots_of(simulation: sim.Simulation, radar_id: str) -> sim.PlotColumns:
     cols = [c for c in simulation.plot_columns if c.radar_id == radar_id]
-    cat = {name: np.concatenate([getattr(c, name) for c in cols])
-           for name in ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind",
-                        "target_index", "wild")}  # fmt: skip
+    cat = {
+        name: np.concatenate([getattr(c, name) for c in cols])
+        for name in (
+            "t_s",
+            "range_m",
+            "azimuth_deg",
+            "fl",
+            "mode3a",
+            "mode_s",
+            "track_no",
+            "kind",
+            "target_index",
+            "wild",
+        )
+    }
     return sim.PlotColumns(radar_id=radar_id, radar_index=-1, seq=-1, t_pub_s=math.nan, **cat)
 
 
@@ -94,7 +129,7 @@ def plots_of(simulation: sim.Simulation, radar_id: str) -> sim.PlotColumns:
 def test_plot_times_follow_the_antenna_sweep(demo):
     sc = demo.scenario
     statuses = [(t, rid, kind) for t, rid, kind, _ in demo.statuses]
-    for r, radar in enumerate(sc.radars):
+    for _r, radar in enumerate(sc.radars):
         period = radar.rotation_period_s
         north = np.array([t for t, rid, kind in statuses if rid == radar.id and kind == "north"])
         assert np.allclose(np.diff(north), period, atol=1e-6)
@@ -123,9 +158,14 @@ def test_plot_times_follow_the_antenna_sweep(demo):
 
 
 def test_plot_time_is_the_crossing_of_the_true_azimuth():
-    sc = straight_scenario(sim.Rates(pd=1.0, false_plots_per_scan=0.0, wild_plot_prob=0.0, wild_run_prob=0.0),
-                           n_targets=10, duration_s=60.0, sigma_azimuth_deg=0.001, azimuth_bias_deg=0.0,
-                           start_phase_deg=123.0)  # fmt: skip
+    sc = straight_scenario(
+        sim.Rates(pd=1.0, false_plots_per_scan=0.0, wild_plot_prob=0.0, wild_run_prob=0.0),
+        n_targets=10,
+        duration_s=60.0,
+        sigma_azimuth_deg=0.001,
+        azimuth_bias_deg=0.0,
+        start_phase_deg=123.0,
+    )
     s = sim.simulate(sc)
     p = plots_of(s, "r1")
     lat, lon, alt = straight_truth(sc, p.target_index, p.t_s)
@@ -178,8 +218,15 @@ def test_detection_rate_and_false_plot_rate():
 
 
 def test_wild_plots_where_injected_with_runs_and_identity_kept():
-    rates = sim.Rates(pd=1.0, false_plots_per_scan=0.0, wild_plot_prob=0.01, wild_run_prob=0.01,
-                      wild_run_scans=(3, 5), wild_range_m=(3000.0, 6000.0), wild_azimuth_deg=(2.0, 4.0))  # fmt: skip
+    rates = sim.Rates(
+        pd=1.0,
+        false_plots_per_scan=0.0,
+        wild_plot_prob=0.01,
+        wild_run_prob=0.01,
+        wild_run_scans=(3, 5),
+        wild_range_m=(3000.0, 6000.0),
+        wild_azimuth_deg=(2.0, 4.0),
+    )
     sc = straight_scenario(rates, n_targets=40, duration_s=300.0)
     s = sim.simulate(sc, encode=False)
     radar = sc.radars[0]
@@ -212,7 +259,7 @@ def test_identity_mode_c_and_report_kinds(demo):
     sc = demo.scenario
     checked = set()
     n_fl = [0, 0]
-    for r, radar in enumerate(sc.radars):
+    for _r, radar in enumerate(sc.radars):
         p = plots_of(demo, radar.id)
         true = p.target_index >= 0
         kinds = {wire.KIND_CODES[k]: k for k in ("psr", "ssr", "cmb", "modes")}
@@ -284,7 +331,7 @@ def test_messages_ordered_sequenced_and_decodable(demo):
         seq = status_kinds[radar.id]
         n = radar.n_sectors
         sectors = [s for _, s, _ in seq]
-        assert all((b - a) % n == 1 for a, b in zip(sectors, sectors[1:]))
+        assert all((b - a) % n == 1 for a, b in itertools.pairwise(sectors))
         for kind, sector, rot in seq:
             assert (kind == "north") == (sector == 0)
             assert rot == (radar.rotation_period_s if kind == "north" else None)
@@ -340,10 +387,12 @@ def test_truth_velocities_match_finite_differences(demo):
 
 
 def test_coordinated_turn_is_a_circular_arc():
-    plan = sim.FlightPlan(0.0, 0.0, 90.0, 180.0, 20000.0,
-                          (sim.Leg(10.0), sim.Leg(60.0, 3.0, 1500.0), sim.Leg(30.0, -1.5)))  # fmt: skip
-    sc = sim.Scenario("turn", 47.0, 8.0, [sim.RadarSpec("r", 47.0, 8.0)],
-                      [sim.Target("T", mode_s=1, plan=plan)], duration_s=100.0)  # fmt: skip
+    plan = sim.FlightPlan(
+        0.0, 0.0, 90.0, 180.0, 20000.0, (sim.Leg(10.0), sim.Leg(60.0, 3.0, 1500.0), sim.Leg(30.0, -1.5))
+    )
+    sc = sim.Scenario(
+        "turn", 47.0, 8.0, [sim.RadarSpec("r", 47.0, 8.0)], [sim.Target("T", mode_s=1, plan=plan)], duration_s=100.0
+    )
     traj = sim.Trajectories(sc.targets, SystemPlane(47.0, 8.0), sc.start_t_s)
     radius = 180.0 / math.radians(3.0)
     t = sc.start_t_s + np.array([10.0, 40.0, 70.0])
@@ -422,7 +471,11 @@ def test_outputs_config_and_truth_round_trip(demo, tmp_path):
     assert settings.system.period_s <= settings.shortest_rotation_s
     for cfg, spec in zip(settings.radars, demo.scenario.radars):
         assert (cfg.lat, cfg.lon, cfg.rotation_period_s, cfg.sigma_range_m) == (
-            spec.lat_deg, spec.lon_deg, spec.rotation_period_s, spec.sigma_range_m)
+            spec.lat_deg,
+            spec.lon_deg,
+            spec.rotation_period_s,
+            spec.sigma_range_m,
+        )
     recs = list(read_recording(paths["recording"]))
     assert [(r.t_s, r.key, r.payload) for r in recs] == demo.messages
     truth = load_truth(paths["truth"])
@@ -430,7 +483,9 @@ def test_outputs_config_and_truth_round_trip(demo, tmp_path):
     assert header == "t_s,target_id,mode_s,callsign,lat_deg,lon_deg,alt_ft,x_m,y_m,vx_mps,vy_mps,vrate_fpm,detectable"
     assert len(truth) == len(demo.truth)
     assert np.array_equal(truth.target_id, demo.truth.target_id)
-    assert np.allclose(truth.x_m, demo.truth.x_m, atol=0.01) and np.allclose(truth.lat_deg, demo.truth.lat_deg, atol=1e-7)
+    assert np.allclose(truth.x_m, demo.truth.x_m, atol=0.01) and np.allclose(
+        truth.lat_deg, demo.truth.lat_deg, atol=1e-7
+    )
     assert np.array_equal(truth.detectable, demo.truth.detectable)
     # one truth type: the CSV reads back into what the simulator built, every column
     assert np.allclose(truth.alt_ft, demo.truth.alt_ft, atol=0.05)

@@ -12,8 +12,8 @@ from scipy.stats import chi2
 
 from radar_fusion.tracking.initiation import two_point_initiation
 from radar_fusion.tracking.singer_filter import (
-    H,
     AltitudeFilter,
+    H,
     SingerFilter,
     singer_process_noise,
     singer_sigma_m_mps2,
@@ -172,9 +172,7 @@ def test_singer_sigma_formula():
     # A_max = 30 m/s², P_max = 0.1, P_0 = 0.5 → σ² = 300·0.9
     assert singer_sigma_m_mps2(30.0, 0.1, 0.5) == pytest.approx(np.sqrt(270.0))
     f = SingerFilter()
-    assert f.sigma_m_mps2 == pytest.approx(
-        np.sqrt((G0 * np.tan(np.radians(25))) ** 2 / 3 * 0.9)
-    )
+    assert f.sigma_m_mps2 == pytest.approx(np.sqrt((G0 * np.tan(np.radians(25))) ** 2 / 3 * 0.9))
     assert 20 <= 1 / f.alpha_per_s <= 60
     with pytest.raises(ValueError):
         singer_sigma_m_mps2(5.0, 0.6, 0.5)
@@ -196,9 +194,7 @@ def test_two_point_initiation_matches_monte_carlo():
     p2 = p1 + v * dt
     z1 = p1 + rng.multivariate_normal([0, 0], R1, n)
     z2 = p2 + rng.multivariate_normal([0, 0], R2, n)
-    x, P = two_point_initiation(
-        z1, np.broadcast_to(R1, (n, 2, 2)), z2, np.broadcast_to(R2, (n, 2, 2)), dt, sigma_m
-    )
+    x, P = two_point_initiation(z1, np.broadcast_to(R1, (n, 2, 2)), z2, np.broadcast_to(R2, (n, 2, 2)), dt, sigma_m)
     truth = np.column_stack([p2[:, 0], v[:, 0], np.zeros(n), p2[:, 1], v[:, 1], np.zeros(n)])
     e = (x - truth)[:, [0, 1, 3, 4]]
     C = e.T @ e / n

@@ -17,8 +17,16 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def plot(**kw):
-    p = {"t": 1.7e9, "range_m": 120_000.0, "azimuth_deg": 45.0, "fl": 350.0, "mode3a": 0o1234,
-         "mode_s": "4CA1F3", "track_no": 17, "kind": "cmb"}
+    p = {
+        "t": 1.7e9,
+        "range_m": 120_000.0,
+        "azimuth_deg": 45.0,
+        "fl": 350.0,
+        "mode3a": 0o1234,
+        "mode_s": "4CA1F3",
+        "track_no": 17,
+        "kind": "cmb",
+    }
     p.update(kw)
     return p
 

@@ -22,10 +22,11 @@ around it: sockets, files, pacing, the Zenoh session.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ipaddress
 import json
-import math
 import logging
+import math
 import queue
 import signal
 import socket
@@ -33,9 +34,10 @@ import struct
 import sys
 import threading
 import time
+from collections.abc import Callable, Iterator
 from datetime import date
 from pathlib import Path
-from typing import Any, Callable, Iterator, Optional
+from typing import Any
 
 from radar_fusion.asterix import AsterixToWire, Cat062Encoder, DecodeCounters, WireMessage, iter_file, sort_by_time
 from radar_fusion.config import ConfigError, Settings, load_settings
@@ -59,7 +61,7 @@ def parse_host_port(text: str) -> tuple[str, int]:
 
 
 def open_udp_receiver(
-    host: str, port: int, multicast_group: Optional[str] = None, interface_ip: str = "0.0.0.0"
+    host: str, port: int, multicast_group: str | None = None, interface_ip: str = "0.0.0.0"
 ) -> socket.socket:
     """A UDP socket bound to ``host:port``; joins ``multicast_group`` on ``interface_ip``.
 
@@ -68,10 +70,8 @@ def open_udp_receiver(
     """
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    try:
+    with contextlib.suppress(OSError):  # a larger buffer if the system allows it
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
-    except OSError:
-        pass
     sock.bind((host, port))
     if multicast_group:
         if not ipaddress.ip_address(multicast_group).is_multicast:
@@ -83,7 +83,7 @@ def open_udp_receiver(
 
 
 def iter_udp(
-    sock: socket.socket, stop: threading.Event, duration_s: Optional[float] = None, poll_s: float = 0.2
+    sock: socket.socket, stop: threading.Event, duration_s: float | None = None, poll_s: float = 0.2
 ) -> Iterator[tuple[float, bytes]]:
     """``(receive epoch s, datagram)`` until ``stop`` is set or ``duration_s`` has passed."""
     sock.settimeout(poll_s)
@@ -91,7 +91,7 @@ def iter_udp(
     while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
         try:
             data = sock.recv(MAX_DATAGRAM_BYTES)
-        except socket.timeout:
+        except TimeoutError:
             continue
         except OSError:
             if stop.is_set():
@@ -106,7 +106,7 @@ def iter_udp(
 class ZenohSink:
     """Publishes wire messages on the bus; one reliable/BLOCK publisher per key."""
 
-    def __init__(self, settings: Settings, mode: str = "client", connect: Optional[list[str]] = None):
+    def __init__(self, settings: Settings, mode: str = "client", connect: list[str] | None = None):
         from radar_fusion.bus import client_config_for, open_session, zenoh_config
 
         bus = settings.bus
@@ -114,7 +114,9 @@ class ZenohSink:
             cfg = client_config_for(bus)
         else:
             endpoints = connect if connect is not None else list(bus.connect or bus.listen)
-            cfg = zenoh_config(mode, connect=endpoints, multicast_scouting=bus.multicast_scouting, config_file=bus.zenoh_config_file)
+            cfg = zenoh_config(
+                mode, connect=endpoints, multicast_scouting=bus.multicast_scouting, config_file=bus.zenoh_config_file
+            )
         self.prefix = bus.prefix
         self.session = open_session(cfg)
         self._pubs: dict[str, Any] = {}
@@ -183,7 +185,11 @@ def add_arguments_in(parser: argparse.ArgumentParser) -> None:
         "--format", choices=("raw", "pcap", "rply"), help="with --file: file format (default: from name/contents)"
     )
     parser.add_argument(
-        "--speed", type=_speed, default=None, metavar="X|max", help="with --file: 1 = recorded speed, 10 = ten times, max (default: 1 on the bus, max with --out)"
+        "--speed",
+        type=_speed,
+        default=None,
+        metavar="X|max",
+        help="with --file: 1 = recorded speed, 10 = ten times, max (default: 1 on the bus, max with --out)",
     )
     parser.add_argument(
         "--order",
@@ -195,11 +201,16 @@ def add_arguments_in(parser: argparse.ArgumentParser) -> None:
         "--no-dedup", action="store_true", help="keep data blocks identical to a recent one (dual-LAN copies)"
     )
     parser.add_argument(
-        "--date", type=_day, metavar="YYYY-MM-DD", help="UTC date of the first report (default: from pcap/receive time, else today)"
+        "--date",
+        type=_day,
+        metavar="YYYY-MM-DD",
+        help="UTC date of the first report (default: from pcap/receive time, else today)",
     )
     parser.add_argument("--out", metavar="REC", help="write a recording (tools.recording) instead of publishing")
     parser.add_argument("--bus-mode", choices=("client", "peer"), default="client", help="zenoh mode of the bridge")
-    parser.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint(s), overriding the config")
+    parser.add_argument(
+        "--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint(s), overriding the config"
+    )
     parser.add_argument("--duration-s", type=float, metavar="S", help="with --udp: stop after this many seconds")
     parser.add_argument("--quiet", action="store_true", help="do not print the counters at the end")
 
@@ -213,12 +224,12 @@ def _install_stop_handlers(stop: threading.Event) -> None:
 
 def run_bridge_in(
     settings: Settings,
-    source: Iterator[tuple[Optional[float], bytes]],
+    source: Iterator[tuple[float | None, bytes]],
     write: Callable[[WireMessage], None],
-    day: Optional[date] = None,
-    speed: Optional[float] = None,
-    stop: Optional[threading.Event] = None,
-    bridge: Optional[AsterixToWire] = None,
+    day: date | None = None,
+    speed: float | None = None,
+    stop: threading.Event | None = None,
+    bridge: AsterixToWire | None = None,
 ) -> AsterixToWire:
     """Convert every datagram of ``source`` and hand the messages to ``write``.
 
@@ -226,7 +237,7 @@ def run_bridge_in(
     converter, whose ``counters`` say what was decoded and skipped.
     """
     bridge = bridge or AsterixToWire(settings.radars, day=day)
-    first_t_s: Optional[float] = None
+    first_t_s: float | None = None
     wall0 = time.monotonic()
     for reference_epoch_s, datagram in source:
         if stop is not None and stop.is_set():
@@ -266,7 +277,7 @@ def run_in(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:
             print(f"cannot open UDP {args.udp[0]}:{args.udp[1]}: {exc}", file=sys.stderr)
             return 2
-        source: Iterator[tuple[Optional[float], bytes]] = iter_udp(sock, stop, args.duration_s)
+        source: Iterator[tuple[float | None, bytes]] = iter_udp(sock, stop, args.duration_s)
         speed = None
     else:
         if not Path(args.file).is_file():
@@ -318,15 +329,21 @@ def add_arguments_out(parser: argparse.ArgumentParser) -> None:
     """Options of ``radar-fusion asterix-out``."""
     parser.add_argument("--config", required=True, help="daemon configuration TOML ([bus])")
     dst = parser.add_mutually_exclusive_group(required=True)
-    dst.add_argument("--udp", type=parse_host_port, metavar="HOST:PORT", help="send CAT062 datagrams here (unicast or multicast)")
+    dst.add_argument(
+        "--udp", type=parse_host_port, metavar="HOST:PORT", help="send CAT062 datagrams here (unicast or multicast)"
+    )
     dst.add_argument("--file", metavar="PATH", help="append CAT062 data blocks (raw, concatenated) to this file")
     parser.add_argument("--sac", type=int, default=0, help="system area code of this tracker in I062/010 (default 0)")
     parser.add_argument("--sic", type=int, default=1, help="system identification code in I062/010 (default 1)")
     parser.add_argument("--service-id", type=int, default=1, help="I062/015 service identification (default 1)")
-    parser.add_argument("--max-block-bytes", type=int, default=1400, help="largest data block / datagram (default 1400)")
+    parser.add_argument(
+        "--max-block-bytes", type=int, default=1400, help="largest data block / datagram (default 1400)"
+    )
     parser.add_argument("--ttl", type=int, default=8, help="multicast TTL for --udp to a group (default 8)")
     parser.add_argument("--bus-mode", choices=("client", "peer"), default="client", help="zenoh mode of the bridge")
-    parser.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint(s), overriding the config")
+    parser.add_argument(
+        "--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint(s), overriding the config"
+    )
     parser.add_argument("--duration-s", type=float, metavar="S", help="stop after this many seconds")
     parser.add_argument("--quiet", action="store_true", help="do not print the counters at the end")
 
@@ -374,10 +391,10 @@ def run_out(args: argparse.Namespace) -> int:
             print(f"cannot resolve {args.udp[0]}: {exc}", file=sys.stderr)
             return 2
         dest = args.udp
-        send: Callable[[bytes], None] = lambda block: sock.sendto(block, dest)  # noqa: E731
+        send: Callable[[bytes], None] = lambda block: sock.sendto(block, dest)
         closer: Callable[[], None] = sock.close
     else:
-        f = open(args.file, "ab")
+        f = open(args.file, "ab")  # noqa: SIM115  # open for the writer's life; closer closes it
 
         def send(block: bytes) -> None:
             f.write(block)

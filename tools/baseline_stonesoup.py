@@ -47,8 +47,9 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Optional
+from typing import Any
 
 import numpy as np
 
@@ -136,9 +137,15 @@ def convert_plots(settings, plot_batches: Iterable[Any]) -> ConvertedPlots:
         if keep.size == 0:
             continue
         x, y, cov, _g, valid = polar_to_plane(
-            plane, sites, np.full(keep.size, i), b.range_m[keep], b.azimuth_deg[keep],
-            flight_level_to_altitude_m(b.fl[keep]), assumed_altitude_m=assumed_altitude_m, return_valid=True,
-        )  # fmt: skip
+            plane,
+            sites,
+            np.full(keep.size, i),
+            b.range_m[keep],
+            b.azimuth_deg[keep],
+            flight_level_to_altitude_m(b.fl[keep]),
+            assumed_altitude_m=assumed_altitude_m,
+            return_valid=True,
+        )
         parts.append((b.t_s[keep][valid], x[valid], y[valid], cov[valid], np.full(int(valid.sum()), i)))
     if not parts:
         z = np.zeros(0)
@@ -255,8 +262,8 @@ def _trim(tracks, oldest: _dt.datetime, update_type) -> None:
 def run_stonesoup(
     settings,
     plot_batches: Iterable[Any],
-    params: Optional[StoneSoupParams] = None,
-    time_budget_s: Optional[float] = None,
+    params: StoneSoupParams | None = None,
+    time_budget_s: float | None = None,
 ) -> ReferenceRun:
     """Track ``plot_batches`` (``wire.DecodedPlots`` of the radars in ``settings``) with Stone Soup.
 
@@ -300,11 +307,16 @@ def run_stonesoup(
                         last_update = (s.timestamp - _EPOCH).total_seconds()
                         break
                 coasting = last_update is None or b - last_update > coast_after_s
-                out.append({
-                    "track_id": tid, "status": "coasting" if coasting else "confirmed",
-                    "x_m": float(sv[0] + sv[1] * dt), "y_m": float(sv[2] + sv[3] * dt),
-                    "vx_mps": float(sv[1]), "vy_mps": float(sv[3]),
-                })  # fmt: skip
+                out.append(
+                    {
+                        "track_id": tid,
+                        "status": "coasting" if coasting else "confirmed",
+                        "x_m": float(sv[0] + sv[1] * dt),
+                        "y_m": float(sv[2] + sv[3] * dt),
+                        "vx_mps": float(sv[1]),
+                        "vy_mps": float(sv[3]),
+                    }
+                )
             batches.append({"t": b, "period": next_period, "tracks": out, "ended": []})
             next_period += 1
 
@@ -317,8 +329,13 @@ def run_stonesoup(
         dets = set()
         for j in range(s, e):
             model = LinearGaussian(ndim_state=4, mapping=mapping, noise_covar=CovarianceMatrix(plots.cov_m2[j]))
-            dets.add(Detection(StateVector([plots.x_m[j], plots.y_m[j]]), timestamp=_datetime(plots.t_s[j]),
-                               measurement_model=model))  # fmt: skip
+            dets.add(
+                Detection(
+                    StateVector([plots.x_m[j], plots.y_m[j]]),
+                    timestamp=_datetime(plots.t_s[j]),
+                    measurement_model=model,
+                )
+            )
         step_time = _datetime(plots.t_s[e - 1])
         tracker.update_tracker(step_time, dets)
         processed += e - s
@@ -331,6 +348,13 @@ def run_stonesoup(
         emit_until(math.floor(float(plots.t_s[-1]) / period_s) * period_s + period_s)
     run_s = perf() - t0
     return ReferenceRun(
-        batches=batches, plots_offered=plots.n_offered, plots_used=int(plots.t_s.shape[0]), steps=len(steps),
-        run_s=run_s, tracks_started=len(ids), completed=completed, plots_processed=processed, params=params,
-    )  # fmt: skip
+        batches=batches,
+        plots_offered=plots.n_offered,
+        plots_used=int(plots.t_s.shape[0]),
+        steps=len(steps),
+        run_s=run_s,
+        tracks_started=len(ids),
+        completed=completed,
+        plots_processed=processed,
+        params=params,
+    )

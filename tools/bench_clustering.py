@@ -61,9 +61,9 @@ def make_period(rng, n_targets, n_radars, coverage_m, with_tracks=True):
         u = np.stack([np.sin(az), np.cos(az)], axis=1)
         w = np.stack([np.cos(az), -np.sin(az)], axis=1)
         s_cross = rng_m * SIGMA_AZ_RAD
-        c = (SIGMA_RANGE_M**2) * u[:, :, None] * u[:, None, :] + (s_cross**2)[
-            :, None, None
-        ] * w[:, :, None] * w[:, None, :]
+        c = (SIGMA_RANGE_M**2) * u[:, :, None] * u[:, None, :] + (s_cross**2)[:, None, None] * w[:, :, None] * w[
+            :, None, :
+        ]
         noise = (
             rng.normal(size=(p.shape[0], 1)) * SIGMA_RANGE_M * u
             + rng.normal(size=(p.shape[0], 1)) * s_cross[:, None] * w
@@ -143,9 +143,7 @@ def main(argv=None):
         for n_radars in (3, 10, 30):
             times, fracs, n_plots, iters = [], [], [], []
             for k in range(args.periods + 1):
-                plots, tracks, truth, t_ref = make_period(
-                    rng, n_targets, n_radars, args.coverage_km * 1e3, with_tracks
-                )
+                plots, tracks, truth, t_ref = make_period(rng, n_targets, n_radars, args.coverage_km * 1e3, with_tracks)
                 t0 = time.perf_counter()
                 res = cluster_plots(*plots, *tracks, t_ref, params)
                 dt = time.perf_counter() - t0

@@ -63,9 +63,10 @@ import argparse
 import csv
 import json
 import sys
+from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 import msgpack
 import numpy as np
@@ -79,21 +80,32 @@ from .detrend import polar_residuals, robust_z
 
 __all__ = [
     "CleanParams",
+    "CleanSummary",
     "PlotTable",
     "Removal",
-    "CleanSummary",
+    "add_arguments",
+    "clean_file",
+    "clean_messages",
     "collect_plots",
     "find_wild",
-    "clean_messages",
-    "clean_file",
-    "write_report",
-    "add_arguments",
     "run",
+    "write_report",
 ]
 
 KEY_TRACK_NO, KEY_MODE_S = 0, 1
-REPORT_COLUMNS = ("radar", "key", "t_s", "range_m", "azimuth_deg", "series", "outlier_factor", "of_threshold",
-                  "deviation_sigma", "message_index", "plot_index")  # fmt: skip
+REPORT_COLUMNS = (
+    "radar",
+    "key",
+    "t_s",
+    "range_m",
+    "azimuth_deg",
+    "series",
+    "outlier_factor",
+    "of_threshold",
+    "deviation_sigma",
+    "message_index",
+    "plot_index",
+)
 _MAX_PAYLOAD_BYTES = 64 << 20
 _PLOT_LIST = TypeAdapter(list[wire.Plot])
 
@@ -253,8 +265,9 @@ def collect_plots(records: Iterable[tuple[float, str, bytes]], summary: CleanSum
     """
     s = summary if summary is not None else CleanSummary()
     radars: dict[str, int] = {}
-    cols: dict[str, list] = {k: [] for k in ("message", "plot", "radar", "key_kind", "key_value", "t_s",
-                                             "range_m", "azimuth_deg")}  # fmt: skip
+    cols: dict[str, list] = {
+        k: [] for k in ("message", "plot", "radar", "key_kind", "key_value", "t_s", "range_m", "azimuth_deg")
+    }
     for i, rec in enumerate(records):
         key, payload = (rec.key, rec.payload) if hasattr(rec, "key") else (rec[1], rec[2])
         s.messages += 1
@@ -281,16 +294,26 @@ def collect_plots(records: Iterable[tuple[float, str, bytes]], summary: CleanSum
             else:
                 s.plots_without_key += 1
                 continue
-            for name, v in (("message", i), ("plot", j), ("radar", r), ("key_kind", kind), ("key_value", value),
-                            ("t_s", p.t), ("range_m", p.range_m), ("azimuth_deg", p.azimuth_deg)):  # fmt: skip
+            for name, v in (
+                ("message", i),
+                ("plot", j),
+                ("radar", r),
+                ("key_kind", kind),
+                ("key_value", value),
+                ("t_s", p.t),
+                ("range_m", p.range_m),
+                ("azimuth_deg", p.azimuth_deg),
+            ):
                 cols[name].append(v)
     s.plots_identified += len(cols["t_s"])
     ints = ("message", "plot", "radar", "key_value")
     return PlotTable(
         radars=list(radars),
-        **{k: np.asarray(v, dtype=np.int64 if k in ints else (np.int8 if k == "key_kind" else float))
-           for k, v in cols.items()},
-    )  # fmt: skip
+        **{
+            k: np.asarray(v, dtype=np.int64 if k in ints else (np.int8 if k == "key_kind" else float))
+            for k, v in cols.items()
+        },
+    )
 
 
 # --------------------------------------------------------------------------- analysis
@@ -314,7 +337,7 @@ def _wild_with_factor(s: np.ndarray, method: str, params: OutlierParams) -> tupl
     a = analyse(s, None, method, params)
     of = np.zeros(s.size)
     for p in np.flatnonzero(a.wild_subsequence):
-        of[a.starts[p]:a.edge_stops[p]] = a.outlier_factor[p]
+        of[a.starts[p] : a.edge_stops[p]] = a.outlier_factor[p]
     return a.wild, of, a.threshold
 
 
@@ -336,11 +359,17 @@ def find_wild(table: PlotTable, params: CleanParams | None = None) -> Removal:
         n_analysed += 1
         analysed[rows] = True
         if p.detrend == "xy":
-            series = dict(zip(("range", "azimuth"), polar_residuals(
-                table.t_s[rows], table.range_m[rows], table.azimuth_deg[rows], p.trend_plots)))
+            series = dict(
+                zip(
+                    ("range", "azimuth"),
+                    polar_residuals(table.t_s[rows], table.range_m[rows], table.azimuth_deg[rows], p.trend_plots),
+                )
+            )
         else:
-            series = {"range": table.range_m[rows],
-                      "azimuth": np.rad2deg(np.unwrap(np.deg2rad(table.azimuth_deg[rows])))}
+            series = {
+                "range": table.range_m[rows],
+                "azimuth": np.rad2deg(np.unwrap(np.deg2rad(table.azimuth_deg[rows]))),
+            }
         for name, s in series.items():
             w, f, th = _wild_with_factor(s, p.method, p.outlier)
             z = robust_z(s) if p.detrend == "xy" else np.full(s.size, np.nan)
@@ -350,12 +379,18 @@ def find_wild(table: PlotTable, params: CleanParams | None = None) -> Removal:
     wild = hit["range"] | hit["azimuth"]
     # Report the OF (and threshold, deviation) of the series that flagged the plot, the larger OF when both did.
     use_r = hit["range"] & (~hit["azimuth"] | (of["range"] >= of["azimuth"]))
-    pick = lambda d, none: np.where(use_r, d["range"], np.where(hit["azimuth"], d["azimuth"], none))  # noqa: E731
+    pick = lambda d, none: np.where(use_r, d["range"], np.where(hit["azimuth"], d["azimuth"], none))
     return Removal(
-        wild=wild, by_range=hit["range"], by_azimuth=hit["azimuth"], outlier_factor=pick(of, 0.0),
-        of_threshold=pick(thr, np.nan), deviation_sigma=pick(dev, np.nan), analysed=analysed,
-        series_total=int(starts.size), series_analysed=n_analysed,
-    )  # fmt: skip
+        wild=wild,
+        by_range=hit["range"],
+        by_azimuth=hit["azimuth"],
+        outlier_factor=pick(of, 0.0),
+        of_threshold=pick(thr, np.nan),
+        deviation_sigma=pick(dev, np.nan),
+        analysed=analysed,
+        series_total=int(starts.size),
+        series_analysed=n_analysed,
+    )
 
 
 # --------------------------------------------------------------------------- rewriting
@@ -369,8 +404,9 @@ def removed_plots(table: PlotTable, removal: Removal) -> dict[int, set[int]]:
     return out
 
 
-def clean_messages(records: Iterable[tuple[float, str, bytes]], drop: dict[int, set[int]],
-                   summary: CleanSummary | None = None) -> Iterator[tuple[float, str, bytes]]:
+def clean_messages(
+    records: Iterable[tuple[float, str, bytes]], drop: dict[int, set[int]], summary: CleanSummary | None = None
+) -> Iterator[tuple[float, str, bytes]]:
     """Yield (t_s, key, payload) of ``records`` with the plots in ``drop`` removed.
 
     Messages without removals are yielded with their payload unchanged (the same bytes).
@@ -411,16 +447,24 @@ def report_rows(table: PlotTable, removal: Removal) -> list[dict[str, Any]]:
     rows = rows[np.lexsort((table.plot[rows], table.message[rows]))]
     out = []
     for r in rows.tolist():
-        series = "+".join(name for name, hit in (("range", removal.by_range[r]), ("azimuth", removal.by_azimuth[r]))
-                          if hit)  # fmt: skip
-        out.append({  # non-finite numbers (no threshold, zero MAD) become None: valid JSON
-            "radar": table.radars[int(table.radar[r])], "key": table.key_text(r), "t_s": float(table.t_s[r]),
-            "range_m": float(table.range_m[r]), "azimuth_deg": float(table.azimuth_deg[r]), "series": series,
-            "outlier_factor": _finite(removal.outlier_factor[r], 6),
-            "of_threshold": _finite(removal.of_threshold[r], 6),
-            "deviation_sigma": _finite(removal.deviation_sigma[r], 3),
-            "message_index": int(table.message[r]), "plot_index": int(table.plot[r]),
-        })  # fmt: skip
+        series = "+".join(
+            name for name, hit in (("range", removal.by_range[r]), ("azimuth", removal.by_azimuth[r])) if hit
+        )
+        out.append(
+            {  # non-finite numbers (no threshold, zero MAD) become None: valid JSON
+                "radar": table.radars[int(table.radar[r])],
+                "key": table.key_text(r),
+                "t_s": float(table.t_s[r]),
+                "range_m": float(table.range_m[r]),
+                "azimuth_deg": float(table.azimuth_deg[r]),
+                "series": series,
+                "outlier_factor": _finite(removal.outlier_factor[r], 6),
+                "of_threshold": _finite(removal.of_threshold[r], 6),
+                "deviation_sigma": _finite(removal.deviation_sigma[r], 3),
+                "message_index": int(table.message[r]),
+                "plot_index": int(table.plot[r]),
+            }
+        )
     return out
 
 
@@ -437,8 +481,9 @@ def write_report(path: str | Path, rows: list[dict[str, Any]]) -> None:
         w.writerows(rows)
 
 
-def clean_file(in_path: str | Path, out_path: str | Path, report_path: str | Path | None,
-               params: CleanParams | None = None) -> CleanSummary:
+def clean_file(
+    in_path: str | Path, out_path: str | Path, report_path: str | Path | None, params: CleanParams | None = None
+) -> CleanSummary:
     """Clean a recording file into ``out_path`` (two passes over the input); write the report."""
     p = params or CleanParams()
     if Path(in_path).resolve() == Path(out_path).resolve():
@@ -459,7 +504,7 @@ def clean_file(in_path: str | Path, out_path: str | Path, report_path: str | Pat
 
 def format_summary(s: CleanSummary, params: CleanParams) -> str:
     """The printed summary."""
-    pct = lambda a, b: f"{100.0 * a / b:.2f} %" if b else "-"  # noqa: E731
+    pct = lambda a, b: f"{100.0 * a / b:.2f} %" if b else "-"
     lines = [
         f"clean (method {params.method}, detrend {params.detrend}): {s.messages} messages, "
         f"{s.plot_batches} plot batches ({s.batches_undecodable} undecodable, passed through)",
@@ -472,7 +517,9 @@ def format_summary(s: CleanSummary, params: CleanParams) -> str:
         f"  batches re-encoded: {s.batches_rewritten} (left empty and kept: {s.batches_emptied})",
     ]
     for radar in sorted(s.plots_per_radar):
-        lines.append(f"    {radar:>12}: removed {s.removed_per_radar.get(radar, 0)} of {s.plots_per_radar[radar]} plots")
+        lines.append(
+            f"    {radar:>12}: removed {s.removed_per_radar.get(radar, 0)} of {s.plots_per_radar[radar]} plots"
+        )
     return "\n".join(lines)
 
 
@@ -484,42 +531,87 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     d, o = CleanParams(), CLEAN_OUTLIER_PARAMS
     parser.add_argument("file", help="recording to clean (from `simulate`, `record` or `asterix-in --out`)")
     parser.add_argument("--out", required=True, help="cleaned recording to write (.gz: compressed)")
-    parser.add_argument("--report", default=None,
-                        help="removed plots, CSV or .json (default: OUT + '.removed.csv')")  # fmt: skip
-    parser.add_argument("--method", choices=METHODS, default=d.method,
-                        help="soft: Hu 2013 soft edge weights (default); kmodf: the K-MODF baseline")  # fmt: skip
+    parser.add_argument("--report", default=None, help="removed plots, CSV or .json (default: OUT + '.removed.csv')")
+    parser.add_argument(
+        "--method",
+        choices=METHODS,
+        default=d.method,
+        help="soft: Hu 2013 soft edge weights (default); kmodf: the K-MODF baseline",
+    )
     parser.add_argument("--window", type=int, default=o.window, help=f"v of eq. 1, plots (default {o.window})")
     parser.add_argument("--k", type=int, default=o.k, help=f"k of the k-mean distance (default {o.k})")
-    parser.add_argument("--threshold", default=str(o.of_threshold),
-                        help=f"outlier-factor threshold, OF in [0, 2] (default {o.of_threshold:g}), or 'robust' for "
-                             "OF > median + of_sigma * 1.4826 * MAD per series")  # fmt: skip
-    parser.add_argument("--of-sigma", type=float, default=o.of_sigma, help=f"c of the robust rule (default {o.of_sigma:g})")
-    parser.add_argument("--edge-quantile", type=float, default=o.edge_quantile,
-                        help=f"quantile of W above which plots are edge points (default {o.edge_quantile:g})")  # fmt: skip
-    parser.add_argument("--max-wild-length", type=int, default=o.max_wild_length,
-                        help=f"longest run of plots removable as one wild sub-sequence (default {o.max_wild_length})")  # fmt: skip
-    parser.add_argument("--min-series-length", type=int, default=d.min_series_length,
-                        help=f"radar tracks with fewer plots are passed through (default {d.min_series_length}, "
-                             "at least --window)")  # fmt: skip
-    parser.add_argument("--max-gap-s", type=float, default=d.max_gap_s,
-                        help=f"split a radar track's series at longer gaps (default {d.max_gap_s:g} s)")  # fmt: skip
-    parser.add_argument("--detrend", choices=DETRENDS, default=d.detrend,
-                        help="xy (default): analyse residuals about a robust radar-plane trend; "
-                             "none: the raw range / azimuth series, as in the paper")  # fmt: skip
-    parser.add_argument("--trend-plots", type=int, default=d.trend_plots,
-                        help=f"plots per local trend fit (default {d.trend_plots})")  # fmt: skip
-    parser.add_argument("--min-deviation-sigma", type=float, default=d.min_deviation_sigma,
-                        help=f"with --detrend xy, remove a flagged plot only if its residual exceeds this many "
-                             f"robust sigmas (default {d.min_deviation_sigma:g}; 0: off)")  # fmt: skip
+    parser.add_argument(
+        "--threshold",
+        default=str(o.of_threshold),
+        help=f"outlier-factor threshold, OF in [0, 2] (default {o.of_threshold:g}), or 'robust' for "
+        "OF > median + of_sigma * 1.4826 * MAD per series",
+    )
+    parser.add_argument(
+        "--of-sigma", type=float, default=o.of_sigma, help=f"c of the robust rule (default {o.of_sigma:g})"
+    )
+    parser.add_argument(
+        "--edge-quantile",
+        type=float,
+        default=o.edge_quantile,
+        help=f"quantile of W above which plots are edge points (default {o.edge_quantile:g})",
+    )
+    parser.add_argument(
+        "--max-wild-length",
+        type=int,
+        default=o.max_wild_length,
+        help=f"longest run of plots removable as one wild sub-sequence (default {o.max_wild_length})",
+    )
+    parser.add_argument(
+        "--min-series-length",
+        type=int,
+        default=d.min_series_length,
+        help=f"radar tracks with fewer plots are passed through (default {d.min_series_length}, at least --window)",
+    )
+    parser.add_argument(
+        "--max-gap-s",
+        type=float,
+        default=d.max_gap_s,
+        help=f"split a radar track's series at longer gaps (default {d.max_gap_s:g} s)",
+    )
+    parser.add_argument(
+        "--detrend",
+        choices=DETRENDS,
+        default=d.detrend,
+        help="xy (default): analyse residuals about a robust radar-plane trend; "
+        "none: the raw range / azimuth series, as in the paper",
+    )
+    parser.add_argument(
+        "--trend-plots", type=int, default=d.trend_plots, help=f"plots per local trend fit (default {d.trend_plots})"
+    )
+    parser.add_argument(
+        "--min-deviation-sigma",
+        type=float,
+        default=d.min_deviation_sigma,
+        help=f"with --detrend xy, remove a flagged plot only if its residual exceeds this many "
+        f"robust sigmas (default {d.min_deviation_sigma:g}; 0: off)",
+    )
 
 
 def params_from_args(args: argparse.Namespace) -> CleanParams:
     """CleanParams from the parsed arguments (ValueError on bad values)."""
     threshold = None if str(args.threshold).lower() == "robust" else float(args.threshold)
-    outlier = OutlierParams(window=args.window, k=args.k, of_sigma=args.of_sigma, of_threshold=threshold,
-                            edge_quantile=args.edge_quantile, max_wild_length=args.max_wild_length)  # fmt: skip
-    return CleanParams(args.method, outlier, args.min_series_length, args.max_gap_s, args.detrend, args.trend_plots,
-                       args.min_deviation_sigma)  # fmt: skip
+    outlier = OutlierParams(
+        window=args.window,
+        k=args.k,
+        of_sigma=args.of_sigma,
+        of_threshold=threshold,
+        edge_quantile=args.edge_quantile,
+        max_wild_length=args.max_wild_length,
+    )
+    return CleanParams(
+        args.method,
+        outlier,
+        args.min_series_length,
+        args.max_gap_s,
+        args.detrend,
+        args.trend_plots,
+        args.min_deviation_sigma,
+    )
 
 
 def run(args: argparse.Namespace) -> int:

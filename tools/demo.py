@@ -18,7 +18,9 @@ import msgpack
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", default="out/demo", help="directory for the recording, truth, tracks and plot (default out/demo)")
+    p.add_argument(
+        "--out", default="out/demo", help="directory for the recording, truth, tracks and plot (default out/demo)"
+    )
     p.add_argument("--scenario", default="demo", help="simulator preset (default demo)")
     p.add_argument("--seed", type=int, default=1, help="random seed of the simulation (default 1)")
     p.add_argument("--speed", default="max", help="replay speed: max (default) or a factor such as 50")
@@ -48,7 +50,7 @@ class TrackCollector:
     def _record(self, sample) -> bytes:
         payload = sample.payload.to_bytes()
         if self.writer is not None:
-            self.writer.write(time.time(), str(sample.key_expr)[len(self.prefix) + 1:], payload)
+            self.writer.write(time.time(), str(sample.key_expr)[len(self.prefix) + 1 :], payload)
         return payload
 
     def _on_tracks(self, sample) -> None:
@@ -122,7 +124,9 @@ def run(args: argparse.Namespace) -> int:
     )
     n_radars, n_targets = len(settings.radars), len(set(simulation.truth.target_id.tolist()))
     print(f"      {n_radars} radars, {n_targets} aircraft, {len(simulation.messages)} messages -> {out}/plots.rec")
-    print(f"[2/4] fusion daemon on an embedded Zenoh router at tcp/127.0.0.1:{port}; replaying at speed {args.speed} ...")
+    print(
+        f"[2/4] fusion daemon on an embedded Zenoh router at tcp/127.0.0.1:{port}; replaying at speed {args.speed} ..."
+    )
     t_replay = time.perf_counter()
     collector, daemon, n_sent = run_pipeline(settings, out / "plots.rec", parse_speed(args.speed), out / "tracks.rec")
     dt_replay = time.perf_counter() - t_replay
@@ -142,9 +146,21 @@ def run(args: argparse.Namespace) -> int:
         print("alerts (new):")
         for a in collector.alerts:
             if a.get("status") == "new":
-                extra = {k: round(v, 1) if isinstance(v, float) else v for k, v in a.items()
-                         if k in ("time_to_cpa_s", "min_sep_m", "min_vsep_ft", "area_id", "time_to_entry_s",
-                                  "time_to_violation_s", "min_alt_ft") and v is not None}
+                extra = {
+                    k: round(v, 1) if isinstance(v, float) else v
+                    for k, v in a.items()
+                    if k
+                    in (
+                        "time_to_cpa_s",
+                        "min_sep_m",
+                        "min_vsep_ft",
+                        "area_id",
+                        "time_to_entry_s",
+                        "time_to_violation_s",
+                        "min_alt_ft",
+                    )
+                    and v is not None
+                }
                 print(f"  {a['kind'].upper():5} tracks {a['track_ids']} at t={a['t']:.0f} {extra}")
     print("[4/4] plotting ...")
     ev.plot(collector.batches, truth, out / "tracks.png")

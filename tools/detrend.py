@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def robust_trend_xy(t_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, neighbours: int,
-                    iterations: int = 2) -> tuple[np.ndarray, np.ndarray]:
+def robust_trend_xy(
+    t_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, neighbours: int, iterations: int = 2
+) -> tuple[np.ndarray, np.ndarray]:
     """Robust local-quadratic trend (LOWESS, Cleveland 1979) of a radar-plane path x(t), y(t).
 
     For each plot i, x and y are fitted by weighted least squares with a quadratic in time
@@ -88,8 +89,9 @@ def _nanmedian_last(a: np.ndarray) -> np.ndarray:
     return np.where(count > 0, 0.5 * (lo + hi), np.nan)[..., 0]
 
 
-def polar_residuals(t_s: np.ndarray, range_m: np.ndarray, azimuth_deg: np.ndarray,
-                    neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+def polar_residuals(
+    t_s: np.ndarray, range_m: np.ndarray, azimuth_deg: np.ndarray, neighbours: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Range (m) and azimuth (deg) of each plot minus those of the robust radar-plane trend."""
     az = np.deg2rad(azimuth_deg)
     x, y = range_m * np.sin(az), range_m * np.cos(az)
@@ -105,4 +107,3 @@ def robust_z(s: np.ndarray) -> np.ndarray:
     scale = 1.4826 * float(np.median(dev))
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(dev > 0, dev / scale, 0.0) if scale > 0 else np.where(dev > 0, np.inf, 0.0)
-

@@ -68,9 +68,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 import msgpack
 import numpy as np
@@ -81,12 +82,28 @@ from .gospa import Gospa, cutoff_assignment, gospa
 from .truth import TRUTH_COLUMNS, Truth, TruthAtTimes, as_truth, interpolate_truth, load_truth
 
 __all__ = [
-    "TRACKS_KEY", "DISPLAYED_STATUSES", "EvalParams", "TargetScore", "Scores", "evaluate", "load_tracks",
-    "format_table", "plot", "add_arguments", "run",
+    "DISPLAYED_STATUSES",
+    "TRACKS_KEY",
+    "TRUTH_COLUMNS",
+    "EvalParams",
+    "Gospa",
+    "Scores",
+    "TargetScore",
     # the truth and the metric this module scores with (their homes: truth.py, gospa.py)
-    "Truth", "TruthAtTimes", "TRUTH_COLUMNS", "load_truth", "as_truth", "interpolate_truth",
-    "Gospa", "gospa", "cutoff_assignment",
-]  # fmt: skip
+    "Truth",
+    "TruthAtTimes",
+    "add_arguments",
+    "as_truth",
+    "cutoff_assignment",
+    "evaluate",
+    "format_table",
+    "gospa",
+    "interpolate_truth",
+    "load_tracks",
+    "load_truth",
+    "plot",
+    "run",
+]
 
 TRACKS_KEY = "fusion/tracks"
 DISPLAYED_STATUSES = ("confirmed", "coasting")
@@ -330,7 +347,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         g_dist[b], g_loc[b], g_mis[b], g_fal[b] = g.distance_m, g.localisation, g.missed, g.false
         g_nmis[b], g_nfal[b] = g.n_missed, g.n_false
 
-    cat = lambda parts, dtype: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)  # noqa: E731
+    cat = lambda parts, dtype: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
     pb, pt, pk = cat(pair_batch, np.int64), cat(pair_target, np.int64), cat(pair_track, np.int64)
     epos, evel = cat(pair_epos, float), cat(pair_evel, float)
     settled, in_rms = cat(pair_settled, bool), cat(pair_rms, bool)
@@ -386,7 +403,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
             )
         )
     seen = [ts for ts in targets if ts.detectable_batches > 0]
-    mean = lambda a: float(np.mean(a)) if len(a) else math.nan  # noqa: E731
+    mean = lambda a: float(np.mean(a)) if len(a) else math.nan
     sel, sel_s = in_rms, in_rms & settled
 
     return Scores(
@@ -440,39 +457,61 @@ def format_table(scores: Scores) -> str:
     s, pr = scores, scores.params
     total = s.gospa_localisation_mean + s.gospa_missed_mean + s.gospa_false_mean
     share = (lambda v: f"{100.0 * v / total:5.1f} %") if total > 0 else (lambda v: "    -  ")
-    f = lambda v, unit="", fmt="{:.1f}": ("n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v)) + unit  # noqa: E731
+    f = lambda v, unit="", fmt="{:.1f}": (
+        ("n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v)) + unit
+    )
     rows = [
-        ("batches / truth targets (detectable) / displayed tracks",
-         f"{s.n_batches} / {s.n_truth_targets} ({s.n_detectable_targets}) / {s.n_displayed_tracks}"),
-        (f"association: gate {pr.gate_m:.0f} m; RMS over status {'+'.join(pr.rms_statuses)}; pairs (settled)",
-         f"{s.n_pairs} ({s.n_pairs_settled})"),
+        (
+            "batches / truth targets (detectable) / displayed tracks",
+            f"{s.n_batches} / {s.n_truth_targets} ({s.n_detectable_targets}) / {s.n_displayed_tracks}",
+        ),
+        (
+            f"association: gate {pr.gate_m:.0f} m; RMS over status {'+'.join(pr.rms_statuses)}; pairs (settled)",
+            f"{s.n_pairs} ({s.n_pairs_settled})",
+        ),
         ("horizontal position RMS / p95", f"{f(s.pos_rms_m)} m / {f(s.pos_p95_m)} m"),
         ("velocity RMS / p95", f"{f(s.vel_rms_mps)} m/s / {f(s.vel_p95_mps)} m/s"),
-        (f"after {pr.settle_s:.0f} s settling: position RMS / p95",
-         f"{f(s.pos_rms_settled_m)} m / {f(s.pos_p95_settled_m)} m"),
-        (f"after {pr.settle_s:.0f} s settling: velocity RMS / p95",
-         f"{f(s.vel_rms_settled_mps)} m/s / {f(s.vel_p95_settled_mps)} m/s"),
-        (f"GOSPA mean (c = {pr.gospa_c_m:.0f} m, p = {pr.gospa_p:g}, alpha = 2; "
-         f"{s.detectable_targets_per_time_mean:.1f} targets/time)", f"{f(s.gospa_mean_m)} m"),
-        ("  share of mean d^p: localisation / missed / false",
-         f"{share(s.gospa_localisation_mean)} / {share(s.gospa_missed_mean)} / {share(s.gospa_false_mean)}"),
-        ("  mean missed targets / false tracks per time",
-         f"{s.gospa_missed_targets_mean:.2f} / {s.gospa_false_tracks_mean:.2f}"),
+        (
+            f"after {pr.settle_s:.0f} s settling: position RMS / p95",
+            f"{f(s.pos_rms_settled_m)} m / {f(s.pos_p95_settled_m)} m",
+        ),
+        (
+            f"after {pr.settle_s:.0f} s settling: velocity RMS / p95",
+            f"{f(s.vel_rms_settled_mps)} m/s / {f(s.vel_p95_settled_mps)} m/s",
+        ),
+        (
+            f"GOSPA mean (c = {pr.gospa_c_m:.0f} m, p = {pr.gospa_p:g}, alpha = 2; "
+            f"{s.detectable_targets_per_time_mean:.1f} targets/time)",
+            f"{f(s.gospa_mean_m)} m",
+        ),
+        (
+            "  share of mean d^p: localisation / missed / false",
+            f"{share(s.gospa_localisation_mean)} / {share(s.gospa_missed_mean)} / {share(s.gospa_false_mean)}",
+        ),
+        (
+            "  mean missed targets / false tracks per time",
+            f"{s.gospa_missed_targets_mean:.2f} / {s.gospa_false_tracks_mean:.2f}",
+        ),
         ("track ids per target (mean, ideal 1)", f(s.track_ids_per_target_mean, fmt="{:.2f}")),
         ("id changes (target side) / id swaps (track side)", f"{s.id_changes} / {s.id_swaps}"),
         ("completeness (mean over targets)", f(100.0 * s.completeness_mean, " %")),
         ("missed targets per time (association)", f(s.missed_targets_per_time_mean, fmt="{:.2f}")),
-        (f"false tracks (false > {100 * pr.false_fraction:.0f} % of life) / per time",
-         f"{s.false_tracks} / {s.false_tracks_per_time_mean:.2f}"),
+        (
+            f"false tracks (false > {100 * pr.false_fraction:.0f} % of life) / per time",
+            f"{s.false_tracks} / {s.false_tracks_per_time_mean:.2f}",
+        ),
         ("duplicate tracks / per time", f"{s.duplicate_tracks} / {s.duplicate_tracks_per_time_mean:.2f}"),
-    ]  # fmt: skip
+    ]
     width = max(len(r[0]) for r in rows)
     lines = [f"{name.ljust(width)}  {value.strip()}" for name, value in rows]
     bad = [t for t in s.targets if t.detectable_batches and (t.n_track_ids != 1 or t.completeness < 0.9)]
     if bad:
         lines.append("")
         lines.append("targets with more than one track id, none, or completeness < 90 %:")
-        lines.append(f"  {'target':>12} {'mode_s':>7} {'callsign':>9} {'ids':>4} {'changes':>7} {'swaps':>5} {'complete':>8} {'pos RMS m':>9}")  # fmt: skip
+        lines.append(
+            f"  {'target':>12} {'mode_s':>7} {'callsign':>9} {'ids':>4} {'changes':>7} {'swaps':>5} "
+            f"{'complete':>8} {'pos RMS m':>9}"
+        )
         for t in bad[:20]:
             lines.append(
                 f"  {t.target_id:>12} {t.mode_s:>7} {t.callsign:>9} {t.n_track_ids:>4} {t.id_changes:>7} "
@@ -483,9 +522,7 @@ def format_table(scores: Scores) -> str:
     return "\n".join(lines)
 
 
-def plot(
-    batches: Sequence[Mapping[str, Any]], truth: Any, path: str | Path, scores: Scores | None = None
-) -> Path:
+def plot(batches: Sequence[Mapping[str, Any]], truth: Any, path: str | Path, scores: Scores | None = None) -> Path:
     """Write a PNG: truth as lines, displayed track positions as dots coloured by track id (km)."""
     import matplotlib
 
@@ -497,8 +534,15 @@ def plot(
         scores = evaluate(batches, truth)
     fig, ax = plt.subplots(figsize=(9, 8), dpi=110)
     for i, (s, e) in enumerate(zip(truth.start, truth.stop)):
-        ax.plot(truth.x_m[s:e] / 1e3, truth.y_m[s:e] / 1e3, "-", color="0.35", lw=0.8, zorder=1,
-                label="truth" if i == 0 else None)  # fmt: skip
+        ax.plot(
+            truth.x_m[s:e] / 1e3,
+            truth.y_m[s:e] / 1e3,
+            "-",
+            color="0.35",
+            lw=0.8,
+            zorder=1,
+            label="truth" if i == 0 else None,
+        )
     xs, ys, ids = [], [], []
     for batch in batches:
         tid, x, y, _, _, status = _batch_columns(batch)
@@ -551,14 +595,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--png", default=None, help="write a plot of truth and tracks to this PNG")
     parser.add_argument("--json", default=None, help="write the figures (and per-target details) as JSON")
     parser.add_argument("--gate-m", type=float, default=d.gate_m, help="association gate, metres (%(default)s)")
-    parser.add_argument("--settle-s", type=float, default=d.settle_s,
-                        help="skip each track's first seconds for the settled figures (%(default)s)")  # fmt: skip
+    parser.add_argument(
+        "--settle-s",
+        type=float,
+        default=d.settle_s,
+        help="skip each track's first seconds for the settled figures (%(default)s)",
+    )
     parser.add_argument("--gospa-c-m", type=float, default=d.gospa_c_m, help="GOSPA cut-off c, metres (%(default)s)")
     parser.add_argument("--gospa-p", type=float, default=d.gospa_p, help="GOSPA order p (%(default)s)")
-    parser.add_argument("--false-fraction", type=float, default=d.false_fraction,
-                        help="a track is false when unassociated for more than this fraction of its life")  # fmt: skip
-    parser.add_argument("--no-keep-previous", dest="keep_previous", action="store_false",
-                        help="associate each batch from scratch instead of keeping last batch's pairs")  # fmt: skip
+    parser.add_argument(
+        "--false-fraction",
+        type=float,
+        default=d.false_fraction,
+        help="a track is false when unassociated for more than this fraction of its life",
+    )
+    parser.add_argument(
+        "--no-keep-previous",
+        dest="keep_previous",
+        action="store_false",
+        help="associate each batch from scratch instead of keeping last batch's pairs",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

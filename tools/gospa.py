@@ -16,7 +16,6 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 
-
 def cutoff_assignment(
     truth_xy: np.ndarray, track_xy: np.ndarray, cutoff_m: float, p: float = 2.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -92,4 +91,3 @@ def gospa(truth_xy: np.ndarray, track_xy: np.ndarray, c_m: float = 2000.0, p: fl
     missed = c_m**p / 2.0 * (m - k)
     false = c_m**p / 2.0 * (n - k)
     return Gospa((loc + missed + false) ** (1.0 / p), loc, missed, false, k, m - k, n - k)
-

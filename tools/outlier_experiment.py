@@ -30,8 +30,19 @@ AZIMUTH_NOISE_DEG = 0.05
 
 # Known places of the injected wild points: (start time s, run length samples).
 WILD_EVENTS = (
-    (8.5, 1), (15.0, 3), (21.3, 1), (30.7, 2), (37.0, 1), (43.5, 1), (45.0, 5),
-    (55.2, 1), (62.0, 4), (71.8, 1), (80.0, 2), (88.4, 1), (93.0, 5),
+    (8.5, 1),
+    (15.0, 3),
+    (21.3, 1),
+    (30.7, 2),
+    (37.0, 1),
+    (43.5, 1),
+    (45.0, 5),
+    (55.2, 1),
+    (62.0, 4),
+    (71.8, 1),
+    (80.0, 2),
+    (88.4, 1),
+    (93.0, 5),
 )
 
 METHODS = ("soft", "kmodf", "gate3sigma")
@@ -67,8 +78,9 @@ def true_azimuth_deg(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.rad2deg(np.arctan2(x, y)) % 360.0, turning
 
 
-def make_scenario(seed: int, noise_deg: float = AZIMUTH_NOISE_DEG,
-                  wild_min_deg: float = 1.0, wild_max_deg: float = 3.0) -> Scenario:
+def make_scenario(
+    seed: int, noise_deg: float = AZIMUTH_NOISE_DEG, wild_min_deg: float = 1.0, wild_max_deg: float = 3.0
+) -> Scenario:
     """Build the 987-sample azimuth series with the wild points of WILD_EVENTS.
 
     Each event gets one offset of random sign and magnitude in [wild_min_deg, wild_max_deg]
@@ -84,8 +96,8 @@ def make_scenario(seed: int, noise_deg: float = AZIMUTH_NOISE_DEG,
     for t0, length in WILD_EVENTS:
         i0 = int(round(t0 * RATE_HZ))
         offset = rng.choice([-1.0, 1.0]) * rng.uniform(wild_min_deg, wild_max_deg)
-        az[i0:i0 + length] += offset
-        wild[i0:i0 + length] = True
+        az[i0 : i0 + length] += offset
+        wild[i0 : i0 + length] = True
         events.append((i0, length))
     return Scenario(t_s, truth, az, wild, events, turning)
 
@@ -102,13 +114,16 @@ def score(mask: np.ndarray, sc: Scenario) -> dict[str, int]:
     run = np.zeros_like(sc.wild)
     for i0, length in sc.events:
         if length > 1:
-            run[i0:i0 + length] = True
+            run[i0 : i0 + length] = True
     iso = sc.wild & ~run
     return {
-        "tp": int((mask & sc.wild).sum()), "fp": int((mask & ~sc.wild).sum()),
+        "tp": int((mask & sc.wild).sum()),
+        "fp": int((mask & ~sc.wild).sum()),
         "fn": int((~mask & sc.wild).sum()),
-        "tp_iso": int((mask & iso).sum()), "n_iso": int(iso.sum()),
-        "tp_run": int((mask & run).sum()), "n_run": int(run.sum()),
+        "tp_iso": int((mask & iso).sum()),
+        "n_iso": int(iso.sum()),
+        "tp_run": int((mask & run).sum()),
+        "n_run": int(run.sum()),
         "fp_turn": int((mask & ~sc.wild & sc.turn).sum()),
     }
 
@@ -185,32 +200,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--png", default=None, help="write a PNG of the table's realisation here")
     parser.add_argument("--window", type=int, default=OutlierParams.window, help="v of eq. 1")
     parser.add_argument("--k", type=int, default=OutlierParams.k, help="k of the k-mean distance")
-    parser.add_argument("--of-sigma", type=float, default=OutlierParams.of_sigma,
-                        help="c of the rule OF > median + c * 1.4826 * MAD")
-    parser.add_argument("--edge-quantile", type=float, default=OutlierParams.edge_quantile,
-                        help="quantile of W above which samples are edge points")
+    parser.add_argument(
+        "--of-sigma", type=float, default=OutlierParams.of_sigma, help="c of the rule OF > median + c * 1.4826 * MAD"
+    )
+    parser.add_argument(
+        "--edge-quantile",
+        type=float,
+        default=OutlierParams.edge_quantile,
+        help="quantile of W above which samples are edge points",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Print the table for one seed and the summary over args.seeds seeds."""
-    params = OutlierParams(window=args.window, k=args.k, of_sigma=args.of_sigma,
-                           edge_quantile=args.edge_quantile)
+    params = OutlierParams(window=args.window, k=args.k, of_sigma=args.of_sigma, edge_quantile=args.edge_quantile)
     sc = make_scenario(args.first_seed)
     masks = {m: run_method(m, sc, params) for m in METHODS}
-    print(f"Hu 2013 reproduction: {N_SAMPLES} azimuth samples at {RATE_HZ:g} Hz, 0-{sc.t_s[-1]:.1f} s, "
-          f"accelerating turn 40-55 s (rate peaks at {TURN_TIME_S} s), noise {AZIMUTH_NOISE_DEG} deg, "
-          f"seed {args.first_seed}")
+    print(
+        f"Hu 2013 reproduction: {N_SAMPLES} azimuth samples at {RATE_HZ:g} Hz, 0-{sc.t_s[-1]:.1f} s, "
+        f"accelerating turn 40-55 s (rate peaks at {TURN_TIME_S} s), noise {AZIMUTH_NOISE_DEG} deg, "
+        f"seed {args.first_seed}"
+    )
     print("'+' removed, '-' kept; (T) correct, (F) wrong")
     for line in table_lines(sc, masks):
         print(line)
     print()
     summary = evaluate(args.seeds, args.first_seed, params)
-    print(f"Over {args.seeds} seeds ({sum(l for _, l in WILD_EVENTS)} wild samples per series):")
-    print(f"{'method':>11} {'precision':>9} {'recall':>7} {'rec.isol':>8} {'rec.runs':>8} "
-          f"{'false/series':>12} {'false in turn':>13}")
+    print(f"Over {args.seeds} seeds ({sum(n for _, n in WILD_EVENTS)} wild samples per series):")
+    print(
+        f"{'method':>11} {'precision':>9} {'recall':>7} {'rec.isol':>8} {'rec.runs':>8} "
+        f"{'false/series':>12} {'false in turn':>13}"
+    )
     for m, r in summary.items():
-        print(f"{m:>11} {r['precision']:9.3f} {r['recall']:7.3f} {r['recall_isolated']:8.3f} "
-              f"{r['recall_runs']:8.3f} {r['false_per_series']:12.2f} {r['false_in_turn_per_series']:13.2f}")
+        print(
+            f"{m:>11} {r['precision']:9.3f} {r['recall']:7.3f} {r['recall_isolated']:8.3f} "
+            f"{r['recall_runs']:8.3f} {r['false_per_series']:12.2f} {r['false_in_turn_per_series']:13.2f}"
+        )
     if args.png:
         plot(sc, masks, args.png)
         print(f"wrote {args.png}")

@@ -17,8 +17,9 @@ from ..recording import RecordingWriter
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="recording file to write (.gz to compress)")
-    p.add_argument("--keys", action="append",
-                   help="key expression(s) to record, relative to the prefix (default '**': everything)")
+    p.add_argument(
+        "--keys", action="append", help="key expression(s) to record, relative to the prefix (default '**': everything)"
+    )
     p.add_argument("--config", help="daemon config: connect to its bus endpoints and use its prefix")
     p.add_argument("--connect", action="append", help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447)")
     p.add_argument("--prefix", help="key prefix (default: the config's, else 'atc')")
@@ -55,7 +56,7 @@ class Recorder:
 
     def _on_sample(self, sample) -> None:
         key = str(sample.key_expr)
-        rel = key[len(self.prefix) + 1:] if key.startswith(self.prefix + "/") else key
+        rel = key[len(self.prefix) + 1 :] if key.startswith(self.prefix + "/") else key
         payload = sample.payload.to_bytes()
         with self._lock:
             if not self._closed:  # Zenoh may still deliver a sample while we close

@@ -11,21 +11,23 @@ import argparse
 import sys
 import time
 from collections import Counter
-from typing import Iterable, Optional
+from collections.abc import Iterable
 
 from ..recording import Record, read_recording
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", help="recording to publish (from `simulate`, `record` or `asterix-in --out`)")
-    p.add_argument("--speed", default="1", help="time scale: 1 = as recorded, 50 = fifty times faster, max = no waiting")
+    p.add_argument(
+        "--speed", default="1", help="time scale: 1 = as recorded, 50 = fifty times faster, max = no waiting"
+    )
     p.add_argument("--config", help="daemon config: connect to its bus endpoints and use its prefix")
     p.add_argument("--connect", action="append", help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447)")
     p.add_argument("--prefix", help="key prefix (default: the config's, else 'atc')")
     p.add_argument("--only", default="radar/", help="publish only keys starting with this (default radar/)")
 
 
-def parse_speed(text: str) -> Optional[float]:
+def parse_speed(text: str) -> float | None:
     if text == "max":
         return None
     speed = float(text)
@@ -34,8 +36,9 @@ def parse_speed(text: str) -> Optional[float]:
     return speed
 
 
-def replay_records(session, records: Iterable[Record], prefix: str, speed: Optional[float],
-                   only: str = "radar/", progress_total: int = 0) -> Counter:
+def replay_records(
+    session, records: Iterable[Record], prefix: str, speed: float | None, only: str = "radar/", progress_total: int = 0
+) -> Counter:
     """Publish records on ``session``; returns messages sent per key."""
     from radar_fusion.bus import reliable_publisher
 

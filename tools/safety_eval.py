@@ -34,7 +34,7 @@ import argparse
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -113,7 +113,7 @@ class Scenario:
     name: str
     aircraft: list[Aircraft]
     duration_s: float
-    kind: Optional[str]  # expected alert kind, None for a non-conflict scenario
+    kind: str | None  # expected alert kind, None for a non-conflict scenario
     involved: tuple[str, ...] = ()
     config: dict[str, Any] = field(default_factory=dict)
 
@@ -123,36 +123,72 @@ def scenarios() -> list[Scenario]:
     apw = {"areas_file": str(AREAS_FILE)}
     msaw = {"msa_file": str(MSA_FILE)}
     return [
-        Scenario("head-on", [Aircraft("A", -50, 0.0, 90, 240, 200), Aircraft("B", 50, 0.5, 270, 240, 200)],
-                 300, "stca", ("A", "B")),
-        Scenario("crossing", [Aircraft("A", -52, 0, 90, 235, 240), Aircraft("B", 0, -50, 0, 225, 240)],
-                 320, "stca", ("A", "B")),
-        Scenario("overtaking", [Aircraft("A", -60, 0, 90, 250, 300), Aircraft("B", -20, 0.5, 90, 150, 300)],
-                 420, "stca", ("A", "B")),
-        Scenario("climbing through a level",
-                 [Aircraft("A", -45, 0, 90, 230, 110), Aircraft("B", 0, -45, 0, 230, 60, climbs=[(40, 2000, 150)])],
-                 300, "stca", ("A", "B")),
-        Scenario("turning into conflict",
-                 [Aircraft("A", -40, 0, 90, 230, 200),
-                  Aircraft("B", 40, -14.39, 0, 230, 200, turns=[(40, -3.0, 30)])],
-                 300, "stca", ("A", "B")),
+        Scenario(
+            "head-on",
+            [Aircraft("A", -50, 0.0, 90, 240, 200), Aircraft("B", 50, 0.5, 270, 240, 200)],
+            300,
+            "stca",
+            ("A", "B"),
+        ),
+        Scenario(
+            "crossing",
+            [Aircraft("A", -52, 0, 90, 235, 240), Aircraft("B", 0, -50, 0, 225, 240)],
+            320,
+            "stca",
+            ("A", "B"),
+        ),
+        Scenario(
+            "overtaking",
+            [Aircraft("A", -60, 0, 90, 250, 300), Aircraft("B", -20, 0.5, 90, 150, 300)],
+            420,
+            "stca",
+            ("A", "B"),
+        ),
+        Scenario(
+            "climbing through a level",
+            [Aircraft("A", -45, 0, 90, 230, 110), Aircraft("B", 0, -45, 0, 230, 60, climbs=[(40, 2000, 150)])],
+            300,
+            "stca",
+            ("A", "B"),
+        ),
+        Scenario(
+            "turning into conflict",
+            [Aircraft("A", -40, 0, 90, 230, 200), Aircraft("B", 40, -14.39, 0, 230, 200, turns=[(40, -3.0, 30)])],
+            300,
+            "stca",
+            ("A", "B"),
+        ),
         Scenario("heading into an area", [Aircraft("A", -5, -5, 60, 180, 80)], 320, "apw", ("A",), apw),
-        Scenario("descent towards high terrain",
-                 [Aircraft("A", 0, 10, 180, 150, 120, climbs=[(40, 1500, 60)])], 320, "msaw", ("A",), msaw),
+        Scenario(
+            "descent towards high terrain",
+            [Aircraft("A", 0, 10, 180, 150, 120, climbs=[(40, 1500, 60)])],
+            320,
+            "msaw",
+            ("A",),
+            msaw,
+        ),
         # ---- no conflict
-        Scenario("parallel 6 NM apart",
-                 [Aircraft("A", -60, 0, 90, 240, 200), Aircraft("B", 60, 6 * M_PER_NM / 1000, 270, 240, 200)],
-                 320, None),
-        Scenario("levelling off 1,000 ft apart",
-                 [Aircraft("A", -60, 0, 90, 240, 150, climbs=[(0, 1500, 110)]),
-                  Aircraft("B", 60, 0.5, 270, 240, 60, climbs=[(0, 1500, 100)])],
-                 320, None),
+        Scenario(
+            "parallel 6 NM apart",
+            [Aircraft("A", -60, 0, 90, 240, 200), Aircraft("B", 60, 6 * M_PER_NM / 1000, 270, 240, 200)],
+            320,
+            None,
+        ),
+        Scenario(
+            "levelling off 1,000 ft apart",
+            [
+                Aircraft("A", -60, 0, 90, 240, 150, climbs=[(0, 1500, 110)]),
+                Aircraft("B", 60, 0.5, 270, 240, 60, climbs=[(0, 1500, 100)]),
+            ],
+            320,
+            None,
+        ),
         Scenario("over an area, above it", [Aircraft("A", -5, -5, 60, 180, 150)], 320, None, (), apw),
         Scenario("level above high terrain", [Aircraft("A", 0, 10, 180, 150, 130)], 320, None, (), msaw),
     ]
 
 
-def truth_event_time(sc: Scenario, truth: Truth, plane: SystemPlane, cfg: SafetyNetsConfig) -> Optional[float]:
+def truth_event_time(sc: Scenario, truth: Truth, plane: SystemPlane, cfg: SafetyNetsConfig) -> float | None:
     """When the injected event really happens (separation loss, area entry, MSA violation)."""
     if sc.kind == "stca":
         i, j = (next(k for k, a in enumerate(sc.aircraft) if a.name == n) for n in sc.involved)
@@ -196,9 +232,21 @@ def run_emulated(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.ran
         fl, vr = truth.fl[:, k] + rng.uniform(-0.5, 0.5, A), vr_l + rng.normal(0, 150, A)
         t_s = float(truth.t_s[k])
         tracks = [
-            {"track_id": i + 1, "t": t_s, "status": "confirmed", "lat_deg": lat[i], "lon_deg": lon[i],
-             "x_m": x[i], "y_m": y[i], "vx_mps": vx[i], "vy_mps": vy[i], "ax_mps2": ax[i], "ay_mps2": ay[i],
-             "fl": fl[i], "vrate_fpm": vr[i]}
+            {
+                "track_id": i + 1,
+                "t": t_s,
+                "status": "confirmed",
+                "lat_deg": lat[i],
+                "lon_deg": lon[i],
+                "x_m": x[i],
+                "y_m": y[i],
+                "vx_mps": vx[i],
+                "vy_mps": vy[i],
+                "ax_mps2": ax[i],
+                "ay_mps2": ay[i],
+                "fl": fl[i],
+                "vrate_fpm": vr[i],
+            }
             for i in range(A)
         ]
         alerts += nets.update(t_s, TrackColumns.from_message(tracks, plane))
@@ -213,11 +261,23 @@ RADARS = [  # id, lat, lon, alt_m, sigma_range_m, sigma_azimuth_deg, rotation_pe
 
 def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.random.Generator) -> tuple[list, dict]:
     """Plots from two rotating Mode S radars → the real Engine with the safety nets attached."""
-    settings = settings_from_dict({
-        "system": {"center_lat": CENTER_LAT_DEG, "center_lon": CENTER_LON_DEG, "period_s": PERIOD_S},
-        "radars": [dict(id=r[0], lat=r[1], lon=r[2], alt_m=r[3], sigma_range_m=r[4], sigma_azimuth_deg=r[5],
-                        rotation_period_s=r[6]) for r in RADARS],
-    })
+    settings = settings_from_dict(
+        {
+            "system": {"center_lat": CENTER_LAT_DEG, "center_lon": CENTER_LON_DEG, "period_s": PERIOD_S},
+            "radars": [
+                dict(
+                    id=r[0],
+                    lat=r[1],
+                    lon=r[2],
+                    alt_m=r[3],
+                    sigma_range_m=r[4],
+                    sigma_azimuth_deg=r[5],
+                    rotation_period_s=r[6],
+                )
+                for r in RADARS
+            ],
+        }
+    )
     engine = Engine(settings, safety_nets=nets)
     sites = RadarSites.from_configs(settings.radars)
     A = truth.x_m.shape[0]
@@ -246,9 +306,15 @@ def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.rando
         az = np.mod(az + rng.normal(0, RADARS[ri][5], A), 360.0)
         order = np.argsort(t_det)
         batch = DecodedPlots(
-            radar_id=RADARS[ri][0], seq=seqs[ri], t_s=t0 + t_det[order], range_m=rng_m[order],
-            azimuth_deg=az[order], fl=np.round(fl[order]), mode3a=np.full(A, -1, np.int64),
-            mode_s=mode_s[order], track_no=np.full(A, -1, np.int64),
+            radar_id=RADARS[ri][0],
+            seq=seqs[ri],
+            t_s=t0 + t_det[order],
+            range_m=rng_m[order],
+            azimuth_deg=az[order],
+            fl=np.round(fl[order]),
+            mode3a=np.full(A, -1, np.int64),
+            mode_s=mode_s[order],
+            track_no=np.full(A, -1, np.int64),
             kind=np.full(A, KIND_CODES["modes"], np.int8),
         )
         seqs[ri] += 1
@@ -268,9 +334,9 @@ def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.rando
 @dataclass
 class Result:
     scenario: str
-    kind: Optional[str]
-    detected: Optional[bool]
-    warning_s: Optional[float]
+    kind: str | None
+    detected: bool | None
+    warning_s: float | None
     nuisance: int
     alerts: list = field(default_factory=list)
 
@@ -301,23 +367,35 @@ def evaluate_scenario(sc: Scenario, tracker: str, seed: int) -> Result:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--tracker", choices=("auto", "engine", "emulated"), default="auto",
-                        help="engine (= auto, the default): plots through the real Engine; "
-                             "emulated: truth + tracker errors")
+    parser.add_argument(
+        "--tracker",
+        choices=("auto", "engine", "emulated"),
+        default="auto",
+        help="engine (= auto, the default): plots through the real Engine; emulated: truth + tracker errors",
+    )
     parser.add_argument("--seeds", type=int, default=3, help="noise seeds per scenario (default 3)")
     parser.add_argument("--alerts", action="store_true", help="print every new/ended alert")
 
 
 def run(args: argparse.Namespace) -> int:
     tracker = "engine" if args.tracker == "auto" else args.tracker
-    print(f"safety-net evaluation: tracker = {tracker}"
-          + (" (real Engine on simulated Mode S plots of 2 radars)" if tracker == "engine"
-             else " (truth + emulated tracker errors: σ 100 m, 5 m/s, ±50 ft, lagged velocity and vertical rate)"))
+    print(
+        f"safety-net evaluation: tracker = {tracker}"
+        + (
+            " (real Engine on simulated Mode S plots of 2 radars)"
+            if tracker == "engine"
+            else " (truth + emulated tracker errors: σ 100 m, 5 m/s, ±50 ft, lagged velocity and vertical rate)"
+        )
+    )
     if tracker == "engine":
-        print("(STCA gets each track's Mode S address from the engine, so duplicate tracks of one aircraft are "
-              "not paired)")
-    print(f"period {PERIOD_S:.0f} s, seeds {args.seeds}, defaults: {SafetyNetsConfig().look_ahead_s:.0f} s look-ahead, "
-          f"{SafetyNetsConfig().stca_h_min_nm} NM / {SafetyNetsConfig().stca_v_min_ft:.0f} ft")
+        print(
+            "(STCA gets each track's Mode S address from the engine, so duplicate tracks of one aircraft are "
+            "not paired)"
+        )
+    print(
+        f"period {PERIOD_S:.0f} s, seeds {args.seeds}, defaults: {SafetyNetsConfig().look_ahead_s:.0f} s look-ahead, "
+        f"{SafetyNetsConfig().stca_h_min_nm} NM / {SafetyNetsConfig().stca_v_min_ft:.0f} ft"
+    )
     header = f"{'scenario':32} {'kind':5} {'detected':>9} {'warning s (per seed)':>24} {'nuisance':>8}"
     print(header)
     print("-" * len(header))
@@ -341,13 +419,19 @@ def run(args: argparse.Namespace) -> int:
             for r in res[:1]:
                 for a in r.alerts:
                     if a["status"] in ("new", "ended"):
-                        figs = {k: (round(v, 1) if isinstance(v, float) else v) for k, v in a.items()
-                                if k not in ("v", "kind", "alert_id", "t", "track_ids", "status")}
-                        print(f"    t={a['t']:6.0f} {a['kind']:4} #{a['alert_id']} {a['status']:6} "
-                              f"tracks {a['track_ids']} {figs}")
+                        figs = {
+                            k: (round(v, 1) if isinstance(v, float) else v)
+                            for k, v in a.items()
+                            if k not in ("v", "kind", "alert_id", "t", "track_ids", "status")
+                        }
+                        print(
+                            f"    t={a['t']:6.0f} {a['kind']:4} #{a['alert_id']} {a['status']:6} "
+                            f"tracks {a['track_ids']} {figs}"
+                        )
     print("-" * len(header))
     med = float(np.median(warnings)) if warnings else float("nan")
-    print(f"{'total':32} {'':5} {n_det:>4}/{n_conf:<4} {'median ' + format(med, '.0f') + ' s, min ' + format(min(warnings, default=float('nan')), '.0f') + ' s':>24} {n_nuis:>8}")
+    summary = f"median {med:.0f} s, min {min(warnings, default=float('nan')):.0f} s"
+    print(f"{'total':32} {'':5} {n_det:>4}/{n_conf:<4} {summary:>24} {n_nuis:>8}")
     ok = n_det == n_conf and med >= 60.0 and n_nuis == 0
     print(f"goal (all detected, median warning >= 60 s, no nuisance): {'MET' if ok else 'NOT MET'}")
     return 0 if ok else 1

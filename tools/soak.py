@@ -39,6 +39,7 @@ status messages sent).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -51,7 +52,7 @@ import time
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import msgpack
 import numpy as np
@@ -123,35 +124,62 @@ def soak_scenario(n_aircraft: int = 300, duration_s: float = 3600.0, n_radars: i
             legs = (sim.Leg(life),)
         else:
             t1 = float(t_man[k])
-            man = sim.Leg(float(t_turn[k]), float(turn[k])) if kind[k] < 0.8 else sim.Leg(float(t_climb[k]), 0.0, float(vr[k]))
+            man = (
+                sim.Leg(float(t_turn[k]), float(turn[k]))
+                if kind[k] < 0.8
+                else sim.Leg(float(t_climb[k]), 0.0, float(vr[k]))
+            )
             legs = (sim.Leg(t1), man, sim.Leg(max(life - t1 - man.duration_s, 1.0)))
-        plan = sim.FlightPlan(float(x0[k]), float(y0[k]), float(heading[k]), float(speed[k]), float(fl[k] * 100), legs,
-                              float(t_offset[k]))
-        targets.append(sim.Target(
-            target_id=f"S{k:06d}", callsign=f"SK{k:05d}" if modes[k] else None,
-            mode_s=int(addrs[k]) if modes[k] else None, mode3a=int(codes[k]),
-            transponder="modes" if modes[k] else "modeac", alt_quantum_ft=25.0 if modes[k] else 100.0, plan=plan,
-        ))  # fmt: skip
-    return sim.Scenario(f"soak-{n_aircraft}x{n_radars}", base.center_lat_deg, base.center_lon_deg, base.radars,
-                        targets, start_t_s=base.start_t_s, duration_s=float(duration_s), seed=seed,
-                        period_s=base.period_s, rates=base.rates)  # fmt: skip
+        plan = sim.FlightPlan(
+            float(x0[k]), float(y0[k]), float(heading[k]), float(speed[k]), float(fl[k] * 100), legs, float(t_offset[k])
+        )
+        targets.append(
+            sim.Target(
+                target_id=f"S{k:06d}",
+                callsign=f"SK{k:05d}" if modes[k] else None,
+                mode_s=int(addrs[k]) if modes[k] else None,
+                mode3a=int(codes[k]),
+                transponder="modes" if modes[k] else "modeac",
+                alt_quantum_ft=25.0 if modes[k] else 100.0,
+                plan=plan,
+            )
+        )
+    return sim.Scenario(
+        f"soak-{n_aircraft}x{n_radars}",
+        base.center_lat_deg,
+        base.center_lon_deg,
+        base.radars,
+        targets,
+        start_t_s=base.start_t_s,
+        duration_s=float(duration_s),
+        seed=seed,
+        period_s=base.period_s,
+        rates=base.rates,
+    )
 
 
-def generate(out_dir: str | Path, n_aircraft: int = 300, duration_s: float = 3600.0, n_radars: int = 4,
-             seed: int = 1) -> tuple[Path, Path]:
+def generate(
+    out_dir: str | Path, n_aircraft: int = 300, duration_s: float = 3600.0, n_radars: int = 4, seed: int = 1
+) -> tuple[Path, Path]:
     """Simulate :func:`soak_scenario`; write ``plots.rec`` and ``config.toml`` (no truth
     file: the soak does not score accuracy). Returns their paths."""
-    from . import simulate as sim
     from ..recording import RecordingWriter
+    from . import simulate as sim
 
     scenario = soak_scenario(n_aircraft, duration_s, n_radars, seed)
     simulation = sim.simulate(scenario)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rec, cfg = out / "plots.rec", out / "config.toml"
-    meta = {"generator": "radar-fusion soak --generate", "scenario": scenario.name, "seed": seed,
-            "start_t_s": scenario.start_t_s, "duration_s": duration_s, "n_targets": len(scenario.targets),
-            "radars": [r.id for r in scenario.radars]}
+    meta = {
+        "generator": "radar-fusion soak --generate",
+        "scenario": scenario.name,
+        "seed": seed,
+        "start_t_s": scenario.start_t_s,
+        "duration_s": duration_s,
+        "n_targets": len(scenario.targets),
+        "radars": [r.id for r in scenario.radars],
+    }
     with RecordingWriter(rec, meta) as w:
         for t_s, key, payload in simulation.messages:
             w.write(t_s, key, payload)
@@ -162,7 +190,7 @@ def generate(out_dir: str | Path, n_aircraft: int = 300, duration_s: float = 360
 # =========================================================================== the daemon
 
 
-def rss_bytes(pid: int) -> Optional[int]:
+def rss_bytes(pid: int) -> int | None:
     """Resident set size of a process (VmRSS), or None when it is gone."""
     try:
         with open(f"/proc/{pid}/status") as f:
@@ -182,12 +210,19 @@ class DaemonProcess:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
         self.endpoint = f"tcp/127.0.0.1:{port}"
-        env = dict(os.environ, RADAR_FUSION_BUS__MODE="router", RADAR_FUSION_BUS__LISTEN=json.dumps([self.endpoint]),
-                   RADAR_FUSION_BUS__CONNECT="[]", RADAR_FUSION_BUS__HEALTH_PERIOD_S=str(health_period_s))
-        self._log = open(log_path, "wb")
+        env = dict(
+            os.environ,
+            RADAR_FUSION_BUS__MODE="router",
+            RADAR_FUSION_BUS__LISTEN=json.dumps([self.endpoint]),
+            RADAR_FUSION_BUS__CONNECT="[]",
+            RADAR_FUSION_BUS__HEALTH_PERIOD_S=str(health_period_s),
+        )
+        self._log = open(log_path, "wb")  # noqa: SIM115  # the daemon's log for its life; stop() closes it
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "radar_fusion.cli", "serve", "--config", str(config), "--log-level", "WARNING"],
-            env=env, stdout=self._log, stderr=subprocess.STDOUT,
+            env=env,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
         )
         self.pid = self.proc.pid
         deadline = time.monotonic() + 60.0
@@ -200,7 +235,9 @@ class DaemonProcess:
             except OSError:
                 if time.monotonic() > deadline:
                     self.stop()
-                    raise RuntimeError(f"daemon did not listen on {self.endpoint} within 60 s; see {log_path}")
+                    raise RuntimeError(
+                        f"daemon did not listen on {self.endpoint} within 60 s; see {log_path}"
+                    ) from None
                 time.sleep(0.1)
 
     def alive(self) -> bool:
@@ -232,18 +269,20 @@ class SoakReport:
     messages_sent: int = 0
     plots_sent: int = 0
     heartbeats_sent: int = 0
-    sent: dict[str, dict[str, int]] = field(default_factory=dict)  # per radar: batches, plots, statuses, last_seq, seq_gaps
+    sent: dict[str, dict[str, int]] = field(
+        default_factory=dict
+    )  # per radar: batches, plots, statuses, last_seq, seq_gaps
     daemon: dict[str, dict[str, Any]] = field(default_factory=dict)  # per radar, as counted by the daemon
     counters: dict[str, int] = field(default_factory=dict)  # daemon counters over the run
     rejected: dict[str, int] = field(default_factory=dict)
     track_batches_received: int = 0
-    rss_mib: dict[str, Optional[float]] = field(default_factory=dict)  # idle, warm, peak, end
-    rss_slope_mib_per_h: Optional[float] = None  # over the last 90 % of the traffic (per hour of traffic)
+    rss_mib: dict[str, float | None] = field(default_factory=dict)  # idle, warm, peak, end
+    rss_slope_mib_per_h: float | None = None  # over the last 90 % of the traffic (per hour of traffic)
     rss_profile_mib: list[float] = field(default_factory=list)  # after each tenth of the recording
-    latency_ms: dict[str, Optional[float]] = field(default_factory=dict)  # first/last 10 %: p50, p99
+    latency_ms: dict[str, float | None] = field(default_factory=dict)  # first/last 10 %: p50, p99
     tracks_mean: dict[str, float] = field(default_factory=dict)  # first/last 10 % of periods
     max_outstanding_periods: int = 0
-    daemon_exit_status: Optional[int] = None
+    daemon_exit_status: int | None = None
     checks: dict[str, bool] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
@@ -258,7 +297,7 @@ class _Monitor:
     def __init__(self, session, prefix: str):
         self.cond = threading.Condition()
         self.batches: list[tuple[int, float, float, int]] = []  # (period, t, arrival monotonic, n tracks)
-        self.health: Optional[dict] = None
+        self.health: dict | None = None
         self.health_seen = 0
         self._subs = [
             session.declare_subscriber(f"{prefix}/fusion/tracks", self._on_tracks),
@@ -285,7 +324,7 @@ class _Monitor:
 
 
 class _RssSampler(threading.Thread):
-    def __init__(self, pid: Optional[int], progress, interval_s: float = 0.5):
+    def __init__(self, pid: int | None, progress, interval_s: float = 0.5):
         super().__init__(name="soak-rss", daemon=True)
         self.pid, self.progress, self.interval_s = pid, progress, interval_s
         self.samples: list[tuple[float, int]] = []  # (fraction of the recording sent, bytes)
@@ -302,16 +341,24 @@ class _RssSampler(threading.Thread):
             self.sample()
 
 
-def _percentiles_ms(values: list[float]) -> tuple[Optional[float], Optional[float]]:
+def _percentiles_ms(values: list[float]) -> tuple[float | None, float | None]:
     if not values:
         return None, None
     a = np.array(values) * 1e3
     return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
 
-def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str] = None, pid: Optional[int] = None,
-             lead_periods: int = 2, stall_timeout_s: float = 120.0, log_path: Optional[str | Path] = None,
-             progress: bool = False) -> SoakReport:
+def run_soak(
+    recording: str | Path,
+    config: str | Path,
+    *,
+    connect: str | None = None,
+    pid: int | None = None,
+    lead_periods: int = 2,
+    stall_timeout_s: float = 120.0,
+    log_path: str | Path | None = None,
+    progress: bool = False,
+) -> SoakReport:
     """Soak the daemon with ``recording`` (see the module docstring); returns the report."""
     from radar_fusion import wire
     from radar_fusion.bus import open_session, reliable_publisher, zenoh_config
@@ -352,8 +399,8 @@ def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str
         last_seq: dict[str, int] = {}
         wm_s: dict[str, float] = {}
         ready_wall: dict[int, float] = {}  # period -> monotonic time it became closable
-        last_ready: Optional[int] = None
-        k_start: Optional[int] = None
+        last_ready: int | None = None
+        k_start: int | None = None
         t_first = t_last = None
         t0_wall = time.monotonic()
 
@@ -373,8 +420,10 @@ def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str
                 waited = time.monotonic()
                 while outstanding() >= lead_periods and processed() < sent_total:
                     if not monitor.cond.wait(0.5) and time.monotonic() - waited > stall_timeout_s:
-                        raise RuntimeError(f"the daemon made no progress for {stall_timeout_s:.0f} s "
-                                           f"({sent_total} sent, {processed()} processed)")
+                        raise RuntimeError(
+                            f"the daemon made no progress for {stall_timeout_s:.0f} s "
+                            f"({sent_total} sent, {processed()} processed)"
+                        )
                     if daemon is not None and not daemon.alive():
                         raise RuntimeError(f"the daemon exited with status {daemon.proc.returncode}")
                 report.max_outstanding_periods = max(report.max_outstanding_periods, outstanding())
@@ -416,8 +465,12 @@ def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str
                 sent[radar]["statuses"] += 1
             publish(rec.key, rec.payload, rec.t_s)
             if progress and i % 2000 == 0:
-                print(f"\rsoak: {100.0 * sent_total / n_records:5.1f} % sent, {len(monitor.batches)} track batches",
-                      end="", file=sys.stderr, flush=True)
+                print(
+                    f"\rsoak: {100.0 * sent_total / n_records:5.1f} % sent, {len(monitor.batches)} track batches",
+                    end="",
+                    file=sys.stderr,
+                    flush=True,
+                )
         # one heartbeat per radar past the last period, instead of waiting for the idle flush
         t_end = (t_last or 0.0) + period_s + lateness_s + 0.001
         for rid in radar_ids:
@@ -435,6 +488,7 @@ def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str
                 return False
             published = h["counters"].get("batches_published", 0) - base_c.get("batches_published", 0)
             return len(monitor.batches) >= published
+
         with monitor.cond:
             if not monitor.cond.wait_for(settled, stall_timeout_s):
                 report.notes.append("the daemon did not settle (all processed, nothing buffered, all batches in)")
@@ -458,16 +512,25 @@ def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str
     report.plots_sent = sum(c["plots"] for c in sent.values())
     report.sent = {rid: {**dict(c), "last_seq": last_seq.get(rid)} for rid, c in sent.items()}
     fc = final["counters"]
-    report.counters = {k: v - base_c.get(k, 0) for k, v in fc.items() if isinstance(v, int) and "depth" not in k
-                       and k not in ("tracks_confirmed", "plots_buffered")}
-    report.rejected = {k: v - base["rejected"].get(k, 0) for k, v in final["rejected"].items()
-                       if v - base["rejected"].get(k, 0)}
+    report.counters = {
+        k: v - base_c.get(k, 0)
+        for k, v in fc.items()
+        if isinstance(v, int) and "depth" not in k and k not in ("tracks_confirmed", "plots_buffered")
+    }
+    report.rejected = {
+        k: v - base["rejected"].get(k, 0) for k, v in final["rejected"].items() if v - base["rejected"].get(k, 0)
+    }
     for rid in radar_ids:
         r, b = final["radars"][rid], base_r[rid]
-        report.daemon[rid] = {"batches": r["batches"] - b["batches"], "plots": r["plots"] - b["plots"],
-                              "last_seq": r["last_seq"], "seq_gaps": r["seq_gaps"] - b["seq_gaps"]}
+        report.daemon[rid] = {
+            "batches": r["batches"] - b["batches"],
+            "plots": r["plots"] - b["plots"],
+            "last_seq": r["last_seq"],
+            "seq_gaps": r["seq_gaps"] - b["seq_gaps"],
+        }
     per_radar_ok = all(
-        report.daemon[rid]["batches"] == sent[rid]["batches"] and report.daemon[rid]["plots"] == sent[rid]["plots"]
+        report.daemon[rid]["batches"] == sent[rid]["batches"]
+        and report.daemon[rid]["plots"] == sent[rid]["plots"]
         and report.daemon[rid]["seq_gaps"] == sent[rid]["seq_gaps"]
         and (sent[rid]["batches"] == 0 or report.daemon[rid]["last_seq"] == last_seq[rid])
         for rid in radar_ids
@@ -476,13 +539,17 @@ def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str
     report.track_batches_received = len(monitor.batches)
     periods = [b[0] for b in monitor.batches]
     report.checks["no message lost"] = (
-        per_radar_ok and c.get("messages_received") == sent_total and c.get("messages_processed") == sent_total
+        per_radar_ok
+        and c.get("messages_received") == sent_total
+        and c.get("messages_processed") == sent_total
         and c.get("status_messages", 0) == sum(s["statuses"] for s in sent.values())
-        and c.get("plots_received", 0) == report.plots_sent and not report.rejected
+        and c.get("plots_received", 0) == report.plots_sent
+        and not report.rejected
     )
     report.checks["every track batch received, in order"] = (
-        report.track_batches_received == c.get("batches_published") and c.get("outputs_dropped", 0) == 0
-        and all(a < b for a, b in zip(periods, periods[1:]))
+        report.track_batches_received == c.get("batches_published")
+        and c.get("outputs_dropped", 0) == 0
+        and all(a < b for a, b in itertools.pairwise(periods))
     )
     if daemon is not None:
         report.checks["daemon stopped cleanly"] = report.daemon_exit_status == 0
@@ -508,9 +575,11 @@ def run_soak(recording: str | Path, config: str | Path, *, connect: Optional[str
         first, last = lat[:m], lat[-m:]
         f50, f99 = _percentiles_ms([x[1] for x in first])
         l50, l99 = _percentiles_ms([x[1] for x in last])
-        report.latency_ms = {"first_p50": f50, "first_p99": f99, "last_p50": l50, "last_p99": l99,
-                             "periods_each": m}
-        report.tracks_mean = {"first": float(np.mean([x[2] for x in first])), "last": float(np.mean([x[2] for x in last]))}
+        report.latency_ms = {"first_p50": f50, "first_p99": f99, "last_p50": l50, "last_p99": l99, "periods_each": m}
+        report.tracks_mean = {
+            "first": float(np.mean([x[2] for x in first])),
+            "last": float(np.mean([x[2] for x in last])),
+        }
         report.checks["latency did not drift"] = l50 <= 1.5 * f50 + 5.0
     return report
 
@@ -520,33 +589,44 @@ def format_report(r: SoakReport) -> str:
         return "n/a" if v is None else f"{v:.0f} MiB"
 
     lines = [
-        f"soak: {r.traffic_s:.0f} s of traffic in {r.wall_s:.0f} s ({r.traffic_s / max(r.wall_s, 1e-9):.1f}x real time): "
+        f"soak: {r.traffic_s:.0f} s of traffic in {r.wall_s:.0f} s "
+        f"({r.traffic_s / max(r.wall_s, 1e-9):.1f}x real time): "
         f"{r.messages_sent} messages ({r.heartbeats_sent} end heartbeats), {r.plots_sent} plots, "
         f"{r.messages_sent / max(r.wall_s, 1e-9):.0f} msg/s, {r.plots_sent / max(r.wall_s, 1e-9):.0f} plots/s",
         "  per radar, sent vs counted by the daemon (batches / plots / last seq / seq gaps):",
     ]
     for rid, s in r.sent.items():
         d = r.daemon.get(rid, {})
-        lines.append(f"    {rid:>8}: {s.get('batches', 0)}/{d.get('batches')}  {s.get('plots', 0)}/{d.get('plots')}  "
-                     f"{s.get('last_seq')}/{d.get('last_seq')}  {s.get('seq_gaps', 0)}/{d.get('seq_gaps')}")
+        lines.append(
+            f"    {rid:>8}: {s.get('batches', 0)}/{d.get('batches')}  {s.get('plots', 0)}/{d.get('plots')}  "
+            f"{s.get('last_seq')}/{d.get('last_seq')}  {s.get('seq_gaps', 0)}/{d.get('seq_gaps')}"
+        )
     c = r.counters
     lines += [
-        f"  messages sent {r.messages_sent}, received {c.get('messages_received')}, processed {c.get('messages_processed')}; "
+        f"  messages sent {r.messages_sent}, received {c.get('messages_received')}, "
+        f"processed {c.get('messages_processed')}; "
         f"rejected {r.rejected or 'none'}",
         f"  track batches published {c.get('batches_published')}, received {r.track_batches_received}, "
         f"dropped by the outbox {c.get('outputs_dropped', 0)}; at most {r.max_outstanding_periods} periods outstanding",
         f"  daemon RSS: idle {mib(r.rss_mib.get('idle'))}, after 10 % {mib(r.rss_mib.get('warm'))}, "
         f"peak {mib(r.rss_mib.get('peak'))}, end {mib(r.rss_mib.get('end'))}"
-        + (f"; slope over the last 90 %: {r.rss_slope_mib_per_h:+.1f} MiB per hour of traffic"
-           if r.rss_slope_mib_per_h is not None else ""),
+        + (
+            f"; slope over the last 90 %: {r.rss_slope_mib_per_h:+.1f} MiB per hour of traffic"
+            if r.rss_slope_mib_per_h is not None
+            else ""
+        ),
         "  daemon RSS after each tenth of the recording: " + " ".join(f"{v:.0f}" for v in r.rss_profile_mib) + " MiB",
     ]
     if r.latency_ms:
         L = r.latency_ms
-        lines.append(f"  period latency (closable -> TrackBatch received), {L['periods_each']} periods each: "
-                     f"first 10 % p50 {L['first_p50']:.1f} ms p99 {L['first_p99']:.1f} ms; "
-                     f"last 10 % p50 {L['last_p50']:.1f} ms p99 {L['last_p99']:.1f} ms")
-        lines.append(f"  tracks per period: first 10 % {r.tracks_mean['first']:.0f}, last 10 % {r.tracks_mean['last']:.0f}")
+        lines.append(
+            f"  period latency (closable -> TrackBatch received), {L['periods_each']} periods each: "
+            f"first 10 % p50 {L['first_p50']:.1f} ms p99 {L['first_p99']:.1f} ms; "
+            f"last 10 % p50 {L['last_p50']:.1f} ms p99 {L['last_p99']:.1f} ms"
+        )
+        lines.append(
+            f"  tracks per period: first 10 % {r.tracks_mean['first']:.0f}, last 10 % {r.tracks_mean['last']:.0f}"
+        )
     for note in r.notes:
         lines.append(f"  note: {note}")
     lines.append("  checks: " + ", ".join(f"{name}: {'OK' if ok else 'FAILED'}" for name, ok in r.checks.items()))
@@ -566,8 +646,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=1, help="--generate: random seed (default 1)")
     p.add_argument("--connect", help="soak a daemon already running at this Zenoh endpoint (default: start one)")
     p.add_argument("--pid", type=int, help="with --connect: the daemon's process id, to follow its memory")
-    p.add_argument("--lead-periods", type=int, default=2,
-                   help="closable periods the sender may be ahead of the track batches received (default 2)")
+    p.add_argument(
+        "--lead-periods",
+        type=int,
+        default=2,
+        help="closable periods the sender may be ahead of the track batches received (default 2)",
+    )
     p.add_argument("--json", help="also write the report as JSON to this file")
 
 
@@ -575,16 +659,24 @@ def run(args: argparse.Namespace) -> int:
     if args.generate:
         t0 = time.perf_counter()
         rec, cfg = generate(args.generate, args.aircraft, args.duration_s, args.radars, args.seed)
-        print(f"soak: simulated {args.duration_s:.0f} s, {args.aircraft} aircraft airborne, {args.radars} radars "
-              f"-> {rec}, {cfg} ({time.perf_counter() - t0:.0f} s)")
+        print(
+            f"soak: simulated {args.duration_s:.0f} s, {args.aircraft} aircraft airborne, {args.radars} radars "
+            f"-> {rec}, {cfg} ({time.perf_counter() - t0:.0f} s)"
+        )
         recording, config = args.recording or rec, args.config or cfg
     else:
         recording, config = args.recording, args.config
     if not recording or not config:
         print("soak: give a recording and --config, or --generate DIR", file=sys.stderr)
         return 2
-    report = run_soak(recording, config, connect=args.connect, pid=args.pid, lead_periods=args.lead_periods,
-                      progress=sys.stderr.isatty())
+    report = run_soak(
+        recording,
+        config,
+        connect=args.connect,
+        pid=args.pid,
+        lead_periods=args.lead_periods,
+        progress=sys.stderr.isatty(),
+    )
     print(format_report(report))
     if args.json:
         Path(args.json).write_text(json.dumps(asdict(report), indent=1), encoding="utf-8")

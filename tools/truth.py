@@ -11,16 +11,28 @@ it exists (column meanings in the :mod:`~radar_fusion.tools.simulate` docstring)
 from __future__ import annotations
 
 import csv
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 TRUTH_COLUMNS = (
-    "t_s", "target_id", "mode_s", "callsign", "lat_deg", "lon_deg", "alt_ft",
-    "x_m", "y_m", "vx_mps", "vy_mps", "vrate_fpm", "detectable",
-)  # fmt: skip
+    "t_s",
+    "target_id",
+    "mode_s",
+    "callsign",
+    "lat_deg",
+    "lon_deg",
+    "alt_ft",
+    "x_m",
+    "y_m",
+    "vx_mps",
+    "vy_mps",
+    "vrate_fpm",
+    "detectable",
+)
 REQUIRED_COLUMNS = ("t_s", "target_id", "x_m", "y_m", "vx_mps", "vy_mps")
 """What scoring needs; the other columns are optional when reading (NaN / "" / detectable when absent)."""
 
@@ -80,7 +92,7 @@ class Truth:
         alt_ft: Sequence[Any] | None = None,
         vrate_fpm: Sequence[Any] | None = None,
         target_index: Sequence[int] | None = None,
-    ) -> "Truth":
+    ) -> Truth:
         """Build from per-row columns in any order (rows are sorted by target, time)."""
         ids = np.asarray([str(v) for v in target_id], dtype=object)
         n = ids.shape[0]
@@ -219,11 +231,20 @@ def as_truth(truth: Truth | str | Path | Mapping[str, Sequence] | Sequence[Mappi
         rows = list(truth)
         cols = {k: [r.get(k) for r in rows] for k in TRUTH_COLUMNS}
     return Truth.from_columns(
-        t_s=cols["t_s"], target_id=cols["target_id"], x_m=cols["x_m"], y_m=cols["y_m"],
-        vx_mps=cols["vx_mps"], vy_mps=cols["vy_mps"], detectable=cols.get("detectable"),
-        mode_s=cols.get("mode_s"), callsign=cols.get("callsign"), lat_deg=cols.get("lat_deg"),
-        lon_deg=cols.get("lon_deg"), alt_ft=cols.get("alt_ft"), vrate_fpm=cols.get("vrate_fpm"),
-    )  # fmt: skip
+        t_s=cols["t_s"],
+        target_id=cols["target_id"],
+        x_m=cols["x_m"],
+        y_m=cols["y_m"],
+        vx_mps=cols["vx_mps"],
+        vy_mps=cols["vy_mps"],
+        detectable=cols.get("detectable"),
+        mode_s=cols.get("mode_s"),
+        callsign=cols.get("callsign"),
+        lat_deg=cols.get("lat_deg"),
+        lon_deg=cols.get("lon_deg"),
+        alt_ft=cols.get("alt_ft"),
+        vrate_fpm=cols.get("vrate_fpm"),
+    )
 
 
 # --------------------------------------------------------------------------- truth at batch times

@@ -25,8 +25,9 @@ import queue
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any
 
 import msgpack
 import zenoh
@@ -35,7 +36,7 @@ from .config import BusConfig, Settings
 from .engine import Engine, PeriodOutput
 from .metrics import DaemonMetrics
 from .safety_nets import SafetyNets
-from .wire import Rejection, RadarStatus, decode_message, decode_plot_batch
+from .wire import RadarStatus, Rejection, decode_message, decode_plot_batch
 
 log = logging.getLogger("radar_fusion.bus")
 
@@ -44,10 +45,10 @@ _zenoh_log_initialised = False
 
 def zenoh_config(
     mode: str = "client",
-    listen: Optional[list[str]] = None,
-    connect: Optional[list[str]] = None,
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
     multicast_scouting: bool = False,
-    config_file: Optional[str] = None,
+    config_file: str | None = None,
 ) -> zenoh.Config:
     """A zenoh.Config for the given role; a JSON5 file (TLS, ACL) may provide the rest."""
     cfg = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
@@ -74,7 +75,7 @@ def client_config_for(bus: BusConfig) -> zenoh.Config:
     return zenoh_config("client", connect=list(endpoints), config_file=bus.zenoh_config_file)
 
 
-def tool_client_config(config_path: Optional[str], connect: Optional[list[str]], prefix: Optional[str]):
+def tool_client_config(config_path: str | None, connect: list[str] | None, prefix: str | None):
     """Session config and key prefix for a tool (replay, record): from the daemon's
     config file if given, ``connect`` endpoints overriding; defaults tcp/127.0.0.1:7447, 'atc'."""
     from .config import load_settings
@@ -123,8 +124,14 @@ class RateLimitedLog:
 class FusionDaemon:
     """The fusion daemon: one Zenoh session, one engine, a processing and a publishing thread."""
 
-    def __init__(self, settings: Settings, queue_size: int = 50_000, idle_flush_s: Optional[float] = None,
-                 base_dir: Optional[Path] = None, outbox_size: int = 1024):
+    def __init__(
+        self,
+        settings: Settings,
+        queue_size: int = 50_000,
+        idle_flush_s: float | None = None,
+        base_dir: Path | None = None,
+        outbox_size: int = 1024,
+    ):
         self.settings = settings
         self.prefix = settings.bus.prefix
         # base_dir: where the config file lives; relative areas/MSA file paths resolve there
@@ -145,20 +152,20 @@ class FusionDaemon:
         self.outbox: queue.Queue = queue.Queue(maxsize=outbox_size)
         self.outputs_dropped = 0
         self.publish_errors = 0
-        self.clock_offsets_s: list[Optional[float]] = [None] * len(self.engine.radar_ids)
+        self.clock_offsets_s: list[float | None] = [None] * len(self.engine.radar_ids)
         self._health_pending = False  # a periodic health snapshot waits in the outbox
         self._last_processed = time.monotonic()
         self._log_rejection = RateLimitedLog()
-        self._session: Optional[zenoh.Session] = None
+        self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
         self._pubs: dict[str, zenoh.Publisher] = {}
-        self._thread: Optional[threading.Thread] = None
-        self._publisher: Optional[threading.Thread] = None
-        self.on_output: Optional[Callable[[PeriodOutput], None]] = None
+        self._thread: threading.Thread | None = None
+        self._publisher: threading.Thread | None = None
+        self.on_output: Callable[[PeriodOutput], None] | None = None
         self.metrics = DaemonMetrics(settings.metrics.listen)  # private registry; served when listen is set
 
     # ------------------------------------------------------------- lifecycle
-    def start(self) -> "FusionDaemon":
+    def start(self) -> FusionDaemon:
         bus = self.settings.bus
         cfg = zenoh_config(bus.mode, bus.listen, bus.connect, bus.multicast_scouting, bus.zenoh_config_file)
         self.metrics.start()
@@ -201,7 +208,7 @@ class FusionDaemon:
         self.metrics.close()
         self.stopped.set()
 
-    def __enter__(self) -> "FusionDaemon":
+    def __enter__(self) -> FusionDaemon:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -299,7 +306,7 @@ class FusionDaemon:
             self._overload_counted += n
             self.engine.reject("overload", n)
 
-    def _process_safely(self, key: str, payload: bytes, arrived_s: Optional[float] = None) -> None:
+    def _process_safely(self, key: str, payload: bytes, arrived_s: float | None = None) -> None:
         try:
             self._handle(key, payload)
         except Exception:  # a bug must not take the daemon down; it is counted and logged
@@ -380,7 +387,7 @@ class FusionDaemon:
         )
         return {"v": 1, "t": now, "uptime_s": now - self.started_wall, **h, "lag_s": (now - newest) if newest else None}
 
-    def publish_health(self, health: Optional[dict[str, Any]] = None) -> None:
+    def publish_health(self, health: dict[str, Any] | None = None) -> None:
         """Publish a health message: ``health`` (a snapshot), or one built now. Its
         publication counters are those of the moment it goes out."""
         try:
@@ -395,4 +402,3 @@ class FusionDaemon:
             self._pubs["health"].put(msgpack.packb(health, use_bin_type=True))
         except Exception:
             log.exception("publishing health failed")
-

@@ -23,42 +23,97 @@ import threading
 
 # subcommand: (module, add-arguments function, run function, one-line help)
 SUBCOMMANDS = {
-    "demo": ("radar_fusion.tools.demo", "add_arguments", "run",
-             "run the whole system once on a simulated 3-radar scenario and print its accuracy"),
-    "serve": ("radar_fusion.cli", "_serve_arguments", "_serve",
-              "run the fusion daemon (embedded Zenoh router by default)"),
-    "simulate": ("radar_fusion.tools.simulate", "add_arguments", "run",
-                 "simulate radars over flight plans or real ADS-B flights; write plots, truth and a config"),
-    "replay": ("radar_fusion.tools.replay", "add_arguments", "run",
-               "publish a recording to the bus at recorded speed, scaled, or as fast as possible"),
-    "record": ("radar_fusion.tools.record", "add_arguments", "run",
-               "subscribe to bus keys and write what arrives to a recording"),
-    "evaluate": ("radar_fusion.tools.evaluate", "add_arguments", "run",
-                 "score recorded tracks against truth (RMS, GOSPA, continuity) and plot them"),
-    "bench": ("radar_fusion.tools.bench", "add_arguments", "run",
-              "benchmark the engine (plots/s, period latency, memory) on growing scenarios"),
-    "outliers": ("radar_fusion.tools.outlier_experiment", "add_arguments", "run",
-                 "reproduce Hu 2013's wild-plot experiment: soft-weighted vs K-MODF vs 3-sigma gate"),
-    "clean": ("radar_fusion.tools.clean", "add_arguments", "run",
-              "remove wild plots from a recording per radar track (Hu 2013); write it and a report"),
-    "safety-eval": ("radar_fusion.tools.safety_eval", "add_arguments", "run",
-                    "evaluate STCA / APW / MSAW on scenarios with and without conflicts"),
-    "asterix-in": ("radar_fusion.tools.asterix_bridge", "add_arguments_in", "run_in",
-                   "feed ASTERIX CAT048/CAT034 (UDP or files) onto the bus"),
-    "asterix-out": ("radar_fusion.tools.asterix_bridge", "add_arguments_out", "run_out",
-                    "write the fused tracks as ASTERIX CAT062 (UDP or file)"),
-    "soak": ("radar_fusion.tools.soak", "add_arguments", "run",
-             "replay a long recording through the daemon as fast as it takes it; check no loss, flat memory, no drift"),
-    "schemas": ("radar_fusion.cli", "_schemas_arguments", "_schemas",
-                "write the wire contract's JSON Schema files"),
+    "demo": (
+        "radar_fusion.tools.demo",
+        "add_arguments",
+        "run",
+        "run the whole system once on a simulated 3-radar scenario and print its accuracy",
+    ),
+    "serve": (
+        "radar_fusion.cli",
+        "_serve_arguments",
+        "_serve",
+        "run the fusion daemon (embedded Zenoh router by default)",
+    ),
+    "simulate": (
+        "radar_fusion.tools.simulate",
+        "add_arguments",
+        "run",
+        "simulate radars over flight plans or real ADS-B flights; write plots, truth and a config",
+    ),
+    "replay": (
+        "radar_fusion.tools.replay",
+        "add_arguments",
+        "run",
+        "publish a recording to the bus at recorded speed, scaled, or as fast as possible",
+    ),
+    "record": (
+        "radar_fusion.tools.record",
+        "add_arguments",
+        "run",
+        "subscribe to bus keys and write what arrives to a recording",
+    ),
+    "evaluate": (
+        "radar_fusion.tools.evaluate",
+        "add_arguments",
+        "run",
+        "score recorded tracks against truth (RMS, GOSPA, continuity) and plot them",
+    ),
+    "bench": (
+        "radar_fusion.tools.bench",
+        "add_arguments",
+        "run",
+        "benchmark the engine (plots/s, period latency, memory) on growing scenarios",
+    ),
+    "outliers": (
+        "radar_fusion.tools.outlier_experiment",
+        "add_arguments",
+        "run",
+        "reproduce Hu 2013's wild-plot experiment: soft-weighted vs K-MODF vs 3-sigma gate",
+    ),
+    "clean": (
+        "radar_fusion.tools.clean",
+        "add_arguments",
+        "run",
+        "remove wild plots from a recording per radar track (Hu 2013); write it and a report",
+    ),
+    "safety-eval": (
+        "radar_fusion.tools.safety_eval",
+        "add_arguments",
+        "run",
+        "evaluate STCA / APW / MSAW on scenarios with and without conflicts",
+    ),
+    "asterix-in": (
+        "radar_fusion.tools.asterix_bridge",
+        "add_arguments_in",
+        "run_in",
+        "feed ASTERIX CAT048/CAT034 (UDP or files) onto the bus",
+    ),
+    "asterix-out": (
+        "radar_fusion.tools.asterix_bridge",
+        "add_arguments_out",
+        "run_out",
+        "write the fused tracks as ASTERIX CAT062 (UDP or file)",
+    ),
+    "soak": (
+        "radar_fusion.tools.soak",
+        "add_arguments",
+        "run",
+        "replay a long recording through the daemon as fast as it takes it; check no loss, flat memory, no drift",
+    ),
+    "schemas": ("radar_fusion.cli", "_schemas_arguments", "_schemas", "write the wire contract's JSON Schema files"),
 }
 
 
 def _serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="daemon configuration TOML file (see deploy/*.toml)")
     p.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR (default INFO)")
-    p.add_argument("--log-format", choices=("text", "json"), default="text",
-                   help="text (default) or json: one JSON object per line (time, level, logger, message, extra fields)")
+    p.add_argument(
+        "--log-format",
+        choices=("text", "json"),
+        default="text",
+        help="text (default) or json: one JSON object per line (time, level, logger, message, extra fields)",
+    )
 
 
 def _serve(args: argparse.Namespace) -> int:

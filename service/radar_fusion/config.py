@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Any, Literal, Optional
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -55,8 +55,10 @@ class SystemConfig(_Section):
         200_000, gt=0, description="plots of one radar that may wait for open periods; beyond, refused as buffer_full"
     )
     clock_offset_limit_s: float = Field(
-        2.0, gt=0, description="a radar whose clock is off by more than this against the other radars' is shown "
-        "clock_suspect on health (about half a scan: plots later than that start to miss their period)"
+        2.0,
+        gt=0,
+        description="a radar whose clock is off by more than this against the other radars' is shown "
+        "clock_suspect on health (about half a scan: plots later than that start to miss their period)",
     )
 
 
@@ -68,14 +70,15 @@ class BusConfig(_Section):
     health_period_s: float = Field(2.0, gt=0)
     max_payload_bytes: int = Field(4 << 20, gt=0)
     multicast_scouting: bool = False
-    zenoh_config_file: Optional[str] = Field(
+    zenoh_config_file: str | None = Field(
         None, description="optional zenoh JSON5 config (TLS, access control); listen/connect/mode still apply"
     )
 
 
 class MetricsConfig(_Section):
-    listen: Optional[str] = Field(
-        None, pattern=r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]*):[0-9]{1,5}$",
+    listen: str | None = Field(
+        None,
+        pattern=r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]*):[0-9]{1,5}$",
         description="HOST:PORT of the Prometheus /metrics endpoint, e.g. 127.0.0.1:9108; off when absent",
     )
 
@@ -89,8 +92,8 @@ class RadarConfig(_Section):
     sigma_azimuth_deg: float = Field(gt=0, le=5)
     rotation_period_s: float = Field(gt=0, le=60)
     max_range_m: float = Field(500_000.0, gt=0, description="instrumented range; plots beyond are refused")
-    sac: Optional[int] = Field(None, ge=0, le=255, description="ASTERIX system area code")
-    sic: Optional[int] = Field(None, ge=0, le=255, description="ASTERIX system identification code")
+    sac: int | None = Field(None, ge=0, le=255, description="ASTERIX system area code")
+    sic: int | None = Field(None, ge=0, le=255, description="ASTERIX system identification code")
 
     # lat_deg etc. aliases let coordinate code take radar configs directly
     @property
@@ -111,38 +114,51 @@ class TrackingConfig(_Section):
     """
 
     alpha_per_s: float = Field(
-        DEFAULT_ALPHA_PER_S, gt=0,
+        DEFAULT_ALPHA_PER_S,
+        gt=0,
         description="Singer manoeuvre bandwidth α = 1/T_c (Shu eq. 4, 12). Default 1/30 s⁻¹: the ~30 s of a "
         "rate-one 90° turn (singer_filter.py)",
     )
     sigma_m_mps2: float = Field(
-        DEFAULT_SIGMA_M_MPS2, gt=0,
+        DEFAULT_SIGMA_M_MPS2,
+        gt=0,
         description="Singer acceleration standard deviation σ_m (Shu §4's Q). Default ≈ 2.5 m/s², from Singer's "
         "formula with a 25° bank turn as the maximum (singer_filter.py)",
     )
     fusion_method: Literal["scalar", "matrix"] = Field(
-        "matrix", description="scalar: Shu eq. 5-6 per axis; matrix: the full-covariance information form, which "
-        "keeps the range/azimuth ellipse of each plot (fusion.py)"
+        "matrix",
+        description="scalar: Shu eq. 5-6 per axis; matrix: the full-covariance information form, which "
+        "keeps the range/azimuth ellipse of each plot (fusion.py)",
     )
     manoeuvre_sigma_factor: float = Field(
-        4.0, ge=1.0, description="σ_m multiplier while a manoeuvre is detected (1 = off). Default 4: 2.5 → 10 m/s², "
-        "the centripetal acceleration of a rate-one turn at 190 m/s (manoeuvre.py)"
+        4.0,
+        ge=1.0,
+        description="σ_m multiplier while a manoeuvre is detected (1 = off). Default 4: 2.5 → 10 m/s², "
+        "the centripetal acceleration of a rate-one turn at 190 m/s (manoeuvre.py)",
     )
     manoeuvre_nis_on: float = Field(
-        6.0, gt=0, description="fading-average NIS above which a track manoeuvres. Default 6: three times the mean "
-        "2 of a χ² with 2 dof; one noisy update alone (NIS ~ 10) lifts the average only to 6 with fading 0.5"
+        6.0,
+        gt=0,
+        description="fading-average NIS above which a track manoeuvres. Default 6: three times the mean "
+        "2 of a χ² with 2 dof; one noisy update alone (NIS ~ 10) lifts the average only to 6 with fading 0.5",
     )
     manoeuvre_nis_off: float = Field(
-        3.0, gt=0, description="... and below which it flies straight again. Default 3, half of the 'on' level: "
-        "hysteresis, so a track does not flicker between the two models"
+        3.0,
+        gt=0,
+        description="... and below which it flies straight again. Default 3, half of the 'on' level: "
+        "hysteresis, so a track does not flicker between the two models",
     )
     manoeuvre_nis_fading: float = Field(
-        0.5, ge=0, lt=1, description="weight of the previous NIS average. Default 0.5: a memory of about two "
-        "updates, so a turn is seen within two scans"
+        0.5,
+        ge=0,
+        lt=1,
+        description="weight of the previous NIS average. Default 0.5: a memory of about two "
+        "updates, so a turn is seen within two scans",
     )
     assumed_altitude_ft: float = Field(
-        10_000.0, description="height assumed for plots without Mode C, ft (their slant range is converted to "
-        "ground range at it). Default 10,000 ft, the middle of terminal-area traffic"
+        10_000.0,
+        description="height assumed for plots without Mode C, ft (their slant range is converted to "
+        "ground range at it). Default 10,000 ft, the middle of terminal-area traffic",
     )
 
 
@@ -172,7 +188,9 @@ class Settings(BaseSettings):
     safety_nets: SafetyNetsConfig = Field(default_factory=SafetyNetsConfig)
 
     @classmethod
-    def settings_customise_sources(cls, settings_cls, init_settings, env_settings, dotenv_settings, file_secret_settings):
+    def settings_customise_sources(
+        cls, settings_cls, init_settings, env_settings, dotenv_settings, file_secret_settings
+    ):
         # The file's values come in as init arguments; the environment overrides them.
         return (env_settings, init_settings)
 
@@ -188,7 +206,7 @@ class Settings(BaseSettings):
         return data
 
     @model_validator(mode="after")
-    def _unique_radars(self) -> "Settings":
+    def _unique_radars(self) -> Settings:
         ids = [r.id for r in self.radars]
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:

@@ -27,8 +27,9 @@ import math
 import re
 import sys
 import time
-from datetime import datetime, timezone
-from typing import Any, Iterator, Optional
+from collections.abc import Iterator
+from datetime import UTC, datetime
+from typing import Any
 
 from prometheus_client import CollectorRegistry, Histogram, start_http_server
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
@@ -63,7 +64,7 @@ def _metric_name(text: str) -> str:
     return re.sub(r"[^a-zA-Z0-9_]", "_", text)
 
 
-def _number(value: Any) -> Optional[float]:
+def _number(value: Any) -> float | None:
     if isinstance(value, bool):
         return float(value)
     if isinstance(value, (int, float)) and math.isfinite(value):
@@ -74,7 +75,7 @@ def _number(value: Any) -> Optional[float]:
 class _HealthCollector(Collector):
     """Renders the newest health snapshot as Prometheus counters and gauges."""
 
-    def __init__(self, metrics: "DaemonMetrics"):
+    def __init__(self, metrics: DaemonMetrics):
         self.metrics = metrics
 
     def collect(self) -> Iterator[Any]:
@@ -97,16 +98,26 @@ class _HealthCollector(Collector):
 
         radars = health.get("radars", {})
         live = GaugeMetricFamily(f"{ns}_radar_live", "1 while the radar is live (holds periods open)", labels=["radar"])
-        watermark = GaugeMetricFamily(f"{ns}_radar_watermark_timestamp_seconds",
-                                      "event time (UTC epoch s) of the radar's newest plot or status", labels=["radar"])
-        clock = GaugeMetricFamily(f"{ns}_radar_clock_offset_seconds",
-                                  "estimated clock offset of the radar against the other radars", labels=["radar"])
-        suspect = GaugeMetricFamily(f"{ns}_radar_clock_suspect",
-                                    "1 when the radar's clock offset exceeds the limit", labels=["radar"])
-        per_radar = {field: CounterMetricFamily(f"{ns}_{name}", text, labels=["radar"])
-                     for field, (name, text) in _RADAR_COUNTERS.items()}
-        radar_rejected = CounterMetricFamily(f"{ns}_radar_rejected", "refused plots or messages of the radar",
-                                             labels=["radar", "reason"])
+        watermark = GaugeMetricFamily(
+            f"{ns}_radar_watermark_timestamp_seconds",
+            "event time (UTC epoch s) of the radar's newest plot or status",
+            labels=["radar"],
+        )
+        clock = GaugeMetricFamily(
+            f"{ns}_radar_clock_offset_seconds",
+            "estimated clock offset of the radar against the other radars",
+            labels=["radar"],
+        )
+        suspect = GaugeMetricFamily(
+            f"{ns}_radar_clock_suspect", "1 when the radar's clock offset exceeds the limit", labels=["radar"]
+        )
+        per_radar = {
+            field: CounterMetricFamily(f"{ns}_{name}", text, labels=["radar"])
+            for field, (name, text) in _RADAR_COUNTERS.items()
+        }
+        radar_rejected = CounterMetricFamily(
+            f"{ns}_radar_rejected", "refused plots or messages of the radar", labels=["radar", "reason"]
+        )
         for rid, r in sorted(radars.items()):
             live.add_metric([rid], 1.0 if r.get("live") else 0.0)
             wm = _number(r.get("watermark_t"))
@@ -145,30 +156,36 @@ class DaemonMetrics:
     """One daemon's metrics: a private registry, its histograms, the newest health
     snapshot, and (when ``listen`` is set) the HTTP endpoint serving them."""
 
-    def __init__(self, listen: Optional[str] = None):
+    def __init__(self, listen: str | None = None):
         self.listen = listen
         self.registry = CollectorRegistry()
         self.period_processing_s = Histogram(
-            f"{NAMESPACE}_period_processing_seconds", "engine processing time of one closed period",
-            buckets=PERIOD_BUCKETS_S, registry=self.registry)
+            f"{NAMESPACE}_period_processing_seconds",
+            "engine processing time of one closed period",
+            buckets=PERIOD_BUCKETS_S,
+            registry=self.registry,
+        )
         self.ingest_latency_s = Histogram(
             f"{NAMESPACE}_ingest_latency_seconds",
             "time from a message's arrival at the daemon to the end of its decoding and ingest (queue wait included)",
-            buckets=INGEST_BUCKETS_S, registry=self.registry)
-        self.health: Optional[dict[str, Any]] = None
+            buckets=INGEST_BUCKETS_S,
+            registry=self.registry,
+        )
+        self.health: dict[str, Any] | None = None
         self.registry.register(_HealthCollector(self))
         self._server = None
         self._thread = None
-        self.address: Optional[tuple[str, int]] = None
+        self.address: tuple[str, int] | None = None
 
-    def start(self) -> "DaemonMetrics":
+    def start(self) -> DaemonMetrics:
         """Serve ``/metrics`` on ``listen`` (nothing to do when it is not set)."""
         if self.listen and self._server is None:
             host, port = parse_listen(self.listen)
             self._server, self._thread = start_http_server(port, addr=host, registry=self.registry)
             self.address = self._server.server_address[:2]
-            log.info("metrics endpoint on http://%s:%d/metrics", host, self.address[1],
-                     extra={"metrics_listen": self.listen})
+            log.info(
+                "metrics endpoint on http://%s:%d/metrics", host, self.address[1], extra={"metrics_listen": self.listen}
+            )
         return self
 
     def close(self) -> None:
@@ -201,7 +218,7 @@ class JsonFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         doc: dict[str, Any] = {
-            "time": datetime.fromtimestamp(record.created, timezone.utc).isoformat(timespec="milliseconds"),
+            "time": datetime.fromtimestamp(record.created, UTC).isoformat(timespec="milliseconds"),
             "level": record.levelname,
             "logger": record.name,
             "message": record.getMessage(),

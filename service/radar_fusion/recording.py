@@ -12,9 +12,10 @@ replay tool sends gives back the same payloads byte for byte.
 from __future__ import annotations
 
 import gzip
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO, Iterator
+from typing import Any, BinaryIO
 
 import msgpack
 
@@ -53,7 +54,7 @@ class RecordingWriter:
         if not self._f.closed:
             self._f.close()
 
-    def __enter__(self) -> "RecordingWriter":
+    def __enter__(self) -> RecordingWriter:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal, Optional
+from typing import Any, Literal
 
 import msgpack
 import numpy as np
@@ -64,11 +64,11 @@ class Plot(BaseModel):
     t: float = Field(description="UTC epoch seconds of detection", gt=0, lt=1e10)
     range_m: float = Field(description="slant range from the antenna, metres", ge=0, le=2_000_000)
     azimuth_deg: float = Field(description="azimuth from true north, clockwise, degrees", ge=0, lt=360)
-    fl: Optional[float] = Field(None, description="Mode C flight level (100 ft units)", ge=-20, le=1300)
-    mode3a: Optional[int] = Field(None, description="Mode 3/A code as an integer (octal 0000-7777)", ge=0, le=0o7777)
-    mode_s: Optional[str] = Field(None, description="Mode S address, 6 hex digits", pattern=MODE_S_PATTERN)
-    track_no: Optional[int] = Field(None, description="the radar's own track number", ge=0, le=2**32 - 1)
-    kind: Optional[Literal["psr", "ssr", "cmb", "modes"]] = Field(None, description="report type")
+    fl: float | None = Field(None, description="Mode C flight level (100 ft units)", ge=-20, le=1300)
+    mode3a: int | None = Field(None, description="Mode 3/A code as an integer (octal 0000-7777)", ge=0, le=0o7777)
+    mode_s: str | None = Field(None, description="Mode S address, 6 hex digits", pattern=MODE_S_PATTERN)
+    track_no: int | None = Field(None, description="the radar's own track number", ge=0, le=2**32 - 1)
+    kind: Literal["psr", "ssr", "cmb", "modes"] | None = Field(None, description="report type")
 
 
 class PlotBatch(_Message):
@@ -85,8 +85,8 @@ class RadarStatus(_Message):
     radar_id: str = Field(pattern=RADAR_ID_PATTERN)
     t: float = Field(gt=0, lt=1e10, description="UTC epoch seconds")
     kind: Literal["north", "sector", "heartbeat"]
-    sector: Optional[int] = Field(None, ge=0, le=255)
-    rotation_period_s: Optional[float] = Field(None, gt=0, le=120)
+    sector: int | None = Field(None, ge=0, le=255)
+    rotation_period_s: float | None = Field(None, gt=0, le=120)
 
 
 class Track(BaseModel):
@@ -102,17 +102,17 @@ class Track(BaseModel):
     y_m: float = Field(description="system plane, north")
     vx_mps: float
     vy_mps: float
-    fl: Optional[float] = None
+    fl: float | None = None
     cov_xy: list[float] = Field(min_length=3, max_length=3, description="[σxx², σxy, σyy²] in m²")
     sources: list[str] = Field(description="radar ids that contributed this period")
-    mode3a: Optional[int] = None
-    mode_s: Optional[str] = None
+    mode3a: int | None = None
+    mode_s: str | None = None
     updates: int = Field(ge=0)
     age_s: float = Field(ge=0)
     # v1 extensions (optional for receivers): vertical rate and acceleration, for safety nets.
-    vrate_fpm: Optional[float] = Field(None, description="vertical rate, feet per minute")
-    ax_mps2: Optional[float] = None
-    ay_mps2: Optional[float] = None
+    vrate_fpm: float | None = Field(None, description="vertical rate, feet per minute")
+    ax_mps2: float | None = None
+    ay_mps2: float | None = None
 
 
 class TrackBatch(_Message):
@@ -133,28 +133,28 @@ class Alert(_Message):
     track_ids: list[int]
     status: Literal["new", "ongoing", "ended"]
     # STCA
-    time_to_cpa_s: Optional[float] = None
-    min_sep_m: Optional[float] = None
-    min_vsep_ft: Optional[float] = None
+    time_to_cpa_s: float | None = None
+    min_sep_m: float | None = None
+    min_vsep_ft: float | None = None
     # APW
-    area_id: Optional[str] = None
-    time_to_entry_s: Optional[float] = None
+    area_id: str | None = None
+    time_to_entry_s: float | None = None
     # MSAW
-    time_to_violation_s: Optional[float] = None
-    min_alt_ft: Optional[float] = None
+    time_to_violation_s: float | None = None
+    min_alt_ft: float | None = None
 
 
 class RadarHealth(BaseModel):
     model_config = ConfigDict(extra="ignore", frozen=True)
     live: bool
-    watermark_t: Optional[float] = None
+    watermark_t: float | None = None
     plots: int = 0
     batches: int = 0
-    last_seq: Optional[int] = None
+    last_seq: int | None = None
     seq_gaps: int = 0
     rejected: dict[str, int] = Field(default_factory=dict)
     wild: int = Field(0, description="plots dropped by the live wild-plot gate (counted apart from rejections)")
-    clock_offset_s: Optional[float] = Field(
+    clock_offset_s: float | None = Field(
         None, description="estimated clock offset against the other radars (event time), seconds; None: too few data"
     )
     clock_suspect: bool = Field(False, description="|clock_offset_s| is above the daemon's limit")
@@ -170,9 +170,9 @@ class Health(_Message):
     radars: dict[str, RadarHealth]
     periods_closed: int
     tracks: int
-    processing_ms_p50: Optional[float] = None
-    processing_ms_p99: Optional[float] = None
-    lag_s: Optional[float] = Field(None, description="wall clock minus the newest closed period's time")
+    processing_ms_p50: float | None = None
+    processing_ms_p99: float | None = None
+    lag_s: float | None = Field(None, description="wall clock minus the newest closed period's time")
 
 
 MESSAGE_MODELS: dict[str, type[BaseModel]] = {
@@ -242,7 +242,13 @@ def _plot_reason(err: ValidationError) -> str:
         if e["type"] == "finite_number":
             return "plot_non_finite"
     for e in err.errors():
-        if e["type"] in ("greater_than", "greater_than_equal", "less_than", "less_than_equal", "string_pattern_mismatch"):
+        if e["type"] in (
+            "greater_than",
+            "greater_than_equal",
+            "less_than",
+            "less_than_equal",
+            "string_pattern_mismatch",
+        ):
             return "plot_out_of_range"
     return "plot_schema"
 
@@ -331,5 +337,5 @@ def encode(message: BaseModel | dict) -> bytes:
     return msgpack.packb(message, use_bin_type=True)
 
 
-def mode_s_to_str(address: int) -> Optional[str]:
+def mode_s_to_str(address: int) -> str | None:
     return None if address < 0 else f"{address:06X}"

@@ -63,8 +63,8 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Optional, Sequence
 
 from .compare import COMPARE_SIZES, run_compare
 from .engine_run import in_fresh_process, run_engine, simulate_inputs
@@ -96,49 +96,89 @@ def parse_sizes(text: str) -> list[tuple[int, int]]:
     return sizes
 
 
-
 # =========================================================================== command
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``radar-fusion bench``."""
-    parser.add_argument("--sizes", type=parse_sizes, default=None,
-                        help="comma-separated AIRCRAFTxRADARS (default: 100,1000,4000 × 3,10,30)")
+    parser.add_argument(
+        "--sizes",
+        type=parse_sizes,
+        default=None,
+        help="comma-separated AIRCRAFTxRADARS (default: 100,1000,4000 × 3,10,30)",
+    )
     parser.add_argument("--duration-s", type=float, default=None, help="simulated seconds per size (default 120)")
     parser.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
-    parser.add_argument("--warmup-s", type=float, default=30.0,
-                        help="leave periods of the first N s out of the latency percentiles (default 30)")
-    parser.add_argument("--no-gate-compare", action="store_true",
-                        help="run with the wild-plot gate on only (default: on and off, issue 4)")
+    parser.add_argument(
+        "--warmup-s",
+        type=float,
+        default=30.0,
+        help="leave periods of the first N s out of the latency percentiles (default 30)",
+    )
+    parser.add_argument(
+        "--no-gate-compare",
+        action="store_true",
+        help="run with the wild-plot gate on only (default: on and off, issue 4)",
+    )
     parser.add_argument("--out", default=None, help="also write a Markdown report here (e.g. reports/bench.md)")
     parser.add_argument("--quick", action="store_true", help="100x3 and 1000x10 only, 60 s")
-    parser.add_argument("--profile", type=parse_sizes, default=None, metavar="SIZE",
-                        help="instead of the table: cProfile the engine on this size (gate on), "
-                             "print the stage summary and the top functions by cumulative time")
+    parser.add_argument(
+        "--profile",
+        type=parse_sizes,
+        default=None,
+        metavar="SIZE",
+        help="instead of the table: cProfile the engine on this size (gate on), "
+        "print the stage summary and the top functions by cumulative time",
+    )
     parser.add_argument("--profile-top", type=int, default=30, help="functions listed by --profile (default 30)")
     g = parser.add_argument_group("side by side with Stone Soup (issue 7)")
-    g.add_argument("--report", default=None, metavar="DIR",
-                   help="run the side-by-side comparison and write DIR/report.md, summary.md, results.json and PNGs "
-                        "(default sizes 50x3,100x3,1000x10,4000x30 plus the ADS-B flights)")
+    g.add_argument(
+        "--report",
+        default=None,
+        metavar="DIR",
+        help="run the side-by-side comparison and write DIR/report.md, summary.md, results.json and PNGs "
+        "(default sizes 50x3,100x3,1000x10,4000x30 plus the ADS-B flights)",
+    )
     g.add_argument("--compare", action="store_true", help="run the side-by-side comparison, print only")
     g.add_argument("--no-bus", action="store_true", help="comparison without (b), the daemon over Zenoh")
     g.add_argument("--no-reference", action="store_true", help="comparison without (c), Stone Soup")
     g.add_argument("--no-accuracy", action="store_true", help="comparison without the accuracy scoring")
     g.add_argument("--no-adsb", action="store_true", help="comparison without the real ADS-B flights case")
-    g.add_argument("--adsb-duration-s", type=float, default=300.0,
-                   help="length of the ADS-B case from 11:30 UTC (default 300)")
+    g.add_argument(
+        "--adsb-duration-s", type=float, default=300.0, help="length of the ADS-B case from 11:30 UTC (default 300)"
+    )
     g.add_argument("--adsb-aircraft", type=int, default=80, help="at most this many ADS-B flights (default 80)")
-    g.add_argument("--latency-speed", type=float, default=1.0,
-                   help="replay speed of the end-to-end latency run (default 1 = real time; 0 = skip it)")
-    g.add_argument("--bus-timeout-s", type=float, default=600.0,
-                   help="give up waiting for the daemon's last TrackBatch after this long (default 600)")
-    g.add_argument("--reference-budget-s", type=float, default=600.0,
-                   help="Stone Soup time budget per case: sizes estimated above it are skipped, a run is stopped "
-                        "there (default 600)")
-    g.add_argument("--ss-q", type=float, default=100.0,
-                   help="Stone Soup CV spectral density q, m²/s³ (default 100, tuned: see baseline_stonesoup)")
-    g.add_argument("--settle-s", type=float, default=30.0,
-                   help="accuracy: settled figures leave out each track's first N s (default 30)")
+    g.add_argument(
+        "--latency-speed",
+        type=float,
+        default=1.0,
+        help="replay speed of the end-to-end latency run (default 1 = real time; 0 = skip it)",
+    )
+    g.add_argument(
+        "--bus-timeout-s",
+        type=float,
+        default=600.0,
+        help="give up waiting for the daemon's last TrackBatch after this long (default 600)",
+    )
+    g.add_argument(
+        "--reference-budget-s",
+        type=float,
+        default=600.0,
+        help="Stone Soup time budget per case: sizes estimated above it are skipped, a run is stopped "
+        "there (default 600)",
+    )
+    g.add_argument(
+        "--ss-q",
+        type=float,
+        default=100.0,
+        help="Stone Soup CV spectral density q, m²/s³ (default 100, tuned: see baseline_stonesoup)",
+    )
+    g.add_argument(
+        "--settle-s",
+        type=float,
+        default=30.0,
+        help="accuracy: settled figures leave out each track's first N s (default 30)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -163,8 +203,10 @@ def _run_profile(args: argparse.Namespace, size: tuple[int, int], duration_s: fl
     print(f"  {info['plots']:,} plots in {info['batches']:,} batches (simulated in {info['sim_s']:.1f} s)", flush=True)
     res = in_fresh_process(run_engine, path, True, args.warmup_s, args.profile_top)
     prof = res["profile"]
-    print(f"\nengine under cProfile: {res['engine_s']:.2f} s ({res['plots_per_s']:,.0f} plots/s with profiler "
-          f"overhead), {res['periods']} periods\n")  # fmt: skip
+    print(
+        f"\nengine under cProfile: {res['engine_s']:.2f} s ({res['plots_per_s']:,.0f} plots/s with profiler "
+        f"overhead), {res['periods']} periods\n"
+    )
     print("stage                                          calls    cum s   share")
     for label, calls, ct in prof["stages"]:
         print(f"{label:<44} {calls:>8,} {ct:>8.2f} {100 * ct / res['engine_s']:>6.1f} %")
@@ -176,9 +218,12 @@ def _run_profile(args: argparse.Namespace, size: tuple[int, int], duration_s: fl
 def _run_table(args: argparse.Namespace, sizes: list[tuple[int, int]], duration_s: float, tmp: str) -> int:
     header = machine_lines()
     print("\n".join(header))
-    print(f"engine benchmark: {len(sizes)} sizes, {duration_s:g} s simulated each, seed {args.seed}, "
-          f"warm-up {args.warmup_s:g} s left out of the percentiles, safety nets off, "
-          f"gate {'on only' if args.no_gate_compare else 'on and off'}", flush=True)  # fmt: skip
+    print(
+        f"engine benchmark: {len(sizes)} sizes, {duration_s:g} s simulated each, seed {args.seed}, "
+        f"warm-up {args.warmup_s:g} s left out of the percentiles, safety nets off, "
+        f"gate {'on only' if args.no_gate_compare else 'on and off'}",
+        flush=True,
+    )
     rows = []
     t_bench = time.perf_counter()
     for n, r in sizes:
@@ -191,12 +236,14 @@ def _run_table(args: argparse.Namespace, sizes: list[tuple[int, int]], duration_
         os.unlink(path)
         rows.append(row)
         on = row["on"]
-        msg = (f"  {n:>5,} × {r:>2}: {on['plots']:>9,} plots in {info['batches']:,} batches "
-               f"({on['plots'] / max(info['batches'], 1):.1f}/batch), {on['periods']} periods, "
-               f"gate on {on['engine_s']:.2f} s "
-               f"({on['plots_per_s']:,.0f} plots/s, p99 {on['p99_ms']:.1f} ms; TrackBatch build+encode p50/p99 "
-               f"{on['msg_p50_ms']:.1f}/{on['msg_p99_ms']:.1f} ms; {on['wild_rejected']:,} wild "
-               f"rejected of {info['wild_truth']:,} simulated)")  # fmt: skip
+        msg = (
+            f"  {n:>5,} × {r:>2}: {on['plots']:>9,} plots in {info['batches']:,} batches "
+            f"({on['plots'] / max(info['batches'], 1):.1f}/batch), {on['periods']} periods, "
+            f"gate on {on['engine_s']:.2f} s "
+            f"({on['plots_per_s']:,.0f} plots/s, p99 {on['p99_ms']:.1f} ms; TrackBatch build+encode p50/p99 "
+            f"{on['msg_p50_ms']:.1f}/{on['msg_p99_ms']:.1f} ms; {on['wild_rejected']:,} wild "
+            f"rejected of {info['wild_truth']:,} simulated)"
+        )
         if row.get("off"):
             msg += f"; gate off {row['off']['engine_s']:.2f} s ({row['off']['plots_per_s']:,.0f} plots/s)"
         print(msg + f"  [simulated in {info['sim_s']:.1f} s]", flush=True)
@@ -223,17 +270,29 @@ def _run_table(args: argparse.Namespace, sizes: list[tuple[int, int]], duration_
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        md = ["# radar-fusion engine benchmark", ""] + [f"- {h}" for h in header] + [
-            f"- {duration_s:g} s simulated per size, seed {args.seed}, safety nets off", "",
-            format_md_table(rows), "", "## Goals", ""] + [f"- {g}" for g in goals] + [
-            "", "## Scaling", ""] + [f"- {s}" for s in scaling] + ["", "## Notes", ""] + [f"- {x}" for x in notes]
+        md = (
+            ["# radar-fusion engine benchmark", ""]
+            + [f"- {h}" for h in header]
+            + [
+                f"- {duration_s:g} s simulated per size, seed {args.seed}, safety nets off",
+                "",
+                format_md_table(rows),
+                "",
+                "## Goals",
+                "",
+            ]
+            + [f"- {g}" for g in goals]
+            + ["", "## Scaling", ""]
+            + [f"- {s}" for s in scaling]
+            + ["", "## Notes", ""]
+            + [f"- {x}" for x in notes]
+        )
         out.write_text("\n".join(md) + "\n")
         print(f"wrote {out}")
     return 0
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="radar-fusion bench", description=__doc__.split("\n")[0])
     add_arguments(parser)
     return run(parser.parse_args(argv))
-

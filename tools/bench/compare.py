@@ -22,20 +22,37 @@ import pickle
 import sys
 import time
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 from .engine_run import (
-    in_fresh_process, maxrss_kb, percentile, reset_peak_rss, rss_kb, run_engine, write_engine_inputs,
-)  # fmt: skip
+    in_fresh_process,
+    maxrss_kb,
+    percentile,
+    reset_peak_rss,
+    rss_kb,
+    run_engine,
+    write_engine_inputs,
+)
 from .report import compare_tables, machine_lines, write_report
 
 COMPARE_SIZES = [(50, 3), (100, 3), (1000, 10), (4000, 30)]
 """50×3 first: Stone Soup finishes it within the budget, and the larger sizes are estimated from it."""
 SCORE_FIELDS = (
-    "pos_rms_m", "pos_rms_settled_m", "vel_rms_mps", "vel_rms_settled_mps", "gospa_mean_m",
-    "gospa_missed_targets_mean", "gospa_false_tracks_mean", "track_ids_per_target_mean", "completeness_mean",
-    "id_swaps", "false_tracks", "duplicate_tracks", "n_displayed_tracks", "n_detectable_targets",
-)  # fmt: skip
+    "pos_rms_m",
+    "pos_rms_settled_m",
+    "vel_rms_mps",
+    "vel_rms_settled_mps",
+    "gospa_mean_m",
+    "gospa_missed_targets_mean",
+    "gospa_false_tracks_mean",
+    "track_ids_per_target_mean",
+    "completeness_mean",
+    "id_swaps",
+    "false_tracks",
+    "duplicate_tracks",
+    "n_displayed_tracks",
+    "n_detectable_targets",
+)
 
 
 def _case_label(case: dict[str, Any]) -> str:
@@ -78,8 +95,13 @@ def simulate_case(case: dict[str, Any], seed: int, case_dir: str, settle_s: floa
     info = write_engine_inputs(scenario, sim, os.path.join(case_dir, "engine.pkl"))
     settings = config.settings_from_dict(tomllib.loads(sim_mod.config_toml(scenario)), source="benchmark scenario")
     info.update(measurement_floor(sim, settings, settle_s))
-    info.update(aircraft=len(scenario.targets), radars=len(scenario.radars), duration_s=float(scenario.duration_s),
-                period_s=float(settings.system.period_s), sim_s=time.perf_counter() - t0)  # fmt: skip
+    info.update(
+        aircraft=len(scenario.targets),
+        radars=len(scenario.radars),
+        duration_s=float(scenario.duration_s),
+        period_s=float(settings.system.period_s),
+        sim_s=time.perf_counter() - t0,
+    )
     return info
 
 
@@ -99,7 +121,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     covariance R (sequential processing is the exact fused-measurement information);
     prior at the first plot (and again after a gap of more than 60 s without plots, when a
     tracker would have dropped the track): position from R, velocity variance
-    max_speed²/3, acceleration σ_m². Covariance updates in Joseph form. The bound assumes perfect association, no false or wild plots and no radar bias,
+    max_speed²/3, acceleration σ_m². Covariance updates in Joseph form. The bound assumes perfect
+    association, no false or wild plots and no radar bias,
     so it is a floor. It is evaluated at the period times (as the tracks are scored) while
     the aircraft is detectable, from ``settle_s`` after its first plot on, and reported as
     sqrt(mean(P_xx + P_yy)), comparable with the settled position RMS.
@@ -114,15 +137,21 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     cols = [c for c in sim.plot_columns if len(c)]
     if not cols:
         return {"noise_rms_m": math.nan, "noise_model_rms_m": math.nan, "pcrb_pos_rms_m": math.nan}
-    cat = lambda name: np.concatenate([getattr(c, name) for c in cols])  # noqa: E731
+    cat = lambda name: np.concatenate([getattr(c, name) for c in cols])
     radar = np.concatenate([np.full(len(c), c.radar_index) for c in cols])
     t, rng, az, fl, tgt, wild = (cat(k) for k in ("t_s", "range_m", "azimuth_deg", "fl", "target_index", "wild"))
     keep = (tgt >= 0) & ~wild
     t, rng, az, fl, tgt, radar = t[keep], rng[keep], az[keep], fl[keep], tgt[keep], radar[keep]
     x, y, cov, _g, valid = polar_to_plane(
-        sim.plane, sim.sites, radar, rng, az, flight_level_to_altitude_m(fl),
-        assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT, return_valid=True,
-    )  # fmt: skip
+        sim.plane,
+        sim.sites,
+        radar,
+        rng,
+        az,
+        flight_level_to_altitude_m(fl),
+        assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT,
+        return_valid=True,
+    )
     t, x, y, cov, tgt = t[valid], x[valid], y[valid], cov[valid], tgt[valid]
     truth = sim.truth_at(tgt, t)
     err2 = (x - truth["x_m"]) ** 2 + (y - truth["y_m"]) ** 2
@@ -223,10 +252,11 @@ def _decoded_events(data: dict[str, Any]) -> list[tuple[int, Any]]:
     from radar_fusion import wire
 
     return [
-        (0, obj) if kind == 0 else
-        (1, wire.RadarStatus(radar_id=obj[0], t=obj[1], kind=obj[2], sector=obj[3], rotation_period_s=obj[4]))
+        (0, obj)
+        if kind == 0
+        else (1, wire.RadarStatus(radar_id=obj[0], t=obj[1], kind=obj[2], sector=obj[3], rotation_period_s=obj[4]))
         for kind, obj in data["events"]
-    ]  # fmt: skip
+    ]
 
 
 def _run_engine_batches(settings, events) -> list[dict]:
@@ -244,7 +274,7 @@ def _run_engine_batches(settings, events) -> list[dict]:
     return batches
 
 
-def run_accuracy(case_dir: str, settle_s: float, png_prefix: Optional[str] = None) -> dict[str, Any]:
+def run_accuracy(case_dir: str, settle_s: float, png_prefix: str | None = None) -> dict[str, Any]:
     """Score the engine's tracks and each radar alone (the engine with that radar only) against truth."""
     from radar_fusion.tools import evaluate as ev
 
@@ -268,7 +298,7 @@ def run_accuracy(case_dir: str, settle_s: float, png_prefix: Optional[str] = Non
         s1 = ev.evaluate(_run_engine_batches(one, evs), truth, params)
         out["single"][radar.id] = _summary(s1, settled_from)
         per_target[radar.id] = s1.targets
-    key = lambda rid: (_nan_last(out["single"][rid]["pos_rms_settled_m"]), _nan_last(out["single"][rid]["pos_rms_m"]))  # noqa: E731
+    key = lambda rid: (_nan_last(out["single"][rid]["pos_rms_settled_m"]), _nan_last(out["single"][rid]["pos_rms_m"]))
     out["best_single_radar"] = best = min(out["single"], key=key) if out["single"] else None
     if best is not None:
         out["same_aircraft"] = same_aircraft_rms(scores.targets, per_target[best])
@@ -302,8 +332,9 @@ def _nan_last(v: float) -> float:
     return math.inf if v is None or math.isnan(v) else v
 
 
-def run_reference(case_dir: str, settle_s: float, budget_s: float, q_m2ps3: float,
-                  png_prefix: Optional[str] = None) -> dict[str, Any]:
+def run_reference(
+    case_dir: str, settle_s: float, budget_s: float, q_m2ps3: float, png_prefix: str | None = None
+) -> dict[str, Any]:
     """(c) Stone Soup on the same plots, timed, then scored against truth."""
     from radar_fusion.tools import baseline_stonesoup as bs
     from radar_fusion.tools import evaluate as ev
@@ -320,11 +351,18 @@ def run_reference(case_dir: str, settle_s: float, budget_s: float, q_m2ps3: floa
     run = bs.run_stonesoup(settings, plot_batches, bs.StoneSoupParams(q_m2ps3=q_m2ps3), time_budget_s=budget_s)
     peak_kb = rss_kb("VmHWM") if hwm_reset else maxrss_kb()
     out = {
-        "version": bs.version(), "completed": run.completed, "run_s": run.run_s, "plots": run.plots_used,
-        "plots_processed": run.plots_processed, "plots_per_s": run.plots_per_s, "steps": run.steps,
-        "tracks_started": run.tracks_started, "peak_rss_mb": (peak_kb or 0) / 1024.0,
-        "rss_base_mb": (rss_base_kb or 0) / 1024.0, "q_m2ps3": q_m2ps3,
-    }  # fmt: skip
+        "version": bs.version(),
+        "completed": run.completed,
+        "run_s": run.run_s,
+        "plots": run.plots_used,
+        "plots_processed": run.plots_processed,
+        "plots_per_s": run.plots_per_s,
+        "steps": run.steps,
+        "tracks_started": run.tracks_started,
+        "peak_rss_mb": (peak_kb or 0) / 1024.0,
+        "rss_base_mb": (rss_base_kb or 0) / 1024.0,
+        "q_m2ps3": q_m2ps3,
+    }
     if run.completed:
         truth = ev.load_truth(os.path.join(case_dir, "truth.csv"))
         scores = ev.evaluate(run.batches, truth, ev.EvalParams(settle_s=settle_s))
@@ -334,7 +372,7 @@ def run_reference(case_dir: str, settle_s: float, budget_s: float, q_m2ps3: floa
     return out
 
 
-def _closable_after(records, settings) -> "Any":
+def _closable_after(records, settings) -> Any:
     """Per message: the event time up to which every period may close once it is processed
     (the period buffer's rule: min over live radars' watermarks − allowed lateness), as a
     running maximum; periods ending at or before it have all their inputs."""
@@ -363,7 +401,7 @@ def _closable_after(records, settings) -> "Any":
     return out
 
 
-def run_bus(case_dir: str, speed: Optional[float], warmup_s: float, timeout_s: float) -> dict[str, Any]:
+def run_bus(case_dir: str, speed: float | None, warmup_s: float, timeout_s: float) -> dict[str, Any]:
     """(b) The daemon (``radar-fusion serve``, its own process, embedded router on a free
     127.0.0.1 port) fed by the replay tool (:func:`replay.replay_records`, a client
     session), the track batches received by a subscriber on another client session.
@@ -387,8 +425,8 @@ def run_bus(case_dir: str, speed: Optional[float], warmup_s: float, timeout_s: f
     from radar_fusion import wire
     from radar_fusion.bus import open_session, zenoh_config
     from radar_fusion.config import load_settings
-    from radar_fusion.tools.demo import free_tcp_port
     from radar_fusion.recording import Record, read_recording
+    from radar_fusion.tools.demo import free_tcp_port
     from radar_fusion.tools.replay import replay_records
 
     port = free_tcp_port()
@@ -417,8 +455,11 @@ def run_bus(case_dir: str, speed: Optional[float], warmup_s: float, timeout_s: f
 
     log_path = Path(case_dir, f"daemon_{port}.log")
     with open(log_path, "w") as log:
-        daemon = sp.Popen([sys.executable, "-m", "radar_fusion.cli", "serve", "--config", str(cfg_path),
-                           "--log-level", "WARNING"], stdout=log, stderr=sp.STDOUT)  # fmt: skip
+        daemon = sp.Popen(
+            [sys.executable, "-m", "radar_fusion.cli", "serve", "--config", str(cfg_path), "--log-level", "WARNING"],
+            stdout=log,
+            stderr=sp.STDOUT,
+        )
     received: list[tuple[float, bytes]] = []
     session = None
     try:
@@ -430,8 +471,9 @@ def run_bus(case_dir: str, speed: Optional[float], warmup_s: float, timeout_s: f
                 if time.monotonic() > deadline or daemon.poll() is not None:
                     raise RuntimeError(f"daemon did not come up; see {log_path}") from None
                 time.sleep(0.2)
-        sub = session.declare_subscriber(f"{prefix}/fusion/tracks",
-                                         lambda s: received.append((time.monotonic(), s.payload.to_bytes())))  # fmt: skip
+        sub = session.declare_subscriber(
+            f"{prefix}/fusion/tracks", lambda s: received.append((time.monotonic(), s.payload.to_bytes()))
+        )
         time.sleep(1.0)  # subscriptions propagate through the router
         pub_s: list[float] = []
 
@@ -479,16 +521,23 @@ def run_bus(case_dir: str, speed: Optional[float], warmup_s: float, timeout_s: f
         if end_s >= warm_end and i < pub.size:
             lat_ms.append(1e3 * (t_r - pub[i]))
     return {
-        "speed": speed, "plots": n_plots, "messages": len(records), "batches_received": len(batches),
-        "completed": bool(done), "send_s": t_sent - t_start, "wall_s": t_done - t_start,
+        "speed": speed,
+        "plots": n_plots,
+        "messages": len(records),
+        "batches_received": len(batches),
+        "completed": bool(done),
+        "send_s": t_sent - t_start,
+        "wall_s": t_done - t_start,
         "plots_per_s": n_plots / (t_done - t_start) if done else math.nan,
-        "e2e_p50_ms": percentile(lat_ms, 50), "e2e_p99_ms": percentile(lat_ms, 99),
-        "e2e_max_ms": max(lat_ms) if lat_ms else math.nan, "e2e_periods": len(lat_ms),
+        "e2e_p50_ms": percentile(lat_ms, 50),
+        "e2e_p99_ms": percentile(lat_ms, 99),
+        "e2e_max_ms": max(lat_ms) if lat_ms else math.nan,
+        "e2e_periods": len(lat_ms),
         "daemon_peak_rss_mb": (peak_kb or 0) / 1024.0,
-    }  # fmt: skip
+    }
 
 
-def _estimate_reference_s(cost: Optional[tuple[float, str]], plots: int, tracks: float) -> Optional[float]:
+def _estimate_reference_s(cost: tuple[float, str] | None, plots: int, tracks: float) -> float | None:
     """Stone Soup's run time scales with plots × tracks (every plot is hypothesised against
     every track, every track is predicted at every step): estimate from a measured case."""
     if cost is None or not (tracks > 0):
@@ -506,11 +555,13 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
         report_dir.mkdir(parents=True, exist_ok=True)
     use_ref = not args.no_reference and bs.available()
     header = machine_lines() + [
-        f"stonesoup {bs.version()}" + ("" if use_ref else " (reference not run: "
-                                       + ("--no-reference)" if args.no_reference else "not importable)")),
+        f"stonesoup {bs.version()}"
+        + (
+            "" if use_ref else " (reference not run: " + ("--no-reference)" if args.no_reference else "not importable)")
+        ),
         f"{duration_s:g} s simulated per size, seed {args.seed}; warm-up {args.warmup_s:g} s left out of the "
         f"latency percentiles; accuracy settled after {args.settle_s:g} s",
-    ]  # fmt: skip
+    ]
     print("\n".join(header), flush=True)
     cases = [{"kind": "benchmark", "aircraft": n, "radars": r, "duration_s": duration_s} for n, r in sizes]
     if not args.no_adsb:
@@ -519,56 +570,86 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
         print("bench: nothing to compare (--sizes none and --no-adsb)", file=sys.stderr)
         return 2
     rows: list[dict[str, Any]] = []
-    ref_cost: Optional[tuple[float, str]] = None
+    ref_cost: tuple[float, str] | None = None
     t_bench = time.perf_counter()
     for c, case in enumerate(cases):
         label = _case_label(case)
         case_dir = os.path.join(tmp, f"case{c}")
         os.makedirs(case_dir, exist_ok=True)
-        png = str(report_dir / ("adsb" if case["kind"] == "adsb" else f"size{c}")) if report_dir and (
-            case["kind"] == "adsb" or c == 0) else None  # fmt: skip
+        png = (
+            str(report_dir / ("adsb" if case["kind"] == "adsb" else f"size{c}"))
+            if report_dir and (case["kind"] == "adsb" or c == 0)
+            else None
+        )
         row: dict[str, Any] = {"label": label, "case": case}
         row["sim"] = sim = in_fresh_process(simulate_case, case, args.seed, case_dir, args.settle_s)
-        print(f"{label}: {sim['aircraft']:,} aircraft, {sim['radars']} radars, {sim['plots']:,} plots "
-              f"(simulated in {sim['sim_s']:.1f} s)", flush=True)  # fmt: skip
+        print(
+            f"{label}: {sim['aircraft']:,} aircraft, {sim['radars']} radars, {sim['plots']:,} plots "
+            f"(simulated in {sim['sim_s']:.1f} s)",
+            flush=True,
+        )
         row["engine"] = eng = in_fresh_process(run_engine, os.path.join(case_dir, "engine.pkl"), True, args.warmup_s, 0)
-        print(f"  (a) engine: {eng['plots_per_s']:,.0f} plots/s, period p50 {eng['p50_ms']:.1f} / p99 "
-              f"{eng['p99_ms']:.1f} ms, peak RSS {eng['peak_rss_mb']:.0f} MB", flush=True)  # fmt: skip
+        print(
+            f"  (a) engine: {eng['plots_per_s']:,.0f} plots/s, period p50 {eng['p50_ms']:.1f} / p99 "
+            f"{eng['p99_ms']:.1f} ms, peak RSS {eng['peak_rss_mb']:.0f} MB",
+            flush=True,
+        )
         if not args.no_bus:
             row["bus"] = b = in_fresh_process(run_bus, case_dir, None, args.warmup_s, args.bus_timeout_s)
-            print(f"  (b) daemon over Zenoh, replay at max speed: {b['plots_per_s']:,.0f} plots/s "
-                  f"({b['wall_s']:.1f} s), daemon peak RSS {b['daemon_peak_rss_mb']:.0f} MB", flush=True)  # fmt: skip
+            print(
+                f"  (b) daemon over Zenoh, replay at max speed: {b['plots_per_s']:,.0f} plots/s "
+                f"({b['wall_s']:.1f} s), daemon peak RSS {b['daemon_peak_rss_mb']:.0f} MB",
+                flush=True,
+            )
             if args.latency_speed > 0:
-                row["bus_paced"] = bp = in_fresh_process(run_bus, case_dir, args.latency_speed, args.warmup_s,
-                                                          args.bus_timeout_s)  # fmt: skip
-                print(f"      replay at {args.latency_speed:g}× real time: end-to-end p50 {bp['e2e_p50_ms']:.1f} / "
-                      f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods", flush=True)  # fmt: skip
+                row["bus_paced"] = bp = in_fresh_process(
+                    run_bus, case_dir, args.latency_speed, args.warmup_s, args.bus_timeout_s
+                )
+                print(
+                    f"      replay at {args.latency_speed:g}× real time: end-to-end p50 {bp['e2e_p50_ms']:.1f} / "
+                    f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods",
+                    flush=True,
+                )
         if use_ref:
             est = _estimate_reference_s(ref_cost, sim["plots"], eng["tracks_per_period"])
             if est is not None and est > args.reference_budget_s:
-                row["reference"] = {"skipped": True, "estimate_s": est, "estimated_from": ref_cost[1],
-                                    "plots_per_s": sim["plots"] / est}  # fmt: skip
-                print(f"  (c) Stone Soup: skipped, estimated {est / 60:.0f} min (> budget "
-                      f"{args.reference_budget_s / 60:.0f} min) from the {ref_cost[1]} run", flush=True)  # fmt: skip
+                row["reference"] = {
+                    "skipped": True,
+                    "estimate_s": est,
+                    "estimated_from": ref_cost[1],
+                    "plots_per_s": sim["plots"] / est,
+                }
+                print(
+                    f"  (c) Stone Soup: skipped, estimated {est / 60:.0f} min (> budget "
+                    f"{args.reference_budget_s / 60:.0f} min) from the {ref_cost[1]} run",
+                    flush=True,
+                )
             else:
-                ref = in_fresh_process(run_reference, case_dir, args.settle_s, args.reference_budget_s,
-                                        args.ss_q, png)  # fmt: skip
+                ref = in_fresh_process(run_reference, case_dir, args.settle_s, args.reference_budget_s, args.ss_q, png)
                 row["reference"] = ref
                 if ref["plots_processed"] > 0 and eng["tracks_per_period"] > 0:
                     # a run stopped at the budget still measures the cost (optimistically for
                     # Stone Soup: its first part, during initiation, holds fewer tracks)
-                    ref_cost = (ref["run_s"] / (ref["plots_processed"] * eng["tracks_per_period"]),
-                                label + ("" if ref["completed"] else " (partial)"))
-                print(f"  (c) Stone Soup {ref['version']}: {ref['plots_per_s']:,.1f} plots/s "
-                      f"({ref['run_s']:.0f} s{'' if ref['completed'] else ', stopped at the budget'}), "
-                      f"peak RSS {ref['peak_rss_mb']:.0f} MB; ours/reference {eng['plots_per_s'] / ref['plots_per_s']:,.0f}×",
-                      flush=True)  # fmt: skip
+                    ref_cost = (
+                        ref["run_s"] / (ref["plots_processed"] * eng["tracks_per_period"]),
+                        label + ("" if ref["completed"] else " (partial)"),
+                    )
+                print(
+                    f"  (c) Stone Soup {ref['version']}: {ref['plots_per_s']:,.1f} plots/s "
+                    f"({ref['run_s']:.0f} s{'' if ref['completed'] else ', stopped at the budget'}), "
+                    f"peak RSS {ref['peak_rss_mb']:.0f} MB; "
+                    f"ours/reference {eng['plots_per_s'] / ref['plots_per_s']:,.0f}×",
+                    flush=True,
+                )
         if not args.no_accuracy:
             row["accuracy"] = acc = in_fresh_process(run_accuracy, case_dir, args.settle_s, png)
             o = acc["ours"]
-            print(f"  accuracy: ours pos RMS {o['pos_rms_m']:.0f} m (settled {o['pos_rms_settled_m']:.0f}), GOSPA "
-                  f"{o['gospa_mean_m']:.0f} m; best single radar {acc['best_single_radar']}; plot noise "
-                  f"{sim['noise_rms_m']:.0f} m, PCRB {sim['pcrb_pos_rms_m']:.0f} m", flush=True)  # fmt: skip
+            print(
+                f"  accuracy: ours pos RMS {o['pos_rms_m']:.0f} m (settled {o['pos_rms_settled_m']:.0f}), GOSPA "
+                f"{o['gospa_mean_m']:.0f} m; best single radar {acc['best_single_radar']}; plot noise "
+                f"{sim['noise_rms_m']:.0f} m, PCRB {sim['pcrb_pos_rms_m']:.0f} m",
+                flush=True,
+            )
         rows.append(row)
         shutil.rmtree(case_dir, ignore_errors=True)
     wall = time.perf_counter() - t_bench
@@ -584,4 +665,3 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
         write_report(report_dir, header, rows, args, speed_md, acc_md, goals, wall)
         print(f"wrote {report_dir}/report.md, summary.md, results.json and PNGs")
     return 0
-

@@ -10,8 +10,9 @@ import multiprocessing
 import os
 import pickle
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any, Optional, Sequence
+from typing import Any
 
 
 def percentile(values: Sequence[float], q: float) -> float:
@@ -20,7 +21,7 @@ def percentile(values: Sequence[float], q: float) -> float:
     return float(np.percentile(np.asarray(values, float), q)) if len(values) else math.nan
 
 
-def rss_kb(field: str) -> Optional[int]:
+def rss_kb(field: str) -> int | None:
     try:
         with open("/proc/self/status") as f:
             for line in f:
@@ -45,8 +46,9 @@ def in_fresh_process(fn, *args):
     gets the process-wide settings of every radar-fusion entry point (one BLAS thread)."""
     from radar_fusion.cli import one_blas_thread
 
-    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                             initializer=one_blas_thread) as pool:
+    with ProcessPoolExecutor(
+        max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=one_blas_thread
+    ) as pool:
         return pool.submit(fn, *args).result()
 
 
@@ -67,11 +69,10 @@ def simulate_inputs(n_aircraft: int, n_radars: int, duration_s: float, seed: int
 
 def write_engine_inputs(scenario, sim, path: str) -> dict[str, Any]:
     """Pickle the engine's inputs of a simulation (config, decoded batches, statuses in publish order)."""
-    from radar_fusion.tools import simulate as sim_mod
-
     import dataclasses
 
     from radar_fusion import wire
+    from radar_fusion.tools import simulate as sim_mod
 
     radar_index = {r.id: i for i, r in enumerate(scenario.radars)}
     rotation = {r.id: float(r.rotation_period_s) for r in scenario.radars}
@@ -80,10 +81,14 @@ def write_engine_inputs(scenario, sim, path: str) -> dict[str, Any]:
     # The engine process gets what the daemon would decode, without the simulation's own
     # columns (target_index, wild): they would count in the engine's peak RSS.
     decoded = [f.name for f in dataclasses.fields(wire.DecodedPlots)]
-    events: list[tuple] = [(c.t_pub_s, 0, c.radar_index, wire.DecodedPlots(**{k: getattr(c, k) for k in decoded}))
-                           for c in sim.plot_columns]  # fmt: skip
-    events += [(t, 1, radar_index[rid], (rid, t, kind, sector, rotation[rid] if kind == "north" else None))
-               for (t, rid, kind, sector) in sim.statuses]  # fmt: skip
+    events: list[tuple] = [
+        (c.t_pub_s, 0, c.radar_index, wire.DecodedPlots(**{k: getattr(c, k) for k in decoded}))
+        for c in sim.plot_columns
+    ]
+    events += [
+        (t, 1, radar_index[rid], (rid, t, kind, sector, rotation[rid] if kind == "north" else None))
+        for (t, rid, kind, sector) in sim.statuses
+    ]
     events.sort(key=lambda e: e[:3])
     n_plots = sum(len(c) for c in sim.plot_columns)
     n_wild = int(sum(int(c.wild.sum()) for c in sim.plot_columns))
@@ -95,8 +100,7 @@ def write_engine_inputs(scenario, sim, path: str) -> dict[str, Any]:
     }
     with open(path, "wb") as f:
         pickle.dump(data, f, protocol=pickle.HIGHEST_PROTOCOL)
-    return {"plots": n_plots, "wild_truth": n_wild, "batches": len(sim.plot_columns),
-            "statuses": len(sim.statuses)}  # fmt: skip
+    return {"plots": n_plots, "wild_truth": n_wild, "batches": len(sim.plot_columns), "statuses": len(sim.statuses)}
 
 
 def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> dict[str, Any]:
@@ -121,10 +125,11 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     settings = config.settings_from_dict(raw, source="benchmark scenario")
     engine = Engine(settings, safety_nets=None)
     events = [
-        (0, obj) if kind == 0 else
-        (1, wire.RadarStatus(radar_id=obj[0], t=obj[1], kind=obj[2], sector=obj[3], rotation_period_s=obj[4]))
+        (0, obj)
+        if kind == 0
+        else (1, wire.RadarStatus(radar_id=obj[0], t=obj[1], kind=obj[2], sector=obj[3], rotation_period_s=obj[4]))
         for kind, obj in data["events"]
-    ]  # fmt: skip
+    ]
     del data["events"]
     gc.collect()
     gc.freeze()  # as `radar-fusion serve` does after start-up
@@ -212,7 +217,7 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
         "warm_max_ms": max(warm) if warm else math.nan,
         "plots_per_period": float(np.mean(plots_per_period)) if plots_per_period else math.nan,
         "tracks_per_period": float(np.mean(tracks_per_period)) if tracks_per_period else math.nan,
-        "tracks_end": int(len(engine.tracks)),
+        "tracks_end": len(engine.tracks),
         "confirmed_end": int((status == CONFIRMED).sum()),
         "wild_rejected": int(engine.counters.get("plots_wild", 0)),
         "plots_accepted": int(engine.counters.get("plots_accepted", 0)),
@@ -270,4 +275,3 @@ def _profile_summary(profiler, top: int, total_s: float) -> dict[str, Any]:
     pstats.Stats(profiler, stream=buf).strip_dirs().sort_stats("cumulative").print_stats(top)
     prof_total = sum(tt for (_cc, _nc, tt, _ct, _c) in stats.stats.values())
     return {"stages": stage_rows, "text": buf.getvalue(), "profiled_total_s": prof_total, "wall_s": total_s}
-

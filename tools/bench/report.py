@@ -34,32 +34,50 @@ def _fmt(v: float, digits: int = 0) -> str:
 
 
 COLUMNS = [
-    "aircraft", "radars", "plots", "plots/s", "p50 ms", "p99 ms", "warm-up max ms",
-    "ingest µs/plot", "ingest share", "tracks end (conf.)", "peak RSS MB (base)", "gate off plots/s",
+    "aircraft",
+    "radars",
+    "plots",
+    "plots/s",
+    "p50 ms",
+    "p99 ms",
+    "warm-up max ms",
+    "ingest µs/plot",
+    "ingest share",
+    "tracks end (conf.)",
+    "peak RSS MB (base)",
+    "gate off plots/s",
     "gate on/off",
-]  # fmt: skip
+]
 
 
 def table_rows(rows: list[dict[str, Any]]) -> list[list[str]]:
     out = []
     for row in rows:
         on, off = row["on"], row.get("off")
-        out.append([
-            f"{row['aircraft']:,}", str(row["radars"]), f"{on['plots']:,}", _fmt(on["plots_per_s"]),
-            _fmt(on["p50_ms"], 1), _fmt(on["p99_ms"], 1), _fmt(on["warm_max_ms"], 1),
-            _fmt(on["ingest_us_per_plot"], 1), f"{100 * on['ingest_share']:.0f} %",
-            f"{on['tracks_end']:,} ({on['confirmed_end']:,})",
-            f"{on['peak_rss_mb']:.0f} ({on['rss_base_mb']:.0f})",
-            _fmt(off["plots_per_s"]) if off else "-",
-            f"{on['plots_per_s'] / off['plots_per_s']:.2f}" if off else "-",
-        ])  # fmt: skip
+        out.append(
+            [
+                f"{row['aircraft']:,}",
+                str(row["radars"]),
+                f"{on['plots']:,}",
+                _fmt(on["plots_per_s"]),
+                _fmt(on["p50_ms"], 1),
+                _fmt(on["p99_ms"], 1),
+                _fmt(on["warm_max_ms"], 1),
+                _fmt(on["ingest_us_per_plot"], 1),
+                f"{100 * on['ingest_share']:.0f} %",
+                f"{on['tracks_end']:,} ({on['confirmed_end']:,})",
+                f"{on['peak_rss_mb']:.0f} ({on['rss_base_mb']:.0f})",
+                _fmt(off["plots_per_s"]) if off else "-",
+                f"{on['plots_per_s'] / off['plots_per_s']:.2f}" if off else "-",
+            ]
+        )
     return out
 
 
 def format_text_table(rows: list[dict[str, Any]]) -> str:
     body = table_rows(rows)
     widths = [max(len(c), *(len(r[i]) for r in body)) for i, c in enumerate(COLUMNS)]
-    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))
     return "\n".join([line(COLUMNS), line(["-" * w for w in widths])] + [line(r) for r in body])
 
 
@@ -75,24 +93,30 @@ def goal_lines(rows: list[dict[str, Any]]) -> list[str]:
     by_size = {(r["aircraft"], r["radars"]): r for r in rows}
     g = by_size.get(GOAL_PLOTS_SIZE)
     if g is None:
-        lines.append(f"goal ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at {GOAL_PLOTS_SIZE[0]:,}×{GOAL_PLOTS_SIZE[1]}: "
-                     "NOT MEASURED (size not in --sizes)")  # fmt: skip
+        lines.append(
+            f"goal ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at {GOAL_PLOTS_SIZE[0]:,}×{GOAL_PLOTS_SIZE[1]}: "
+            "NOT MEASURED (size not in --sizes)"
+        )
     else:
         v = g["on"]["plots_per_s"]
         extra = ""
         if g.get("off"):
             v_off = g["off"]["plots_per_s"]
             extra = f"; gate off {v_off:,.0f} plots/s: {'met' if v_off >= GOAL_PLOTS_PER_S else 'not met'}"
-        lines.append(f"goal ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at {GOAL_PLOTS_SIZE[0]:,}×{GOAL_PLOTS_SIZE[1]} "
-                     f"(gate on): {v:,.0f} plots/s -> {'MET' if v >= GOAL_PLOTS_PER_S else 'NOT MET'} "
-                     f"({v / GOAL_PLOTS_PER_S:.2f} of the goal){extra}")  # fmt: skip
+        lines.append(
+            f"goal ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at {GOAL_PLOTS_SIZE[0]:,}×{GOAL_PLOTS_SIZE[1]} "
+            f"(gate on): {v:,.0f} plots/s -> {'MET' if v >= GOAL_PLOTS_PER_S else 'NOT MET'} "
+            f"({v / GOAL_PLOTS_PER_S:.2f} of the goal){extra}"
+        )
     big = [r for r in rows if r["aircraft"] == GOAL_P99_AIRCRAFT]
     if not big:
         lines.append(f"goal period p99 < {GOAL_P99_MS:.0f} ms at {GOAL_P99_AIRCRAFT:,} aircraft: NOT MEASURED")
     for r in big:
         v = r["on"]["p99_ms"]
-        lines.append(f"goal period p99 < {GOAL_P99_MS:.0f} ms at {r['aircraft']:,}×{r['radars']} (gate on): "
-                     f"{v:.1f} ms -> {'MET' if v < GOAL_P99_MS else 'NOT MET'}")  # fmt: skip
+        lines.append(
+            f"goal period p99 < {GOAL_P99_MS:.0f} ms at {r['aircraft']:,}×{r['radars']} (gate on): "
+            f"{v:.1f} ms -> {'MET' if v < GOAL_P99_MS else 'NOT MET'}"
+        )
     return lines
 
 
@@ -120,7 +144,7 @@ def scaling_lines(rows: list[dict[str, Any]]) -> list[str]:
             f"period processing mean {pa:.1f} -> {pb:.1f} ms (exponent {exp_period:.2f}); "
             f"plots ×{plots_ratio:.2f}, µs/plot {1e6 * ea['engine_s'] / ea['plots']:.1f} -> "
             f"{1e6 * eb['engine_s'] / eb['plots']:.1f}: {verdict}"
-        )  # fmt: skip
+        )
     return lines
 
 
@@ -134,8 +158,9 @@ def machine_lines() -> list[str]:
     rev = ""
     for where in (Path(__file__).resolve().parent, Path.cwd()):
         try:
-            rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                 timeout=5, cwd=where).stdout.strip()  # fmt: skip
+            rev = subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5, cwd=where
+            ).stdout.strip()
         except (OSError, subprocess.SubprocessError):
             rev = ""
         if rev:
@@ -145,7 +170,8 @@ def machine_lines() -> list[str]:
         f"machine: {platform.node()} {platform.machine()}, {affinity} usable cores (nproc), "
         f"load average {load}; shared machine: figures are noisy, compare ratios from one run",
         f"python {platform.python_version()}, numpy {np.__version__}"
-        + (f", git {rev}" if rev else "") + f", {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC",
+        + (f", git {rev}" if rev else "")
+        + f", {_dt.datetime.now(_dt.UTC):%Y-%m-%d %H:%M} UTC",
     ]
 
 
@@ -167,10 +193,20 @@ def _ratio(ours: Any, ref: dict[str, Any] | None) -> str:
 
 def compare_tables(rows: list[dict[str, Any]], args: argparse.Namespace) -> tuple[str, str, list[str]]:
     """The speed table, the accuracy table (Markdown) and the goal lines."""
-    speed_cols = ["case", "plots", "engine plots/s", "period p50 / p99 ms", "engine peak RSS MB",
-                  "daemon plots/s (max speed)", f"end-to-end p50 / p99 ms ({args.latency_speed:g}×)",
-                  "daemon peak RSS MB", "Stone Soup plots/s", "Stone Soup peak RSS MB",
-                  "engine / Stone Soup", "daemon / Stone Soup"]  # fmt: skip
+    speed_cols = [
+        "case",
+        "plots",
+        "engine plots/s",
+        "period p50 / p99 ms",
+        "engine peak RSS MB",
+        "daemon plots/s (max speed)",
+        f"end-to-end p50 / p99 ms ({args.latency_speed:g}×)",
+        "daemon peak RSS MB",
+        "Stone Soup plots/s",
+        "Stone Soup peak RSS MB",
+        "engine / Stone Soup",
+        "daemon / Stone Soup",
+    ]
     lines = ["| " + " | ".join(speed_cols) + " |", "|" + "|".join(["---"] + ["---:"] * (len(speed_cols) - 1)) + "|"]
     for row in rows:
         e, b, bp, ref = row["engine"], row.get("bus"), row.get("bus_paced"), row.get("reference")
@@ -181,29 +217,67 @@ def compare_tables(rows: list[dict[str, Any]], args: argparse.Namespace) -> tupl
         else:
             ref_cell = _f(ref["plots_per_s"], 1) + ("" if ref["completed"] else " (partial)")
             ref_rss = _f(ref["peak_rss_mb"])
-        lines.append("| " + " | ".join([
-            row["label"], f"{row['sim']['plots']:,}", _f(e["plots_per_s"]),
-            f"{_f(e['p50_ms'], 1)} / {_f(e['p99_ms'], 1)}", _f(e["peak_rss_mb"]),
-            _f(b["plots_per_s"]) if b else "-",
-            f"{_f(bp['e2e_p50_ms'], 1)} / {_f(bp['e2e_p99_ms'], 1)}" if bp else "-",
-            _f(b["daemon_peak_rss_mb"]) if b else "-", ref_cell, ref_rss,
-            _ratio(e["plots_per_s"], ref), _ratio(b["plots_per_s"] if b else None, ref),
-        ]) + " |")  # fmt: skip
+        lines.append(
+            "| "
+            + " | ".join(
+                [
+                    row["label"],
+                    f"{row['sim']['plots']:,}",
+                    _f(e["plots_per_s"]),
+                    f"{_f(e['p50_ms'], 1)} / {_f(e['p99_ms'], 1)}",
+                    _f(e["peak_rss_mb"]),
+                    _f(b["plots_per_s"]) if b else "-",
+                    f"{_f(bp['e2e_p50_ms'], 1)} / {_f(bp['e2e_p99_ms'], 1)}" if bp else "-",
+                    _f(b["daemon_peak_rss_mb"]) if b else "-",
+                    ref_cell,
+                    ref_rss,
+                    _ratio(e["plots_per_s"], ref),
+                    _ratio(b["plots_per_s"] if b else None, ref),
+                ]
+            )
+            + " |"
+        )
     speed_md = "\n".join(lines)
 
-    acc_cols = ["case", "tracker", "pos RMS m", "settled pos RMS m", "vel RMS m/s", "GOSPA m", "settled GOSPA m",
-                "missed / false per time", "ids per target", "completeness", "id swaps", "false tracks",
-                "duplicates"]  # fmt: skip
+    acc_cols = [
+        "case",
+        "tracker",
+        "pos RMS m",
+        "settled pos RMS m",
+        "vel RMS m/s",
+        "GOSPA m",
+        "settled GOSPA m",
+        "missed / false per time",
+        "ids per target",
+        "completeness",
+        "id swaps",
+        "false tracks",
+        "duplicates",
+    ]
     lines = ["| " + " | ".join(acc_cols) + " |", "|" + "|".join(["---", "---"] + ["---:"] * (len(acc_cols) - 2)) + "|"]
 
     def score_row(label: str, name: str, s: dict[str, Any]) -> str:
-        return "| " + " | ".join([
-            label, name, _f(s["pos_rms_m"]), _f(s["pos_rms_settled_m"]), _f(s["vel_rms_mps"], 1),
-            _f(s["gospa_mean_m"]), _f(s.get("gospa_settled_mean_m")),
-            f"{_f(s['gospa_missed_targets_mean'], 2)} / {_f(s['gospa_false_tracks_mean'], 2)}",
-            _f(s["track_ids_per_target_mean"], 2), _f(100 * s["completeness_mean"], 1, " %"), str(s["id_swaps"]),
-            str(s["false_tracks"]), str(s["duplicate_tracks"]),
-        ]) + " |"  # fmt: skip
+        return (
+            "| "
+            + " | ".join(
+                [
+                    label,
+                    name,
+                    _f(s["pos_rms_m"]),
+                    _f(s["pos_rms_settled_m"]),
+                    _f(s["vel_rms_mps"], 1),
+                    _f(s["gospa_mean_m"]),
+                    _f(s.get("gospa_settled_mean_m")),
+                    f"{_f(s['gospa_missed_targets_mean'], 2)} / {_f(s['gospa_false_tracks_mean'], 2)}",
+                    _f(s["track_ids_per_target_mean"], 2),
+                    _f(100 * s["completeness_mean"], 1, " %"),
+                    str(s["id_swaps"]),
+                    str(s["false_tracks"]),
+                    str(s["duplicate_tracks"]),
+                ]
+            )
+            + " |"
+        )
 
     for row in rows:
         acc, ref, sim = row.get("accuracy"), row.get("reference"), row["sim"]
@@ -217,11 +291,15 @@ def compare_tables(rows: list[dict[str, Any]], args: argparse.Namespace) -> tupl
             same = acc.get("same_aircraft") or {}
             if same.get("aircraft"):
                 blank_s = " | ".join(["-"] * (len(acc_cols) - 3))
-                lines.append(f"| {row['label']} | same {same['aircraft']} aircraft: fused / {rid} alone | "
-                             f"{_f(same['fused_m'])} / {_f(same['single_m'])} | {blank_s} |")  # fmt: skip
+                lines.append(
+                    f"| {row['label']} | same {same['aircraft']} aircraft: fused / {rid} alone | "
+                    f"{_f(same['fused_m'])} / {_f(same['single_m'])} | {blank_s} |"
+                )
         blank = " | ".join(["-"] * (len(acc_cols) - 4))
-        lines.append(f"| {row['label']} | measurement noise (plot RMS; model) | {_f(sim['noise_rms_m'])} "
-                     f"| {_f(sim['noise_model_rms_m'])} | {blank} |")  # fmt: skip
+        lines.append(
+            f"| {row['label']} | measurement noise (plot RMS; model) | {_f(sim['noise_rms_m'])} "
+            f"| {_f(sim['noise_model_rms_m'])} | {blank} |"
+        )
         lines.append(f"| {row['label']} | PCRB floor (Singer, settled) | - | {_f(sim['pcrb_pos_rms_m'])} | {blank} |")
     acc_md = "\n".join(lines)
     return speed_md, acc_md, goal_lines_compare(rows)
@@ -230,7 +308,7 @@ def compare_tables(rows: list[dict[str, Any]], args: argparse.Namespace) -> tupl
 def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
     """Issue 7's goals, each MET / NOT MET / NOT MEASURED, from this run's figures."""
     out = []
-    verdict = lambda ok: "MET" if ok else "NOT MET"  # noqa: E731
+    verdict = lambda ok: "MET" if ok else "NOT MET"
     for row in rows:
         ref, e, b = row.get("reference"), row["engine"], row.get("bus")
         if not ref:
@@ -251,22 +329,28 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
             ok_g = o["gospa_mean_m"] <= s["gospa_mean_m"]
             ok_gs = o["gospa_settled_mean_m"] <= s["gospa_settled_mean_m"]
             ok_p = o["pos_rms_m"] <= s["pos_rms_m"]
-            out.append(f"{row['label']}: at least as accurate as Stone Soup: GOSPA {o['gospa_mean_m']:.0f} vs "
-                       f"{s['gospa_mean_m']:.0f} m {verdict(ok_g)} (after the settling time "
-                       f"{o['gospa_settled_mean_m']:.0f} vs {s['gospa_settled_mean_m']:.0f} m {verdict(ok_gs)}); "
-                       f"position RMS {o['pos_rms_m']:.0f} vs {s['pos_rms_m']:.0f} m {verdict(ok_p)}")  # fmt: skip
+            out.append(
+                f"{row['label']}: at least as accurate as Stone Soup: GOSPA {o['gospa_mean_m']:.0f} vs "
+                f"{s['gospa_mean_m']:.0f} m {verdict(ok_g)} (after the settling time "
+                f"{o['gospa_settled_mean_m']:.0f} vs {s['gospa_settled_mean_m']:.0f} m {verdict(ok_gs)}); "
+                f"position RMS {o['pos_rms_m']:.0f} vs {s['pos_rms_m']:.0f} m {verdict(ok_p)}"
+            )
     big = [r for r in rows if r["case"].get("aircraft") == 4000 and r["case"]["kind"] == "benchmark"]
     if not big:
         out.append(f"engine ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at 4,000 tracks: NOT MEASURED")
     for r in big:
         v = r["engine"]["plots_per_s"]
-        out.append(f"engine ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at {r['label']}: {v:,.0f} -> {verdict(v >= GOAL_PLOTS_PER_S)}")
+        out.append(
+            f"engine ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at {r['label']}: {v:,.0f} -> {verdict(v >= GOAL_PLOTS_PER_S)}"
+        )
     e2e = [r for r in rows if (r["case"].get("aircraft"), r["case"].get("radars")) == GOAL_E2E_SIZE]
     if not e2e or not e2e[0].get("bus_paced"):
         out.append(f"end-to-end p99 < {GOAL_E2E_P99_MS:.0f} ms at 1,000×10: NOT MEASURED")
     else:
         v = e2e[0]["bus_paced"]["e2e_p99_ms"]
-        out.append(f"end-to-end p99 < {GOAL_E2E_P99_MS:.0f} ms at 1,000×10: {v:.0f} ms -> {verdict(v < GOAL_E2E_P99_MS)}")
+        out.append(
+            f"end-to-end p99 < {GOAL_E2E_P99_MS:.0f} ms at 1,000×10: {v:.0f} ms -> {verdict(v < GOAL_E2E_P99_MS)}"
+        )
     for row in rows:
         acc = row.get("accuracy")
         if not acc or not acc.get("best_single_radar"):
@@ -275,17 +359,29 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
         same = acc.get("same_aircraft") or {}
         ok1 = o["pos_rms_m"] < one["pos_rms_m"]
         ok2 = o["pos_rms_m"] <= ESASSP_3NM_M / 3.0
-        txt = (f"{row['label']}: fused position RMS {o['pos_rms_m']:.0f} m < best single radar "
-               f"({acc['best_single_radar']}) {one['pos_rms_m']:.0f} m {verdict(ok1)}")
+        txt = (
+            f"{row['label']}: fused position RMS {o['pos_rms_m']:.0f} m < best single radar "
+            f"({acc['best_single_radar']}) {one['pos_rms_m']:.0f} m {verdict(ok1)}"
+        )
         if same.get("aircraft"):
-            txt += (f"; on the {same['aircraft']} aircraft it tracks: fused {same['fused_m']:.0f} m vs "
-                    f"{same['single_m']:.0f} m {verdict(same['fused_m'] < same['single_m'])}")
+            txt += (
+                f"; on the {same['aircraft']} aircraft it tracks: fused {same['fused_m']:.0f} m vs "
+                f"{same['single_m']:.0f} m {verdict(same['fused_m'] < same['single_m'])}"
+            )
         out.append(txt + f"; ≤ {ESASSP_3NM_M / 3:.0f} m (a third of ESASSP 3 NM) {verdict(ok2)}")
     return out
 
 
-def write_report(report_dir: Path, header: list[str], rows: list[dict[str, Any]], args: argparse.Namespace,
-                 speed_md: str, acc_md: str, goals: list[str], wall_s: float) -> None:
+def write_report(
+    report_dir: Path,
+    header: list[str],
+    rows: list[dict[str, Any]],
+    args: argparse.Namespace,
+    speed_md: str,
+    acc_md: str,
+    goals: list[str],
+    wall_s: float,
+) -> None:
     """report.md, summary.md (the README table), results.json, throughput.png, accuracy.png."""
     import json
 
@@ -293,7 +389,9 @@ def write_report(report_dir: Path, header: list[str], rows: list[dict[str, Any]]
     (report_dir / "accuracy.png").unlink(missing_ok=True)  # a figure of an earlier run must not stay
     _plot_accuracy(rows, report_dir / "accuracy.png")
     losses = [g for g in goals if "NOT MET" in g]
-    pngs = sorted(p.name for p in report_dir.glob("*_ours.png")) + sorted(p.name for p in report_dir.glob("*_stonesoup.png"))
+    pngs = sorted(p.name for p in report_dir.glob("*_ours.png")) + sorted(
+        p.name for p in report_dir.glob("*_stonesoup.png")
+    )
     cmd = "radar-fusion bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "radar-fusion bench --report DIR"
     md = ["# radar-fusion side by side: ours vs Stone Soup", "", f"Command: `{cmd}`", ""]
     md += [f"- {h}" for h in header] + [f"- benchmark wall time {wall_s:.0f} s", ""]
@@ -306,8 +404,9 @@ def write_report(report_dir: Path, header: list[str], rows: list[dict[str, Any]]
     md += ["## How it is measured", ""] + [f"- {n}" for n in COMPARE_NOTES] + [""]
     (report_dir / "report.md").write_text("\n".join(md) + "\n")
     (report_dir / "summary.md").write_text(summary_table(rows, header) + "\n")
-    (report_dir / "results.json").write_text(json.dumps({"header": header, "rows": rows, "goals": goals},
-                                                        indent=1, default=float))  # fmt: skip
+    (report_dir / "results.json").write_text(
+        json.dumps({"header": header, "rows": rows, "goals": goals}, indent=1, default=float)
+    )
 
 
 COMPARE_NOTES = [
@@ -340,26 +439,63 @@ COMPARE_NOTES = [
 
 def summary_table(rows: list[dict[str, Any]], header: list[str]) -> str:
     """A short Markdown table for the README: speed and accuracy per case."""
-    cols = ["case", "engine plots/s", "daemon plots/s", "e2e p99 ms", "Stone Soup plots/s", "ours/SS",
-            "pos RMS ours / SS / best radar m", "GOSPA ours / SS m (settled)", "PCRB m"]  # fmt: skip
-    lines = [f"_{header[0].split(';')[0]}; {header[1]}_", "",
-             "| " + " | ".join(cols) + " |", "|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|"]  # fmt: skip
+    cols = [
+        "case",
+        "engine plots/s",
+        "daemon plots/s",
+        "e2e p99 ms",
+        "Stone Soup plots/s",
+        "ours/SS",
+        "pos RMS ours / SS / best radar m",
+        "GOSPA ours / SS m (settled)",
+        "PCRB m",
+    ]
+    lines = [
+        f"_{header[0].split(';')[0]}; {header[1]}_",
+        "",
+        "| " + " | ".join(cols) + " |",
+        "|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|",
+    ]
     for row in rows:
         e, b, bp, ref, acc = (row.get(k) for k in ("engine", "bus", "bus_paced", "reference", "accuracy"))
         s = ref.get("scores") if ref else None
         one = acc["single"][acc["best_single_radar"]] if acc and acc.get("best_single_radar") else None
-        ref_cell = "-" if not ref else (f"~{ref['plots_per_s']:,.1f} (est.)" if ref.get("skipped")
-                                        else _f(ref["plots_per_s"], 1))  # fmt: skip
-        lines.append("| " + " | ".join([
-            row["label"], _f(e["plots_per_s"]), _f(b["plots_per_s"]) if b else "-",
-            _f(bp["e2e_p99_ms"]) if bp else "-", ref_cell, _ratio(e["plots_per_s"], ref),
-            " / ".join([_f(acc["ours"]["pos_rms_m"]) if acc else "-", _f(s["pos_rms_m"]) if s else "-",
-                        _f(one["pos_rms_m"]) if one else "-"]),
-            " / ".join([_f(acc["ours"]["gospa_mean_m"]) if acc else "-", _f(s["gospa_mean_m"]) if s else "-"])
-            + " (" + " / ".join([_f(acc["ours"].get("gospa_settled_mean_m")) if acc else "-",
-                                 _f(s.get("gospa_settled_mean_m")) if s else "-"]) + ")",
-            _f(row["sim"]["pcrb_pos_rms_m"]),
-        ]) + " |")  # fmt: skip
+        ref_cell = (
+            "-"
+            if not ref
+            else (f"~{ref['plots_per_s']:,.1f} (est.)" if ref.get("skipped") else _f(ref["plots_per_s"], 1))
+        )
+        lines.append(
+            "| "
+            + " | ".join(
+                [
+                    row["label"],
+                    _f(e["plots_per_s"]),
+                    _f(b["plots_per_s"]) if b else "-",
+                    _f(bp["e2e_p99_ms"]) if bp else "-",
+                    ref_cell,
+                    _ratio(e["plots_per_s"], ref),
+                    " / ".join(
+                        [
+                            _f(acc["ours"]["pos_rms_m"]) if acc else "-",
+                            _f(s["pos_rms_m"]) if s else "-",
+                            _f(one["pos_rms_m"]) if one else "-",
+                        ]
+                    ),
+                    " / ".join([_f(acc["ours"]["gospa_mean_m"]) if acc else "-", _f(s["gospa_mean_m"]) if s else "-"])
+                    + " ("
+                    + " / ".join(
+                        [
+                            _f(acc["ours"].get("gospa_settled_mean_m")) if acc else "-",
+                            _f(s.get("gospa_settled_mean_m")) if s else "-",
+                        ]
+                    )
+                    + ")",
+                    _f(row["sim"]["pcrb_pos_rms_m"]),
+                ]
+            )
+            + " |"
+        )
     return "\n".join(lines)
 
 
@@ -421,8 +557,9 @@ def _plot_accuracy(rows: list[dict[str, Any]], path: Path) -> None:
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.8), dpi=110)
     x = np.arange(len(rows))
     w = 0.27
-    for k, (who, name, colour) in enumerate([("ours", "ours", "C0"), ("ss", "Stone Soup", "C2"),
-                                             ("one", "best single radar", "C7")]):  # fmt: skip
+    for k, (who, name, colour) in enumerate(
+        [("ours", "ours", "C0"), ("ss", "Stone Soup", "C2"), ("one", "best single radar", "C7")]
+    ):
         a1.bar(x + (k - 1) * w, [get(r, who, "pos_rms_settled_m") for r in rows], w, label=name, color=colour)
         a2.bar(x + (k - 1) * w, [get(r, who, "gospa_mean_m") for r in rows], w, label=name, color=colour)
     a1.plot(x, [r["sim"]["noise_rms_m"] for r in rows], "kx", ms=9, label="plot noise RMS")
@@ -439,4 +576,3 @@ def _plot_accuracy(rows: list[dict[str, Any]], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
-

@@ -121,50 +121,58 @@ import argparse
 import sys
 import time
 import tomllib
-from typing import Any, Optional, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from .adsb import ADSB_DEFAULT_START_T_S, ADSB_TABLE, adsb_targets
 from .files import config_toml, load_scenario, parse_utc, write_outputs
 from .presets import PRESETS, adsb_scenario, demo_scenario, preset, scenario_for_benchmark
 from .radar_model import KIND_CMB, KIND_MODES, KIND_NAMES, KIND_PSR, KIND_SSR
 from .scenario import (
-    EPOCH_2018_08_01_08Z, FlightPlan, Leg, RadarSpec, Rates, SampledPath, Scenario, Target,
-)  # fmt: skip
+    EPOCH_2018_08_01_08Z,
+    FlightPlan,
+    Leg,
+    RadarSpec,
+    Rates,
+    SampledPath,
+    Scenario,
+    Target,
+)
 from .simulation import PlotColumns, Simulation, simulate
 from .trajectories import KinematicState, Trajectories
 
 __all__ = [
-    "Rates",
-    "RadarSpec",
-    "Leg",
-    "FlightPlan",
-    "SampledPath",
-    "Target",
-    "Scenario",
-    "KinematicState",
-    "Trajectories",
-    "PlotColumns",
-    "Simulation",
-    "preset",
-    "PRESETS",
-    "demo_scenario",
-    "adsb_scenario",
-    "adsb_targets",
-    "scenario_for_benchmark",
-    "load_scenario",
-    "simulate",
-    "write_outputs",
-    "config_toml",
-    "KIND_PSR",
-    "KIND_SSR",
+    "ADSB_DEFAULT_START_T_S",
+    "ADSB_TABLE",
+    "EPOCH_2018_08_01_08Z",
     "KIND_CMB",
     "KIND_MODES",
     "KIND_NAMES",
-    "EPOCH_2018_08_01_08Z",
-    "ADSB_TABLE",
-    "ADSB_DEFAULT_START_T_S",
+    "KIND_PSR",
+    "KIND_SSR",
+    "PRESETS",
+    "FlightPlan",
+    "KinematicState",
+    "Leg",
+    "PlotColumns",
+    "RadarSpec",
+    "Rates",
+    "SampledPath",
+    "Scenario",
+    "Simulation",
+    "Target",
+    "Trajectories",
     "add_arguments",
+    "adsb_scenario",
+    "adsb_targets",
+    "config_toml",
+    "demo_scenario",
+    "load_scenario",
+    "preset",
     "run",
+    "scenario_for_benchmark",
+    "simulate",
+    "write_outputs",
 ]
 
 
@@ -173,14 +181,18 @@ __all__ = [
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``radar-fusion simulate``."""
-    parser.add_argument("--scenario", default="demo",
-                        help=f"preset name ({', '.join(sorted(PRESETS))}) or a scenario TOML file (default demo)")  # fmt: skip
+    parser.add_argument(
+        "--scenario",
+        default="demo",
+        help=f"preset name ({', '.join(sorted(PRESETS))}) or a scenario TOML file (default demo)",
+    )
     parser.add_argument("--out", required=True, help="output directory (plots.rec, truth.csv, config.toml)")
     parser.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
     parser.add_argument("--duration-s", type=float, default=None, help="simulated duration in seconds")
     parser.add_argument("--start-utc", default=None, help="scenario start, ISO 8601 UTC (presets only)")
-    parser.add_argument("--aircraft", type=int, default=None,
-                        help="adsb: at most this many flights; benchmark: number of aircraft")  # fmt: skip
+    parser.add_argument(
+        "--aircraft", type=int, default=None, help="adsb: at most this many flights; benchmark: number of aircraft"
+    )
     parser.add_argument("--radars", type=int, default=None, help="benchmark: number of radars")
     parser.add_argument("--gzip", action="store_true", help="write plots.rec.gz (gzip-compressed recording)")
 
@@ -222,8 +234,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="radar-fusion simulate", description=__doc__.split("\n")[0])
     add_arguments(parser)
     return run(parser.parse_args(argv))
-

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import gzip
+import itertools
 import json
 from pathlib import Path
 
@@ -34,7 +35,7 @@ def _adsb_table(path: str) -> dict[str, np.ndarray]:
         rows = json.load(f)
     if not isinstance(rows, list):
         raise ValueError(f"{path}: expected a JSON list of records")
-    get = lambda k, dtype=float: np.array([r.get(k) for r in rows], dtype=dtype)  # noqa: E731
+    get = lambda k, dtype=float: np.array([r.get(k) for r in rows], dtype=dtype)
     cols = {
         "t_s": get("timestamp") / 1000.0,
         "icao24": np.array([str(r.get("icao24") or "") for r in rows]),
@@ -75,8 +76,15 @@ def _adsb_table(path: str) -> dict[str, np.ndarray]:
     return {k: v[keep] for k, v in cols.items()}
 
 
-def adsb_targets(start_t_s: float, duration_s: float, max_aircraft: int = 80, path: str | Path | None = None,
-                 max_gap_s: float = 30.0, min_overlap_s: float = 60.0, seed: int = 0) -> list[Target]:
+def adsb_targets(
+    start_t_s: float,
+    duration_s: float,
+    max_aircraft: int = 80,
+    path: str | Path | None = None,
+    max_gap_s: float = 30.0,
+    min_overlap_s: float = 60.0,
+    seed: int = 0,
+) -> list[Target]:
     """Real flights of the ADS-B table airborne in ``[start_t_s, start_t_s + duration_s]``.
 
     Per aircraft, the samples are split at gaps longer than ``max_gap_s``; the piece
@@ -91,13 +99,13 @@ def adsb_targets(start_t_s: float, duration_s: float, max_aircraft: int = 80, pa
     t = tab["t_s"]
     starts = np.concatenate([[0], np.nonzero(icao[1:] != icao[:-1])[0] + 1, [icao.size]])
     found: list[tuple[float, str, int, int]] = []
-    for a, b in zip(starts[:-1], starts[1:]):
+    for a, b in itertools.pairwise(starts):
         ta = t[a:b]
         if ta[-1] < w0 or ta[0] > w1:
             continue
         cuts = np.concatenate([[0], np.nonzero(np.diff(ta) > max_gap_s)[0] + 1, [ta.size]])
         best = None
-        for c0, c1 in zip(cuts[:-1], cuts[1:]):
+        for c0, c1 in itertools.pairwise(cuts):
             overlap = min(ta[c1 - 1], w1) - max(ta[c0], w0)
             if overlap >= min_overlap_s and c1 - c0 >= 2 and (best is None or overlap > best[0]):
                 best = (overlap, c0, c1)
@@ -116,8 +124,22 @@ def adsb_targets(start_t_s: float, duration_s: float, max_aircraft: int = 80, pa
     out = []
     for (_, icao24, a, b), code in zip(found, codes.tolist()):
         callsign = str(tab["callsign"][a]) or None
-        path_ = SampledPath(**{k: tab[k][a:b].copy() for k in
-                               ("t_s", "lat_deg", "lon_deg", "alt_ft", "groundspeed_kt", "track_deg", "vrate_fpm")})  # fmt: skip
-        out.append(Target(target_id=icao24, callsign=callsign, mode_s=int(icao24, 16), mode3a=int(code),
-                          transponder="modes", mode_c=True, alt_quantum_ft=25.0, path=path_))  # fmt: skip
+        path_ = SampledPath(
+            **{
+                k: tab[k][a:b].copy()
+                for k in ("t_s", "lat_deg", "lon_deg", "alt_ft", "groundspeed_kt", "track_deg", "vrate_fpm")
+            }
+        )
+        out.append(
+            Target(
+                target_id=icao24,
+                callsign=callsign,
+                mode_s=int(icao24, 16),
+                mode3a=int(code),
+                transponder="modes",
+                mode_c=True,
+                alt_quantum_ft=25.0,
+                path=path_,
+            )
+        )
     return out

@@ -4,8 +4,6 @@ millions of plots)."""
 
 from __future__ import annotations
 
-from typing import Optional
-
 import msgpack
 import numpy as np
 
@@ -34,9 +32,9 @@ def pack_plots(cols: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     :func:`wire.encode` of the same dict. Returns (bytes as uint8, offsets (n+1,)).
     """
     n = cols["t_s"].shape[0]
-    blocks: list[tuple[np.ndarray, Optional[np.ndarray]]] = []
+    blocks: list[tuple[np.ndarray, np.ndarray | None]] = []
 
-    def block(key: str, tag: Optional[int], value: np.ndarray, present: Optional[np.ndarray]) -> None:
+    def block(key: str, tag: int | None, value: np.ndarray, present: np.ndarray | None) -> None:
         kb = _packed_key(key)
         width = kb.size + (1 if tag is not None else 0) + value.shape[1]
         b = np.empty((n, width), np.uint8)

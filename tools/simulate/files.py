@@ -61,10 +61,15 @@ def config_toml(scenario: Scenario) -> str:
     for spec in scenario.radars:
         lines += ["", "[[radars]]"]
         items = [
-            ("id", spec.id), ("lat", float(spec.lat_deg)), ("lon", float(spec.lon_deg)), ("alt_m", float(spec.alt_m)),
-            ("sigma_range_m", float(spec.sigma_range_m)), ("sigma_azimuth_deg", float(spec.sigma_azimuth_deg)),
-            ("rotation_period_s", float(spec.rotation_period_s)), ("max_range_m", float(spec.max_range_m)),
-        ]  # fmt: skip
+            ("id", spec.id),
+            ("lat", float(spec.lat_deg)),
+            ("lon", float(spec.lon_deg)),
+            ("alt_m", float(spec.alt_m)),
+            ("sigma_range_m", float(spec.sigma_range_m)),
+            ("sigma_azimuth_deg", float(spec.sigma_azimuth_deg)),
+            ("rotation_period_s", float(spec.rotation_period_s)),
+            ("max_range_m", float(spec.max_range_m)),
+        ]
         if spec.sac is not None and spec.sic is not None:
             items += [("sac", spec.sac), ("sic", spec.sic)]
         lines += [f"{k} = {_toml_value(v)}" for k, v in items]
@@ -104,7 +109,7 @@ def write_outputs(simulation: Simulation, out_dir: str | Path, *, gzip_recording
 
 
 def parse_utc(s: str) -> float:
-    return _dt.datetime.fromisoformat(s.replace("Z", "+00:00")).astimezone(_dt.timezone.utc).timestamp()
+    return _dt.datetime.fromisoformat(s.replace("Z", "+00:00")).astimezone(_dt.UTC).timestamp()
 
 
 def _rates_from(d: dict[str, Any], base: Rates) -> Rates:
@@ -155,29 +160,53 @@ def load_scenario(path: str | Path) -> Scenario:
             else:
                 x0, y0 = float(td.pop("start_x_m")), float(td.pop("start_y_m"))
             legs = tuple(Leg(**leg) for leg in td.pop("legs"))
-            plan = FlightPlan(x0, y0, float(td.pop("heading_deg")), float(td.pop("speed_mps")),
-                              float(td.pop("alt_ft")), legs, float(td.pop("t_offset_s", 0.0)))  # fmt: skip
+            plan = FlightPlan(
+                x0,
+                y0,
+                float(td.pop("heading_deg")),
+                float(td.pop("speed_mps")),
+                float(td.pop("alt_ft")),
+                legs,
+                float(td.pop("t_offset_s", 0.0)),
+            )
             mode_s = td.pop("mode_s", None)
             mode3a = td.pop("mode3a", None)
             mode_s = int(mode_s, 16) if isinstance(mode_s, str) else mode_s
             mode3a = int(mode3a, 8) if isinstance(mode3a, str) else mode3a
             default_tr = "modes" if mode_s is not None else ("modeac" if mode3a is not None else "none")
-            targets.append(Target(
-                target_id=str(td.pop("id")), callsign=td.pop("callsign", None), mode_s=mode_s, mode3a=mode3a,
-                transponder=td.pop("transponder", default_tr), mode_c=bool(td.pop("mode_c", True)),
-                alt_quantum_ft=float(td.pop("alt_quantum_ft", 100.0)), plan=plan,
-            ))  # fmt: skip
+            targets.append(
+                Target(
+                    target_id=str(td.pop("id")),
+                    callsign=td.pop("callsign", None),
+                    mode_s=mode_s,
+                    mode3a=mode3a,
+                    transponder=td.pop("transponder", default_tr),
+                    mode_c=bool(td.pop("mode_c", True)),
+                    alt_quantum_ft=float(td.pop("alt_quantum_ft", 100.0)),
+                    plan=plan,
+                )
+            )
         except (KeyError, TypeError) as exc:
             raise ValueError(f"{path}: targets[{i}]: {exc}") from None
         if td:
             raise ValueError(f"{path}: targets[{i}]: unknown fields {sorted(td)}")
     if "adsb" in data:
         ad = data["adsb"]
-        targets += adsb_targets(start, duration, max_aircraft=int(ad.get("max_aircraft", 80)),
-                                path=ad.get("path"), seed=seed)  # fmt: skip
+        targets += adsb_targets(
+            start, duration, max_aircraft=int(ad.get("max_aircraft", 80)), path=ad.get("path"), seed=seed
+        )
     if not radars:
         raise ValueError(f"{path}: no [[radars]]")
     period = sc.get("period_s")
-    return Scenario(str(sc.get("name", path.stem)), center[0], center[1], radars, targets, start_t_s=start,
-                    duration_s=duration, seed=seed, period_s=None if period is None else float(period), rates=rates)  # fmt: skip
-
+    return Scenario(
+        str(sc.get("name", path.stem)),
+        center[0],
+        center[1],
+        radars,
+        targets,
+        start_t_s=start,
+        duration_s=duration,
+        seed=seed,
+        period_s=None if period is None else float(period),
+        rates=rates,
+    )

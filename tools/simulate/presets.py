@@ -16,12 +16,27 @@ from radar_fusion.geo.units import M_PER_NM
 
 from .adsb import ADSB_DEFAULT_START_T_S, adsb_targets
 from .scenario import (
-    EPOCH_2018_08_01_08Z, FlightPlan, Leg, RadarSpec, Rates, Scenario, Target, mode3a_codes, mode_s_addresses,
-)  # fmt: skip
+    EPOCH_2018_08_01_08Z,
+    FlightPlan,
+    Leg,
+    RadarSpec,
+    Rates,
+    Scenario,
+    Target,
+    mode3a_codes,
+    mode_s_addresses,
+)
 
 
-def _plan_toward(point_xy: tuple[float, float], heading_deg: float, speed_mps: float, t_cross_s: float,
-                 alt_ft: float, total_s: float, vrate_fpm: float = 0.0) -> FlightPlan:
+def _plan_toward(
+    point_xy: tuple[float, float],
+    heading_deg: float,
+    speed_mps: float,
+    t_cross_s: float,
+    alt_ft: float,
+    total_s: float,
+    vrate_fpm: float = 0.0,
+) -> FlightPlan:
     """A straight flight that passes ``point_xy`` at ``t_cross_s`` after the start."""
     psi = math.radians(heading_deg)
     x0 = point_xy[0] - speed_mps * t_cross_s * math.sin(psi)
@@ -43,23 +58,73 @@ def demo_scenario(seed: int = 1, duration_s: float = 540.0, start_t_s: float = E
     plane = SystemPlane(*center)
 
     def site(bearing_deg: float, dist_m: float) -> tuple[float, float]:
-        lat, lon = plane.to_geodetic(dist_m * math.sin(math.radians(bearing_deg)),
-                                     dist_m * math.cos(math.radians(bearing_deg)))  # fmt: skip
+        lat, lon = plane.to_geodetic(
+            dist_m * math.sin(math.radians(bearing_deg)), dist_m * math.cos(math.radians(bearing_deg))
+        )
         return float(lat), float(lon)
 
-    rates = Rates(pd=0.95, pd_psr=0.85, p_mode_c=0.99, false_plots_per_scan=1.0,
-                  wild_plot_prob=0.002, wild_run_prob=0.0005, wild_run_scans=(3, 5))  # fmt: skip
+    rates = Rates(
+        pd=0.95,
+        pd_psr=0.85,
+        p_mode_c=0.99,
+        false_plots_per_scan=1.0,
+        wild_plot_prob=0.002,
+        wild_run_prob=0.0005,
+        wild_run_scans=(3, 5),
+    )
     radars = [
-        RadarSpec("app", *site(330.0, 45_000.0), alt_m=900.0, rotation_period_s=4.0, sigma_range_m=30.0,
-                  sigma_azimuth_deg=0.06, range_bias_m=40.0, azimuth_bias_deg=0.03, max_range_m=100 * M_PER_NM,
-                  psr=True, ssr=True, mode_s=True, n_sectors=16, sac=1, sic=1),
-        RadarSpec("east", *site(90.0, 70_000.0), alt_m=1600.0, rotation_period_s=8.0, sigma_range_m=50.0,
-                  sigma_azimuth_deg=0.07, range_bias_m=-60.0, azimuth_bias_deg=-0.04, max_range_m=200 * M_PER_NM,
-                  psr=True, ssr=True, mode_s=True, n_sectors=32, sac=1, sic=2),
-        RadarSpec("south", *site(220.0, 65_000.0), alt_m=1700.0, rotation_period_s=12.0, sigma_range_m=70.0,
-                  sigma_azimuth_deg=0.08, range_bias_m=25.0, azimuth_bias_deg=0.05, max_range_m=250 * M_PER_NM,
-                  psr=False, ssr=True, mode_s=True, n_sectors=32, sac=1, sic=3),
-    ]  # fmt: skip
+        RadarSpec(
+            "app",
+            *site(330.0, 45_000.0),
+            alt_m=900.0,
+            rotation_period_s=4.0,
+            sigma_range_m=30.0,
+            sigma_azimuth_deg=0.06,
+            range_bias_m=40.0,
+            azimuth_bias_deg=0.03,
+            max_range_m=100 * M_PER_NM,
+            psr=True,
+            ssr=True,
+            mode_s=True,
+            n_sectors=16,
+            sac=1,
+            sic=1,
+        ),
+        RadarSpec(
+            "east",
+            *site(90.0, 70_000.0),
+            alt_m=1600.0,
+            rotation_period_s=8.0,
+            sigma_range_m=50.0,
+            sigma_azimuth_deg=0.07,
+            range_bias_m=-60.0,
+            azimuth_bias_deg=-0.04,
+            max_range_m=200 * M_PER_NM,
+            psr=True,
+            ssr=True,
+            mode_s=True,
+            n_sectors=32,
+            sac=1,
+            sic=2,
+        ),
+        RadarSpec(
+            "south",
+            *site(220.0, 65_000.0),
+            alt_m=1700.0,
+            rotation_period_s=12.0,
+            sigma_range_m=70.0,
+            sigma_azimuth_deg=0.08,
+            range_bias_m=25.0,
+            azimuth_bias_deg=0.05,
+            max_range_m=250 * M_PER_NM,
+            psr=False,
+            ssr=True,
+            mode_s=True,
+            n_sectors=32,
+            sac=1,
+            sic=3,
+        ),
+    ]
     total = duration_s + 60.0
     targets: list[Target] = []
     addr = iter(mode_s_addresses(rng, 64).tolist())
@@ -67,12 +132,18 @@ def demo_scenario(seed: int = 1, duration_s: float = 540.0, start_t_s: float = E
 
     def add(name: str, plan: FlightPlan, transponder: str = "modes", mode_c: bool = True, q25: bool = False) -> None:
         k = len(targets) + 1
-        targets.append(Target(
-            target_id=f"T{k:02d}", callsign=name if transponder == "modes" else None,
-            mode_s=next(addr) if transponder == "modes" else None,
-            mode3a=next(codes) if transponder != "none" else None, transponder=transponder,
-            mode_c=mode_c and transponder != "none", alt_quantum_ft=25.0 if q25 else 100.0, plan=plan,
-        ))  # fmt: skip
+        targets.append(
+            Target(
+                target_id=f"T{k:02d}",
+                callsign=name if transponder == "modes" else None,
+                mode_s=next(addr) if transponder == "modes" else None,
+                mode3a=next(codes) if transponder != "none" else None,
+                transponder=transponder,
+                mode_c=mode_c and transponder != "none",
+                alt_quantum_ft=25.0 if q25 else 100.0,
+                plan=plan,
+            )
+        )
 
     km = 1000.0
     # straight legs
@@ -82,25 +153,67 @@ def demo_scenario(seed: int = 1, duration_s: float = 540.0, start_t_s: float = E
     add("AFR404", FlightPlan(-20 * km, 75 * km, 170.0, 260.0, 39000.0, (Leg(total),)), q25=True)
     add("BAW505", FlightPlan(20 * km, -70 * km, 355.0, 120.0, 10000.0, (Leg(total),)))
     # turns: rate-one and 1.5 deg/s
-    add("SWR606", FlightPlan(-50 * km, 10 * km, 80.0, 180.0, 24000.0,
-                             (Leg(120.0), Leg(60.0, 3.0), Leg(total - 180.0))))  # fmt: skip
-    add("KLM707", FlightPlan(40 * km, -30 * km, 0.0, 200.0, 28000.0,
-                             (Leg(90.0), Leg(60.0, -1.5), Leg(total - 150.0))), transponder="modeac")  # fmt: skip
-    add("SWR808", FlightPlan(10 * km, 45 * km, 90.0, 130.0, 15000.0,
-                             (Leg(60.0), Leg(60.0, 3.0), Leg(60.0), Leg(60.0, 3.0), Leg(60.0), Leg(60.0, 3.0),
-                              Leg(total - 360.0))))  # racetrack  # fmt: skip
-    add("AUA909", FlightPlan(-40 * km, -25 * km, 60.0, 220.0, 30000.0,
-                             (Leg(60.0), Leg(40.0, -1.5), Leg(80.0, 1.5), Leg(40.0, -1.5), Leg(total - 220.0))))  # fmt: skip
+    add("SWR606", FlightPlan(-50 * km, 10 * km, 80.0, 180.0, 24000.0, (Leg(120.0), Leg(60.0, 3.0), Leg(total - 180.0))))
+    add(
+        "KLM707",
+        FlightPlan(40 * km, -30 * km, 0.0, 200.0, 28000.0, (Leg(90.0), Leg(60.0, -1.5), Leg(total - 150.0))),
+        transponder="modeac",
+    )
+    add(
+        "SWR808",
+        FlightPlan(
+            10 * km,
+            45 * km,
+            90.0,
+            130.0,
+            15000.0,
+            (Leg(60.0), Leg(60.0, 3.0), Leg(60.0), Leg(60.0, 3.0), Leg(60.0), Leg(60.0, 3.0), Leg(total - 360.0)),
+        ),
+    )  # racetrack
+    add(
+        "AUA909",
+        FlightPlan(
+            -40 * km,
+            -25 * km,
+            60.0,
+            220.0,
+            30000.0,
+            (Leg(60.0), Leg(40.0, -1.5), Leg(80.0, 1.5), Leg(40.0, -1.5), Leg(total - 220.0)),
+        ),
+    )
     # climbs and descents
-    add("EDW110", FlightPlan(-30 * km, -55 * km, 20.0, 150.0, 10000.0,
-                             (Leg(450.0, 0.0, 2000.0), Leg(total - 450.0))), q25=True)  # fmt: skip
-    add("SWR211", FlightPlan(60 * km, 60 * km, 225.0, 200.0, 33000.0,
-                             (Leg(30.0), Leg(432.0, 0.0, -2500.0), Leg(total - 462.0))))  # fmt: skip
-    add("DLH312", FlightPlan(0.0, -40 * km, 300.0, 170.0, 12000.0,
-                             (Leg(60.0), Leg(120.0, 1.5, 1500.0), Leg(240.0, 0.0, 1500.0), Leg(total - 420.0))))  # fmt: skip
-    add("EZY413", FlightPlan(50 * km, -5 * km, 200.0, 180.0, 26000.0,
-                             (Leg(100.0), Leg(60.0, -3.0, -1800.0), Leg(200.0, 0.0, -1800.0), Leg(total - 360.0))),
-        transponder="modeac")  # fmt: skip
+    add(
+        "EDW110",
+        FlightPlan(-30 * km, -55 * km, 20.0, 150.0, 10000.0, (Leg(450.0, 0.0, 2000.0), Leg(total - 450.0))),
+        q25=True,
+    )
+    add(
+        "SWR211",
+        FlightPlan(60 * km, 60 * km, 225.0, 200.0, 33000.0, (Leg(30.0), Leg(432.0, 0.0, -2500.0), Leg(total - 462.0))),
+    )
+    add(
+        "DLH312",
+        FlightPlan(
+            0.0,
+            -40 * km,
+            300.0,
+            170.0,
+            12000.0,
+            (Leg(60.0), Leg(120.0, 1.5, 1500.0), Leg(240.0, 0.0, 1500.0), Leg(total - 420.0)),
+        ),
+    )
+    add(
+        "EZY413",
+        FlightPlan(
+            50 * km,
+            -5 * km,
+            200.0,
+            180.0,
+            26000.0,
+            (Leg(100.0), Leg(60.0, -3.0, -1800.0), Leg(200.0, 0.0, -1800.0), Leg(total - 360.0)),
+        ),
+        transponder="modeac",
+    )
     # crossings: same point, same level, same time, different identity
     add("SWR514", _plan_toward((5 * km, 5 * km), 45.0, 220.0, 250.0, 31000.0, total))
     add("BAW615", _plan_toward((5 * km, 5 * km), 135.0, 210.0, 250.0, 31000.0, total))
@@ -109,56 +222,149 @@ def demo_scenario(seed: int = 1, duration_s: float = 540.0, start_t_s: float = E
     add("DLH918", _plan_toward((25 * km, -15 * km), 10.0, 240.0, 180.0, 35000.0, total))
     add("SWR019", _plan_toward((25 * km, -15 * km), 40.0, 230.0, 180.0, 35000.0, total))
     # close parallel pairs (1, 2 and 3 NM apart)
-    for k, (sep_nm, hdg, x0, y0, fl_a, fl_b, sp, tr_b) in enumerate((
-        (1.0, 100.0, -60 * km, -15 * km, 33000.0, 34000.0, 220.0, "modes"),
-        (2.0, 290.0, 60 * km, -45 * km, 36000.0, 36000.0, 235.0, "modes"),
-        (3.0, 200.0, 15 * km, 70 * km, 32000.0, 32000.0, 215.0, "modeac"),
-    )):  # fmt: skip
+    for k, (sep_nm, hdg, x0, y0, fl_a, fl_b, sp, tr_b) in enumerate(
+        (
+            (1.0, 100.0, -60 * km, -15 * km, 33000.0, 34000.0, 220.0, "modes"),
+            (2.0, 290.0, 60 * km, -45 * km, 36000.0, 36000.0, 235.0, "modes"),
+            (3.0, 200.0, 15 * km, 70 * km, 32000.0, 32000.0, 215.0, "modeac"),
+        )
+    ):
         psi = math.radians(hdg)
         dx, dy = sep_nm * M_PER_NM * math.cos(psi), -sep_nm * M_PER_NM * math.sin(psi)  # perpendicular, to the right
         add(f"PAR{k}A", FlightPlan(x0, y0, hdg, sp, fl_a, (Leg(total),)))
         add(f"PAR{k}B", FlightPlan(x0 + dx, y0 + dy, hdg, sp, fl_b, (Leg(total),)), transponder=tr_b)
     # Mode A without Mode C; primary only; fast climber with 25 ft reports
-    add("NOC001", FlightPlan(-55 * km, 55 * km, 135.0, 160.0, 20000.0, (Leg(total),)), transponder="modeac",
-        mode_c=False)
-    add("PSR001", FlightPlan(30 * km, 20 * km, 250.0, 125.0, 12000.0, (Leg(200.0), Leg(60.0, 1.5), Leg(total - 260.0))),
-        transponder="none")  # fmt: skip
-    add("SWR999", FlightPlan(-10 * km, -65 * km, 5.0, 190.0, 16000.0,
-                             (Leg(300.0, 0.0, 2500.0), Leg(total - 300.0))), q25=True)  # fmt: skip
-    return Scenario("demo", center[0], center[1], radars, targets, start_t_s=start_t_s, duration_s=duration_s,
-                    seed=seed, period_s=4.0, rates=rates)  # fmt: skip
+    add(
+        "NOC001",
+        FlightPlan(-55 * km, 55 * km, 135.0, 160.0, 20000.0, (Leg(total),)),
+        transponder="modeac",
+        mode_c=False,
+    )
+    add(
+        "PSR001",
+        FlightPlan(30 * km, 20 * km, 250.0, 125.0, 12000.0, (Leg(200.0), Leg(60.0, 1.5), Leg(total - 260.0))),
+        transponder="none",
+    )
+    add(
+        "SWR999",
+        FlightPlan(-10 * km, -65 * km, 5.0, 190.0, 16000.0, (Leg(300.0, 0.0, 2500.0), Leg(total - 300.0))),
+        q25=True,
+    )
+    return Scenario(
+        "demo",
+        center[0],
+        center[1],
+        radars,
+        targets,
+        start_t_s=start_t_s,
+        duration_s=duration_s,
+        seed=seed,
+        period_s=4.0,
+        rates=rates,
+    )
 
 
-def adsb_scenario(seed: int = 1, duration_s: float = 1200.0, start_t_s: float = ADSB_DEFAULT_START_T_S,
-                  max_aircraft: int = 80, path: str | Path | None = None) -> Scenario:
+def adsb_scenario(
+    seed: int = 1,
+    duration_s: float = 1200.0,
+    start_t_s: float = ADSB_DEFAULT_START_T_S,
+    max_aircraft: int = 80,
+    path: str | Path | None = None,
+) -> Scenario:
     """Real flights over Switzerland seen by 4 radars placed around it.
 
     The sites are near the Swiss en-route radar sites (La Dôle, Lägern, Monte Lema,
     Weissfluhjoch, approximate positions); the radar parameters are invented.
     """
-    rates = Rates(pd=0.95, pd_psr=0.8, p_mode_c=0.99, false_plots_per_scan=2.0,
-                  wild_plot_prob=0.002, wild_run_prob=0.0005)  # fmt: skip
+    rates = Rates(
+        pd=0.95, pd_psr=0.8, p_mode_c=0.99, false_plots_per_scan=2.0, wild_plot_prob=0.002, wild_run_prob=0.0005
+    )
     radars = [
-        RadarSpec("ladole", 46.4253, 6.1005, alt_m=1680.0, rotation_period_s=8.0, sigma_range_m=50.0,
-                  sigma_azimuth_deg=0.07, range_bias_m=35.0, azimuth_bias_deg=0.03, max_range_m=250 * M_PER_NM,
-                  psr=True, sac=2, sic=1),
-        RadarSpec("laegern", 47.4822, 8.3961, alt_m=866.0, rotation_period_s=4.0, sigma_range_m=30.0,
-                  sigma_azimuth_deg=0.05, range_bias_m=-20.0, azimuth_bias_deg=-0.02, max_range_m=150 * M_PER_NM,
-                  psr=True, n_sectors=16, sac=2, sic=2),
-        RadarSpec("lema", 46.0416, 8.8336, alt_m=1620.0, rotation_period_s=12.0, sigma_range_m=60.0,
-                  sigma_azimuth_deg=0.08, range_bias_m=50.0, azimuth_bias_deg=0.04, max_range_m=250 * M_PER_NM,
-                  psr=False, sac=2, sic=3),
-        RadarSpec("weissfluh", 46.8334, 9.8063, alt_m=2840.0, rotation_period_s=6.0, sigma_range_m=45.0,
-                  sigma_azimuth_deg=0.06, range_bias_m=-30.0, azimuth_bias_deg=0.02, max_range_m=200 * M_PER_NM,
-                  psr=False, sac=2, sic=4),
-    ]  # fmt: skip
+        RadarSpec(
+            "ladole",
+            46.4253,
+            6.1005,
+            alt_m=1680.0,
+            rotation_period_s=8.0,
+            sigma_range_m=50.0,
+            sigma_azimuth_deg=0.07,
+            range_bias_m=35.0,
+            azimuth_bias_deg=0.03,
+            max_range_m=250 * M_PER_NM,
+            psr=True,
+            sac=2,
+            sic=1,
+        ),
+        RadarSpec(
+            "laegern",
+            47.4822,
+            8.3961,
+            alt_m=866.0,
+            rotation_period_s=4.0,
+            sigma_range_m=30.0,
+            sigma_azimuth_deg=0.05,
+            range_bias_m=-20.0,
+            azimuth_bias_deg=-0.02,
+            max_range_m=150 * M_PER_NM,
+            psr=True,
+            n_sectors=16,
+            sac=2,
+            sic=2,
+        ),
+        RadarSpec(
+            "lema",
+            46.0416,
+            8.8336,
+            alt_m=1620.0,
+            rotation_period_s=12.0,
+            sigma_range_m=60.0,
+            sigma_azimuth_deg=0.08,
+            range_bias_m=50.0,
+            azimuth_bias_deg=0.04,
+            max_range_m=250 * M_PER_NM,
+            psr=False,
+            sac=2,
+            sic=3,
+        ),
+        RadarSpec(
+            "weissfluh",
+            46.8334,
+            9.8063,
+            alt_m=2840.0,
+            rotation_period_s=6.0,
+            sigma_range_m=45.0,
+            sigma_azimuth_deg=0.06,
+            range_bias_m=-30.0,
+            azimuth_bias_deg=0.02,
+            max_range_m=200 * M_PER_NM,
+            psr=False,
+            sac=2,
+            sic=4,
+        ),
+    ]
     targets = adsb_targets(start_t_s, duration_s, max_aircraft=max_aircraft, path=path, seed=seed)
-    return Scenario("adsb", 46.8, 8.2, radars, targets, start_t_s=start_t_s, duration_s=duration_s, seed=seed,
-                    period_s=4.0, rates=rates)  # fmt: skip
+    return Scenario(
+        "adsb",
+        46.8,
+        8.2,
+        radars,
+        targets,
+        start_t_s=start_t_s,
+        duration_s=duration_s,
+        seed=seed,
+        period_s=4.0,
+        rates=rates,
+    )
 
 
-def scenario_for_benchmark(n_aircraft: int = 1000, n_radars: int = 10, duration_s: float = 120.0, seed: int = 0,
-                           area_per_aircraft_km2: float = 250.0, coverage_multiplicity: float = 3.0) -> Scenario:
+def scenario_for_benchmark(
+    n_aircraft: int = 1000,
+    n_radars: int = 10,
+    duration_s: float = 120.0,
+    seed: int = 0,
+    area_per_aircraft_km2: float = 250.0,
+    coverage_multiplicity: float = 3.0,
+) -> Scenario:
     """A scalable random scenario for benchmarks.
 
     Density: one aircraft per ``area_per_aircraft_km2`` (250 km²: a dense core area) in a
@@ -185,13 +391,24 @@ def scenario_for_benchmark(n_aircraft: int = 1000, n_radars: int = 10, duration_
     lat, lon = plane.to_geodetic(rr * np.sin(th), rr * np.cos(th))
     periods = np.array([4.0, 5.0, 6.0, 8.0, 10.0, 12.0])
     radars = [
-        RadarSpec(f"r{k:02d}", float(lat[k]), float(lon[k]), alt_m=float(rng.uniform(200.0, 1500.0)),
-                  rotation_period_s=float(periods[k % periods.size]), sigma_range_m=float(rng.uniform(30.0, 80.0)),
-                  sigma_azimuth_deg=float(rng.uniform(0.04, 0.1)), range_bias_m=float(rng.normal(0.0, 30.0)),
-                  azimuth_bias_deg=float(rng.normal(0.0, 0.02)), max_range_m=range_m, psr=bool(k % 2 == 0),
-                  n_sectors=32, sac=10 + k // 200, sic=k % 200)
+        RadarSpec(
+            f"r{k:02d}",
+            float(lat[k]),
+            float(lon[k]),
+            alt_m=float(rng.uniform(200.0, 1500.0)),
+            rotation_period_s=float(periods[k % periods.size]),
+            sigma_range_m=float(rng.uniform(30.0, 80.0)),
+            sigma_azimuth_deg=float(rng.uniform(0.04, 0.1)),
+            range_bias_m=float(rng.normal(0.0, 30.0)),
+            azimuth_bias_deg=float(rng.normal(0.0, 0.02)),
+            max_range_m=range_m,
+            psr=bool(k % 2 == 0),
+            n_sectors=32,
+            sac=10 + k // 200,
+            sic=k % 200,
+        )
         for k in range(n_radars)
-    ]  # fmt: skip
+    ]
     # aircraft
     n = n_aircraft
     rad = radius_m * np.sqrt(rng.random(n))
@@ -219,15 +436,30 @@ def scenario_for_benchmark(n_aircraft: int = 1000, n_radars: int = 10, duration_
         else:
             legs = (Leg(float(t_first[k])), Leg(float(t_climb[k]), 0.0, float(vr[k])), Leg(total))
         plan = FlightPlan(float(x0[k]), float(y0[k]), float(hdg[k]), float(speed[k]), float(fl[k] * 100), legs)
-        targets.append(Target(
-            target_id=f"A{k:05d}", callsign=f"BM{k:05d}" if modes[k] else None,
-            mode_s=int(addrs[k]) if modes[k] else None, mode3a=int(codes[k]),
-            transponder="modes" if modes[k] else "modeac", alt_quantum_ft=25.0 if modes[k] else 100.0, plan=plan,
-        ))  # fmt: skip
+        targets.append(
+            Target(
+                target_id=f"A{k:05d}",
+                callsign=f"BM{k:05d}" if modes[k] else None,
+                mode_s=int(addrs[k]) if modes[k] else None,
+                mode3a=int(codes[k]),
+                transponder="modes" if modes[k] else "modeac",
+                alt_quantum_ft=25.0 if modes[k] else 100.0,
+                plan=plan,
+            )
+        )
     rates = Rates(pd=0.95, pd_psr=0.85, false_plots_per_scan=2.0, wild_plot_prob=0.001, wild_run_prob=0.0002)
-    return Scenario(f"benchmark-{n_aircraft}x{n_radars}", center[0], center[1], radars, targets,
-                    start_t_s=EPOCH_2018_08_01_08Z, duration_s=float(duration_s), seed=seed,
-                    period_s=min(r.rotation_period_s for r in radars), rates=rates)  # fmt: skip
+    return Scenario(
+        f"benchmark-{n_aircraft}x{n_radars}",
+        center[0],
+        center[1],
+        radars,
+        targets,
+        start_t_s=EPOCH_2018_08_01_08Z,
+        duration_s=float(duration_s),
+        seed=seed,
+        period_s=min(r.rotation_period_s for r in radars),
+        rates=rates,
+    )
 
 
 PRESETS = {
@@ -260,4 +492,3 @@ def preset(name: str, **overrides: Any) -> Scenario:
         raise TypeError(f"preset {name!r}: unknown overrides {sorted(unknown)}")
     scenario = builder(**build_kw)
     return dataclasses.replace(scenario, **rest) if rest else scenario
-

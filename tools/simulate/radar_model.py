@@ -39,7 +39,7 @@ range or of ``wild_azimuth_deg`` in azimuth, keeping the aircraft's identity and
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -169,8 +169,10 @@ def radar_plots(
                     cols[k].append(v[keep])
             n_rev += 1.0
             step += 1
-    c = {k: (np.concatenate(v) if v else np.zeros(0, dtype=np.intp if k in ("tgt", "step") else float))
-         for k, v in cols.items()}  # fmt: skip
+    c = {
+        k: (np.concatenate(v) if v else np.zeros(0, dtype=np.intp if k in ("tgt", "step") else float))
+        for k, v in cols.items()
+    }
     c["active"] = c["active"].astype(bool)
     m = c["t"].shape[0]
     tgt = c["tgt"].astype(np.intp)
@@ -184,7 +186,9 @@ def radar_plots(
     detected = cover & (rng.random(m) < pd)
     kind = np.where(
         ssr_path,
-        np.where(spec.mode_s & (tr == 2), KIND_MODES, np.where(spec.psr & (rng.random(m) < rates.pd_psr), KIND_CMB, KIND_SSR)),
+        np.where(
+            spec.mode_s & (tr == 2), KIND_MODES, np.where(spec.psr & (rng.random(m) < rates.pd_psr), KIND_CMB, KIND_SSR)
+        ),
         KIND_PSR,
     ).astype(np.int8)
     secondary = kind != KIND_PSR
@@ -202,7 +206,9 @@ def radar_plots(
     step = np.minimum(c["step"].astype(np.intp), n_scans - 1)
     wild = wild_tab[step, tgt] if m else np.zeros(0, bool)
     range_m = c["rho"] + spec.range_bias_m + rng.normal(0.0, spec.sigma_range_m, m) + (d_range[step, tgt] if m else 0.0)
-    az_deg = c["az"] + spec.azimuth_bias_deg + rng.normal(0.0, spec.sigma_azimuth_deg, m) + (d_az[step, tgt] if m else 0.0)
+    az_deg = (
+        c["az"] + spec.azimuth_bias_deg + rng.normal(0.0, spec.sigma_azimuth_deg, m) + (d_az[step, tgt] if m else 0.0)
+    )
     reported = detected & (range_m > 0.0) & (range_m <= spec.max_range_m)
 
     # ---- false plots: Poisson per revolution, uniform over the coverage disc

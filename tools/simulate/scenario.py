@@ -9,7 +9,6 @@ Builders of scenarios: :mod:`.presets` (named scenarios), :mod:`.adsb` (real fli
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 import numpy as np
 
@@ -19,6 +18,7 @@ EPOCH_2018_08_01_08Z = 1533110400.0
 """2018-08-01 08:00:00 UTC, the default scenario start (the day of the ADS-B table)."""
 TRANSPONDER_CODES = {"none": 0, "modeac": 1, "modes": 2}
 """Transponder kinds of :attr:`Target.transponder`, as the codes the radar model uses."""
+
 
 @dataclass(frozen=True)
 class Rates:
@@ -62,11 +62,11 @@ class RadarSpec:
     ssr: bool = True
     mode_s: bool = True
     n_sectors: int = 32
-    start_phase_deg: Optional[float] = None
+    start_phase_deg: float | None = None
     max_elevation_deg: float = 40.0
-    sac: Optional[int] = None
-    sic: Optional[int] = None
-    rates: Optional[Rates] = None
+    sac: int | None = None
+    sic: int | None = None
+    rates: Rates | None = None
 
     def __post_init__(self) -> None:
         if not (self.psr or self.ssr):
@@ -132,18 +132,18 @@ class Target:
     """One aircraft: identity, transponder, and either a flight plan or a sampled path."""
 
     target_id: str
-    callsign: Optional[str] = None
-    mode_s: Optional[int] = None
+    callsign: str | None = None
+    mode_s: int | None = None
     """24-bit Mode S address, or None"""
-    mode3a: Optional[int] = None
+    mode3a: int | None = None
     """Mode 3/A code as an integer (0..0o7777), or None"""
     transponder: str = "modes"
     """"modes" (Mode S), "modeac" (Mode A/C only) or "none" (primary only)"""
     mode_c: bool = True
     alt_quantum_ft: float = 100.0
     """Mode C quantum: 100 ft, or 25 ft for Mode S transponders that report it"""
-    plan: Optional[FlightPlan] = None
-    path: Optional[SampledPath] = None
+    plan: FlightPlan | None = None
+    path: SampledPath | None = None
 
     def __post_init__(self) -> None:
         if (self.plan is None) == (self.path is None):
@@ -168,7 +168,7 @@ class Scenario:
     start_t_s: float = EPOCH_2018_08_01_08Z
     duration_s: float = 540.0
     seed: int = 0
-    period_s: Optional[float] = None
+    period_s: float | None = None
     """fusion period written to config.toml; None = the shortest rotation period"""
     rates: Rates = field(default_factory=Rates)
 
@@ -196,4 +196,3 @@ def mode3a_codes(rng: np.random.Generator, n: int) -> np.ndarray:
 def mode_s_addresses(rng: np.random.Generator, n: int) -> np.ndarray:
     """Distinct random 24-bit addresses (in the ICAO blocks of European states)."""
     return 0x300000 + rng.choice(0x0FFFFF, size=n, replace=False)
-

@@ -13,8 +13,9 @@ Messages of all radars are merged in time order. Only sectors whose sweep ends i
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -73,26 +74,54 @@ class Simulation:
         """Beam azimuth of a radar at times ``t_s``: 360 ((t - t0)/T mod 1) + phase, mod 360."""
         r = self.scenario.radars[radar_index]
         t = np.asarray(t_s, float)
-        return np.mod(360.0 * np.mod((t - self.scenario.start_t_s) / r.rotation_period_s, 1.0)
-                      + self.radar_phase_deg[radar_index], 360.0)  # fmt: skip
+        return np.mod(
+            360.0 * np.mod((t - self.scenario.start_t_s) / r.rotation_period_s, 1.0)
+            + self.radar_phase_deg[radar_index],
+            360.0,
+        )
 
     def truth_at(self, target_index: Any, t_s: Any) -> dict[str, np.ndarray]:
         """Exact truth (lat_deg, lon_deg, alt_ft, x_m, y_m, vx_mps, vy_mps, vrate_fpm, active)."""
         st = self.trajectories.state(target_index, t_s)
         lat, lon = self.plane.to_geodetic(st.x_m, st.y_m)
-        return dict(lat_deg=lat, lon_deg=lon, alt_ft=st.alt_m / M_PER_FT, x_m=st.x_m, y_m=st.y_m,
-                    vx_mps=st.vx_mps, vy_mps=st.vy_mps, vrate_fpm=st.vz_mps / MPS_PER_FPM, active=st.active)  # fmt: skip
+        return dict(
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_ft=st.alt_m / M_PER_FT,
+            x_m=st.x_m,
+            y_m=st.y_m,
+            vx_mps=st.vx_mps,
+            vy_mps=st.vy_mps,
+            vrate_fpm=st.vz_mps / MPS_PER_FPM,
+            active=st.active,
+        )
 
     def all_plots(self) -> PlotColumns:
         """All plots of all radars in one :class:`PlotColumns` (publish order; the radar of
         each plot is not kept: use :attr:`plot_columns` for per-radar work)."""
         cols = self.plot_columns
-        cat = lambda name: np.concatenate([getattr(c, name) for c in cols]) if cols else np.zeros(0)  # noqa: E731
+        cat = lambda name: np.concatenate([getattr(c, name) for c in cols]) if cols else np.zeros(0)
         return PlotColumns(
-            radar_id="*", radar_index=-1, seq=-1, t_pub_s=math.nan,
-            **{name: cat(name) for name in ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s",
-                                            "track_no", "kind", "target_index", "wild")},
-        )  # fmt: skip
+            radar_id="*",
+            radar_index=-1,
+            seq=-1,
+            t_pub_s=math.nan,
+            **{
+                name: cat(name)
+                for name in (
+                    "t_s",
+                    "range_m",
+                    "azimuth_deg",
+                    "fl",
+                    "mode3a",
+                    "mode_s",
+                    "track_no",
+                    "kind",
+                    "target_index",
+                    "wild",
+                )
+            },
+        )
 
 
 def _mode_s_str(a: np.ndarray) -> np.ndarray:
@@ -131,11 +160,21 @@ def _sample_truth(sim_ctx: dict, scenario: Scenario) -> Truth:
     cs = np.array([t.callsign or "" for t in scenario.targets], dtype=object)
     # Rows come target by target, each in time order: the truth's own order, kept as it is.
     return Truth.from_columns(
-        t_s=tk, target_id=ids[tgt] if tgt.size else np.zeros(0, object), x_m=x, y_m=y,
-        vx_mps=st.vx_mps[keep], vy_mps=st.vy_mps[keep], detectable=det,
-        mode_s=ms[tgt] if tgt.size else np.zeros(0, object), callsign=cs[tgt] if tgt.size else np.zeros(0, object),
-        lat_deg=lat, lon_deg=lon, alt_ft=alt / M_PER_FT, vrate_fpm=st.vz_mps[keep] / MPS_PER_FPM, target_index=tgt,
-    )  # fmt: skip
+        t_s=tk,
+        target_id=ids[tgt] if tgt.size else np.zeros(0, object),
+        x_m=x,
+        y_m=y,
+        vx_mps=st.vx_mps[keep],
+        vy_mps=st.vy_mps[keep],
+        detectable=det,
+        mode_s=ms[tgt] if tgt.size else np.zeros(0, object),
+        callsign=cs[tgt] if tgt.size else np.zeros(0, object),
+        lat_deg=lat,
+        lon_deg=lon,
+        alt_ft=alt / M_PER_FT,
+        vrate_fpm=st.vz_mps[keep] / MPS_PER_FPM,
+        target_index=tgt,
+    )
 
 
 def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
@@ -151,14 +190,23 @@ def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
     traj = Trajectories(scenario.targets, plane, scenario.start_t_s)
     t_start = float(scenario.start_t_s)
     t_end = t_start + float(scenario.duration_s)
-    ctx = dict(traj=traj, plane=plane, sites=sites, targets=TargetTable(scenario.targets),
-               t_start=t_start, t_end=t_end, duration_s=float(scenario.duration_s))  # fmt: skip
+    ctx = dict(
+        traj=traj,
+        plane=plane,
+        sites=sites,
+        targets=TargetTable(scenario.targets),
+        t_start=t_start,
+        t_end=t_end,
+        duration_s=float(scenario.duration_s),
+    )
     seeds = np.random.SeedSequence(scenario.seed).spawn(len(scenario.radars) + 1)
     phase_rng = np.random.default_rng(seeds[0])
-    phases = np.array([
-        phase_rng.uniform(0.0, 360.0) if r.start_phase_deg is None else float(r.start_phase_deg) % 360.0
-        for r in scenario.radars
-    ])  # fmt: skip
+    phases = np.array(
+        [
+            phase_rng.uniform(0.0, 360.0) if r.start_phase_deg is None else float(r.start_phase_deg) % 360.0
+            for r in scenario.radars
+        ]
+    )
 
     # per radar: batches and status events; merged afterwards
     ev_t: list[np.ndarray] = []
@@ -175,8 +223,8 @@ def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
         stats[spec.id] = p.pop("_stats")
         period, phase = spec.rotation_period_s, float(phases[r])
         width = 360.0 / spec.n_sectors
-        angle = lambda t: 360.0 * (t - t_start) / period + phase  # noqa: E731
-        btime = lambda a: t_start + (a - phase) * period / 360.0  # noqa: E731
+        angle = lambda t, period=period, phase=phase: 360.0 * (t - t_start) / period + phase
+        btime = lambda a, period=period, phase=phase: t_start + (a - phase) * period / 360.0
         q_first = math.floor(angle(t_start) / width)
         q_last = math.floor(angle(t_end) / width) - 1
         sweeps = np.arange(q_first, q_last + 1)
@@ -188,11 +236,12 @@ def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
         rb, rp, rs = [], [], []
         for b, q in enumerate(sweeps):
             lo, hi = int(bounds[b]), int(bounds[b + 1])
-            cols = PlotColumns(radar_id=spec.id, radar_index=r, seq=b, t_pub_s=float(t_pub[b]),
-                              **{k: v[lo:hi] for k, v in p.items()})  # fmt: skip
+            cols = PlotColumns(
+                radar_id=spec.id, radar_index=r, seq=b, t_pub_s=float(t_pub[b]), **{k: v[lo:hi] for k, v in p.items()}
+            )
             rb.append(cols)
             if encode:
-                rp.append(batch_payload(spec.id, b, data[offsets[lo]:offsets[hi]].tobytes(), hi - lo))
+                rp.append(batch_payload(spec.id, b, data[offsets[lo] : offsets[hi]].tobytes(), hi - lo))
             sector = int((q + 1) % spec.n_sectors)
             rs.append((float(t_pub[b]), spec.id, "north" if sector == 0 else "sector", sector))
         stats[spec.id]["batches"] = len(rb)
@@ -230,6 +279,14 @@ def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
 
     truth = _sample_truth(ctx, scenario)
     return Simulation(
-        scenario=scenario, plane=plane, sites=sites, trajectories=traj, radar_phase_deg=phases,
-        messages=messages, plot_columns=plot_columns, statuses=statuses, truth=truth, stats=stats,
-    )  # fmt: skip
+        scenario=scenario,
+        plane=plane,
+        sites=sites,
+        trajectories=traj,
+        radar_phase_deg=phases,
+        messages=messages,
+        plot_columns=plot_columns,
+        statuses=statuses,
+        truth=truth,
+        stats=stats,
+    )

@@ -7,8 +7,9 @@ How each is built is in the :mod:`radar_fusion.tools.simulate` docstring ("Targe
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -50,7 +51,9 @@ def _hermite(s, h, p0, p1, m0, m1):
     """Cubic Hermite value and derivative at normalised s in [0, 1], interval length h."""
     s2, s3 = s * s, s * s * s
     val = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * h * m0 + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * h * m1
-    der = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * h * m0 + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * h * m1) / h
+    der = (
+        (6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * h * m0 + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * h * m1
+    ) / h
     return val, der
 
 
@@ -115,7 +118,12 @@ class Trajectories:
             has = j < n_legs
             self._seg_t0[has, j] = t[has]
             self._seg_x0[:, j], self._seg_y0[:, j], self._seg_psi0[:, j] = x, y, psi
-            self._seg_omega[:, j], self._seg_v[:, j], self._seg_h0[:, j], self._seg_vz[:, j] = omega[:, j], v, h, vz[:, j]
+            self._seg_omega[:, j], self._seg_v[:, j], self._seg_h0[:, j], self._seg_vz[:, j] = (
+                omega[:, j],
+                v,
+                h,
+                vz[:, j],
+            )
             dx, dy = _arc_displacement(v, psi, omega[:, j], dur[:, j])
             x, y = x + dx, y + dy
             psi = psi + omega[:, j] * dur[:, j]
@@ -150,7 +158,7 @@ class Trajectories:
         if m == 0:
             self._k_t = np.zeros(0)
             return
-        cat = lambda name: np.concatenate([np.asarray(getattr(p, name), float) for p in paths])  # noqa: E731
+        cat = lambda name: np.concatenate([np.asarray(getattr(p, name), float) for p in paths])
         t, lat, lon = cat("t_s"), cat("lat_deg"), cat("lon_deg")
         x, y = plane.to_plane(lat, lon)
         # Knot velocities: those of the C2 cubic spline through the positions (the

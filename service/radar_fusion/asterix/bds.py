@@ -6,8 +6,6 @@ hand, bit numbers as in the ICAO tables (1 = most significant bit of the MB fiel
 
 from __future__ import annotations
 
-from typing import Optional
-
 from ..geo.units import MPS_PER_KT
 
 
@@ -21,7 +19,7 @@ def _signed(sign: int, magnitude: int, n: int) -> int:
     return magnitude - (1 << n) if sign else magnitude
 
 
-def decode_bds50(mb: int) -> Optional[dict[str, float]]:
+def decode_bds50(mb: int) -> dict[str, float] | None:
     """Track and turn report, BDS 5,0 (ICAO Doc 9871 table A-2-80).
 
     Returns ``ground_speed_mps`` and ``track_angle_deg`` (true, [0, 360)), plus
@@ -42,7 +40,7 @@ def decode_bds50(mb: int) -> Optional[dict[str, float]]:
     return out
 
 
-def decode_bds60(mb: int) -> Optional[dict[str, float]]:
+def decode_bds60(mb: int) -> dict[str, float] | None:
     """Heading and speed report, BDS 6,0 (ICAO Doc 9871 table A-2-96).
 
     Returns ``magnetic_heading_deg``, ``ias_mps``, ``mach`` and ``vertical_rate_fpm``

@@ -9,10 +9,11 @@ against.
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import date
 from pathlib import Path
-from typing import Any, Optional, Sequence, Union
+from typing import Any
 
 from pydantic import ValidationError
 
@@ -31,7 +32,7 @@ class WireMessage:
     key: str
     t_s: float
     payload: bytes
-    message: Union[PlotBatch, RadarStatus]
+    message: PlotBatch | RadarStatus
 
 
 class AsterixToWire:
@@ -48,7 +49,7 @@ class AsterixToWire:
     carries its time of day.
     """
 
-    def __init__(self, radars: Sequence[Any], day: Optional[date] = None, dedup_window: int = 1024):
+    def __init__(self, radars: Sequence[Any], day: date | None = None, dedup_window: int = 1024):
         self.radar_by_sacsic: dict[tuple[int, int], str] = {
             (r.sac, r.sic): r.id for r in radars if r.sac is not None and r.sic is not None
         }
@@ -87,7 +88,7 @@ class AsterixToWire:
             self.counters.counts["plots"] += len(plots)
         pending.clear()
 
-    def datagram(self, data: bytes, reference_epoch_s: Optional[float] = None) -> list[WireMessage]:
+    def datagram(self, data: bytes, reference_epoch_s: float | None = None) -> list[WireMessage]:
         """Convert one datagram (one or more data blocks); never raises on bad input."""
         self.counters.counts["datagrams"] += 1
         out: list[WireMessage] = []
@@ -142,7 +143,7 @@ class AsterixToWire:
 
 
 def bds50_reference(
-    path: Union[str, Path], day: Optional[date] = None, fmt: Optional[FileFormat] = None
+    path: str | Path, day: date | None = None, fmt: FileFormat | None = None
 ) -> dict[str, list[tuple[float, float, float]]]:
     """The aircraft's own BDS 5,0 reports in a CAT048 recording.
 

@@ -6,7 +6,7 @@ Records are built by libasterix; :func:`.decode.decode_cat062_block` reads them 
 from __future__ import annotations
 
 import math
-from typing import Any, Union
+from typing import Any
 
 from asterix.base import Spare
 
@@ -93,9 +93,15 @@ class Cat062Encoder:
         lat, lon = float(tr["lat_deg"]), float(tr["lon_deg"])
         items["105"] = (("LAT", _clamp(lat, -90.0, 90.0)), ("LON", _clamp(lon, -180.0, 180.0 - 1e-5)))
         lim_xy = (2**23 - 1) * 0.5
-        items["100"] = (("X", _clamp(float(tr["x_m"]), -lim_xy, lim_xy)), ("Y", _clamp(float(tr["y_m"]), -lim_xy, lim_xy)))
+        items["100"] = (
+            ("X", _clamp(float(tr["x_m"]), -lim_xy, lim_xy)),
+            ("Y", _clamp(float(tr["y_m"]), -lim_xy, lim_xy)),
+        )
         lim_v = (2**15 - 1) * 0.25
-        items["185"] = (("VX", _clamp(float(tr["vx_mps"]), -lim_v, lim_v)), ("VY", _clamp(float(tr["vy_mps"]), -lim_v, lim_v)))
+        items["185"] = (
+            ("VX", _clamp(float(tr["vx_mps"]), -lim_v, lim_v)),
+            ("VY", _clamp(float(tr["vy_mps"]), -lim_v, lim_v)),
+        )
         if tr.get("fl") is not None:
             items["136"] = _clamp(float(tr["fl"]), -1500.0, 1500.0)
         if tr.get("mode3a") is not None:
@@ -120,7 +126,7 @@ class Cat062Encoder:
         self._seen.discard(track_id)
         return CAT062.cv_record.create(self._common(track_id, t_s, {"TSE": 1}, 2))
 
-    def encode(self, batch: Union[TrackBatch, dict[str, Any]]) -> list[bytes]:
+    def encode(self, batch: TrackBatch | dict[str, Any]) -> list[bytes]:
         """Encode one TrackBatch (model or wire dict) into CAT062 data blocks.
 
         Records are packed into blocks of at most ``max_block_bytes`` (one UDP datagram

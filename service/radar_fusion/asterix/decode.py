@@ -13,8 +13,9 @@ editions 1.16 to 1.21, which all decode the ARTAS sample identically).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable, Literal, Optional, Union
+from typing import Any, Literal
 
 import asterix.generated as gen
 from asterix.base import Bits, Extended, Group, Item, RawDatablock
@@ -26,7 +27,7 @@ CAT048 = gen.Cat_048_1_32
 CAT034 = gen.Cat_034_1_29
 CAT062 = gen.Cat_062_1_20
 
-ReportKind = Optional[Literal["psr", "ssr", "cmb", "modes"]]
+ReportKind = Literal["psr", "ssr", "cmb", "modes"] | None
 
 #: I048/020 TYP -> wire ``kind``. 0 = no detection (skipped); Mode S + PSR is combined.
 TYP_TO_KIND: dict[int, str] = {1: "psr", 2: "ssr", 3: "cmb", 4: "modes", 5: "modes", 6: "cmb", 7: "cmb"}
@@ -55,7 +56,7 @@ def _fields(variation: Any) -> dict[str, int]:
     return out
 
 
-def _source(record: Any) -> Optional[tuple[int, int]]:
+def _source(record: Any) -> tuple[int, int] | None:
     i010 = record.get_item("010")
     if i010 is None:
         return None
@@ -75,10 +76,10 @@ class TargetReport:
     tod_s: float
     range_m: float
     azimuth_deg: float
-    fl: Optional[float]
-    mode3a: Optional[int]
-    mode_s: Optional[str]
-    track_no: Optional[int]
+    fl: float | None
+    mode3a: int | None
+    mode_s: str | None
+    track_no: int | None
     kind: ReportKind
     bds: tuple[tuple[int, int], ...] = ()
     """Mode S MB data of I048/250: ``(register, mb)`` with register e.g. 0x50, mb a 56-bit int."""
@@ -92,10 +93,10 @@ class SectorMessage:
     sic: int
     tod_s: float
     kind: Literal["north", "sector"]
-    sector: Optional[int]
+    sector: int | None
     """I034/020 sector number as transmitted (units of 360/256 degrees)."""
-    sector_azimuth_deg: Optional[float]
-    rotation_period_s: Optional[float]
+    sector_azimuth_deg: float | None
+    rotation_period_s: float | None
 
 
 @dataclass(frozen=True)
@@ -104,27 +105,27 @@ class SystemTrackRecord:
 
     sac: int
     sic: int
-    service_id: Optional[int]
+    service_id: int | None
     track_no: int
     tod_s: float
-    lat_deg: Optional[float]
-    lon_deg: Optional[float]
-    x_m: Optional[float]
-    y_m: Optional[float]
-    vx_mps: Optional[float]
-    vy_mps: Optional[float]
-    fl: Optional[float]
-    mode3a: Optional[int]
-    mode_s: Optional[str]
+    lat_deg: float | None
+    lon_deg: float | None
+    x_m: float | None
+    y_m: float | None
+    vx_mps: float | None
+    vy_mps: float | None
+    fl: float | None
+    mode3a: int | None
+    mode_s: str | None
     status: dict[str, int]
     """I062/080 flags present in the record (MON, CNF, TSB, TSE, CST, ...)."""
-    sigma_x_m: Optional[float] = None
-    sigma_y_m: Optional[float] = None
-    cov_xy_component_m: Optional[float] = None
+    sigma_x_m: float | None = None
+    sigma_y_m: float | None = None
+    cov_xy_component_m: float | None = None
     """I062/500 COV: sign(σxy)·sqrt(|σxy|), metres."""
 
 
-def _decode_cat048(record: Any, counters: DecodeCounters) -> Optional[TargetReport]:
+def _decode_cat048(record: Any, counters: DecodeCounters) -> TargetReport | None:
     src = _source(record)
     if src is None:
         counters.skip("no_source")
@@ -153,13 +154,13 @@ def _decode_cat048(record: Any, counters: DecodeCounters) -> Optional[TargetRepo
     polar = i040.variation
     range_m = _element(polar.get_item("RHO")).as_quantity("NM") * M_PER_NM
     azimuth_deg = _element(polar.get_item("THETA")).as_quantity("°") % 360.0
-    fl: Optional[float] = None
+    fl: float | None = None
     i090 = record.get_item("090")
     if i090 is not None:
         f090 = _fields(i090.variation)
         if not f090["V"] and not f090["G"]:
             fl = _element(i090.variation.get_item("FL")).as_quantity("FL")
-    mode3a: Optional[int] = None
+    mode3a: int | None = None
     i070 = record.get_item("070")
     if i070 is not None:
         # V = 1 code not validated, G = 1 garbled: no usable code. L = 1 (code not
@@ -195,7 +196,7 @@ def _decode_cat048(record: Any, counters: DecodeCounters) -> Optional[TargetRepo
     )
 
 
-def _decode_cat034(record: Any, counters: DecodeCounters) -> Optional[SectorMessage]:
+def _decode_cat034(record: Any, counters: DecodeCounters) -> SectorMessage | None:
     src = _source(record)
     if src is None:
         counters.skip("no_source")
@@ -229,9 +230,7 @@ def _decode_cat034(record: Any, counters: DecodeCounters) -> Optional[SectorMess
     )
 
 
-def decode_datablock(
-    block: bytes, counters: DecodeCounters
-) -> list[Union[TargetReport, SectorMessage]]:
+def decode_datablock(block: bytes, counters: DecodeCounters) -> list[TargetReport | SectorMessage]:
     """Decode one CAT048 or CAT034 data block; anything else is counted and skipped."""
     cat = block[0]
     if cat not in (34, 48):
@@ -250,7 +249,7 @@ def decode_datablock(
         counters.skip("undecodable_records")
         return []
     counters.counts[f"cat{cat:03d}_records"] += len(records)
-    out: list[Union[TargetReport, SectorMessage]] = []
+    out: list[TargetReport | SectorMessage] = []
     for rec in records:
         decoded = _decode_cat048(rec, counters) if cat == 48 else _decode_cat034(rec, counters)
         if decoded is not None:
@@ -261,7 +260,7 @@ def decode_datablock(
 # ============================================================================ CAT062 (to check what cat062.py sends)
 
 
-def decode_cat062_block(block: bytes, counters: Optional[DecodeCounters] = None) -> list[SystemTrackRecord]:
+def decode_cat062_block(block: bytes, counters: DecodeCounters | None = None) -> list[SystemTrackRecord]:
     """Decode one CAT062 data block into :class:`SystemTrackRecord` (others: counted, [])."""
     counters = counters if counters is not None else DecodeCounters()
     if not block or block[0] != 62:

@@ -9,23 +9,24 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Iterable, Iterator
 from datetime import date
 from pathlib import Path
-from typing import Iterable, Iterator, Literal, Optional, Union
+from typing import Literal
 
 from .decode import decode_datablock
 from .framing import DecodeCounters, split_datablocks
 from .time_of_day import TimeOfDayResolver
 
 
-def iter_raw_file(path: Union[str, Path], counters: DecodeCounters) -> Iterator[tuple[Optional[float], bytes]]:
+def iter_raw_file(path: str | Path, counters: DecodeCounters) -> Iterator[tuple[float | None, bytes]]:
     """Raw concatenated data blocks: yields ``(None, block)`` per block (resynchronising)."""
     data = Path(path).read_bytes()
     for block in split_datablocks(data, counters, resync=True):
         yield None, block
 
 
-def iter_rply_file(path: Union[str, Path], counters: DecodeCounters) -> Iterator[tuple[Optional[float], bytes]]:
+def iter_rply_file(path: str | Path, counters: DecodeCounters) -> Iterator[tuple[float | None, bytes]]:
     """``.rply`` records ``<uint32 LE length><4 bytes><ASTERIX bytes>``: yields ``(None, payload)``."""
     data = Path(path).read_bytes()
     offset = 0
@@ -49,7 +50,7 @@ _PCAP_MAGIC = {
 }
 
 
-def _udp_payload(linktype: int, frame: bytes, counters: DecodeCounters) -> Optional[bytes]:
+def _udp_payload(linktype: int, frame: bytes, counters: DecodeCounters) -> bytes | None:
     """The UDP payload of one captured frame (IPv4 only), or None (counted)."""
     if linktype == 1:  # Ethernet, optionally 802.1Q / QinQ tagged
         off = 12
@@ -95,7 +96,7 @@ def _udp_payload(linktype: int, frame: bytes, counters: DecodeCounters) -> Optio
     return frame[udp + 8 : udp + udp_len]
 
 
-def iter_pcap_file(path: Union[str, Path], counters: DecodeCounters) -> Iterator[tuple[Optional[float], bytes]]:
+def iter_pcap_file(path: str | Path, counters: DecodeCounters) -> Iterator[tuple[float | None, bytes]]:
     """Classic libpcap capture of Ethernet/IPv4/UDP: yields ``(capture epoch s, UDP payload)``.
 
     Non-UDP frames and IPv4 fragments are counted and skipped. pcapng is not read
@@ -123,7 +124,7 @@ def iter_pcap_file(path: Union[str, Path], counters: DecodeCounters) -> Iterator
 FileFormat = Literal["raw", "pcap", "rply"]
 
 
-def guess_format(path: Union[str, Path]) -> FileFormat:
+def guess_format(path: str | Path) -> FileFormat:
     """File format from the name (``.pcap``/``.cap``, ``.rply``, else raw) or the pcap magic."""
     name = str(path).lower()
     if name.endswith((".pcap", ".cap")):
@@ -135,8 +136,8 @@ def guess_format(path: Union[str, Path]) -> FileFormat:
 
 
 def iter_file(
-    path: Union[str, Path], counters: DecodeCounters, fmt: Optional[FileFormat] = None
-) -> Iterator[tuple[Optional[float], bytes]]:
+    path: str | Path, counters: DecodeCounters, fmt: FileFormat | None = None
+) -> Iterator[tuple[float | None, bytes]]:
     """``(reference epoch s or None, datagram bytes)`` from a raw, pcap or rply file."""
     fmt = fmt or guess_format(path)
     reader = {"raw": iter_raw_file, "pcap": iter_pcap_file, "rply": iter_rply_file}[fmt]
@@ -144,8 +145,8 @@ def iter_file(
 
 
 def sort_by_time(
-    datagrams: Iterable[tuple[Optional[float], bytes]], day: Optional[date] = None
-) -> list[tuple[Optional[float], bytes]]:
+    datagrams: Iterable[tuple[float | None, bytes]], day: date | None = None
+) -> list[tuple[float | None, bytes]]:
     """Datagrams of a recording in the order of their reports' times (stable).
 
     Some recordings are not in time order (the Jahorina sample is a ring-buffer dump:

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import math
-from datetime import date, datetime, timezone
-from typing import Optional
+from datetime import UTC, date, datetime
 
 from ..geo.units import SECONDS_PER_DAY
 
 
 def _midnight_epoch_s(day: date) -> float:
-    return datetime(day.year, day.month, day.day, tzinfo=timezone.utc).timestamp()
+    return datetime(day.year, day.month, day.day, tzinfo=UTC).timestamp()
 
 
 class TimeOfDayResolver:
@@ -32,9 +31,9 @@ class TimeOfDayResolver:
     Both follow from the nearest-day rule; no state beyond the last resolved time.
     """
 
-    def __init__(self, day: Optional[date] = None):
+    def __init__(self, day: date | None = None):
         self.day = day
-        self._last_s: Optional[float] = None
+        self._last_s: float | None = None
 
     @staticmethod
     def nearest(tod_s: float, reference_s: float) -> float:
@@ -47,14 +46,14 @@ class TimeOfDayResolver:
             t += SECONDS_PER_DAY
         return t
 
-    def resolve(self, tod_s: float, reference_epoch_s: Optional[float] = None) -> float:
+    def resolve(self, tod_s: float, reference_epoch_s: float | None = None) -> float:
         if self._last_s is None:
             if self.day is not None:
                 t = _midnight_epoch_s(self.day) + tod_s
             elif reference_epoch_s is not None:
                 t = self.nearest(tod_s, reference_epoch_s)
             else:
-                t = _midnight_epoch_s(datetime.now(timezone.utc).date()) + tod_s
+                t = _midnight_epoch_s(datetime.now(UTC).date()) + tod_s
         elif self.day is None and reference_epoch_s is not None:
             t = self.nearest(tod_s, reference_epoch_s)
         else:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from typing import Optional
 
 import numpy as np
 
@@ -33,7 +32,7 @@ FUTURE_RELOCK_BATCHES = 8
 class RadarState:
     """What admission keeps of one radar (its figures go to health ``radars.<id>``)."""
 
-    last_seq: Optional[int] = None
+    last_seq: int | None = None
     recent_seqs: deque[int] = field(default_factory=lambda: deque(maxlen=4096))
     recent_set: set[int] = field(default_factory=set)
     plots: int = 0
@@ -41,7 +40,7 @@ class RadarState:
     seq_gaps: int = 0
     out_of_order: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
-    rotation_period_s: Optional[float] = None
+    rotation_period_s: float | None = None
     wild: int = 0
     future_streak: int = 0  # consecutive batches refused whole as plot_future
 
@@ -52,8 +51,15 @@ class Admission:
     ``counters`` and ``rejected`` are the engine's counters (shared, not copied).
     """
 
-    def __init__(self, radar_ids: list[str], max_range_m: np.ndarray, buffer: PeriodBuffer,
-                 future_margin_s: float, counters: Counter[str], rejected: Counter[str]):
+    def __init__(
+        self,
+        radar_ids: list[str],
+        max_range_m: np.ndarray,
+        buffer: PeriodBuffer,
+        future_margin_s: float,
+        counters: Counter[str],
+        rejected: Counter[str],
+    ):
         self.radar_ids = radar_ids
         self.radar_index = {rid: i for i, rid in enumerate(radar_ids)}
         self.max_range_m = max_range_m
@@ -63,7 +69,7 @@ class Admission:
         self.rejected = rejected
         self.radars = [RadarState() for _ in radar_ids]
 
-    def reject(self, reason: str, n: int = 1, radar_id: Optional[str] = None) -> None:
+    def reject(self, reason: str, n: int = 1, radar_id: str | None = None) -> None:
         """Count ``n`` rejections (also those the codec made before the engine saw them)."""
         if n <= 0:
             return
@@ -175,9 +181,18 @@ class Admission:
             n_ok = room
             t_min_s, t_max_s = float(t_s[idx].min()), float(t_s[idx].max())
         buf.add(
-            PlotChunk(t_s[idx], range_m[idx], batch.azimuth_deg[idx], batch.fl[idx], np.full(n_ok, i, np.int64),
-                      batch.mode_s[idx], batch.mode3a[idx], batch.track_no[idx]),
-            i, t_min_s,
+            PlotChunk(
+                t_s[idx],
+                range_m[idx],
+                batch.azimuth_deg[idx],
+                batch.fl[idx],
+                np.full(n_ok, i, np.int64),
+                batch.mode_s[idx],
+                batch.mode3a[idx],
+                batch.track_no[idx],
+            ),
+            i,
+            t_min_s,
         )
         buf.advance_watermark(i, t_max_s)
         radar.plots += n_ok
@@ -203,7 +218,9 @@ class ClockCheck:
     def __init__(self, n_radars: int, window: int = 64, min_samples: int = 8):
         self.n = n_radars
         self.min_samples = min_samples
-        self._samples: list[list[deque[float]]] = [[deque(maxlen=window) for _ in range(n_radars)] for _ in range(n_radars)]
+        self._samples: list[list[deque[float]]] = [
+            [deque(maxlen=window) for _ in range(n_radars)] for _ in range(n_radars)
+        ]
         self._seen_wm_s = np.full((n_radars, n_radars), -np.inf)
         self._not_self = ~np.eye(n_radars, dtype=bool)
 
@@ -214,7 +231,7 @@ class ClockCheck:
             self._samples[radar][j].append(t_s - float(watermark_s[j]))
         self._seen_wm_s[radar, moved] = watermark_s[moved]
 
-    def offsets_s(self) -> list[Optional[float]]:
+    def offsets_s(self) -> list[float | None]:
         """Estimated clock offset of each radar in seconds (None: not enough data yet)."""
         med = np.full((self.n, self.n), np.nan)
         for i in range(self.n):
@@ -222,7 +239,7 @@ class ClockCheck:
                 if len(self._samples[i][j]) >= self.min_samples:
                     med[i, j] = float(np.median(self._samples[i][j]))
         pair = (med - med.T) / 2.0
-        out: list[Optional[float]] = []
+        out: list[float | None] = []
         for i in range(self.n):
             d = pair[i][self._not_self[i] & np.isfinite(pair[i])]
             out.append(float(np.median(np.concatenate([[0.0], d]))) if d.size else None)

@@ -13,10 +13,11 @@ The filter's own mutable track store is :class:`radar_fusion.tracking.track_mana
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from itertools import repeat
-from typing import Any, Optional, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -47,7 +48,7 @@ class PlotChunk:
         return int(self.t_s.shape[0])
 
     @staticmethod
-    def concatenate(chunks: list["PlotChunk"]) -> "PlotChunk":
+    def concatenate(chunks: list[PlotChunk]) -> PlotChunk:
         if not chunks:
             return PlotChunk.empty()
         if len(chunks) == 1:
@@ -55,11 +56,11 @@ class PlotChunk:
         return PlotChunk(*(np.concatenate([getattr(c, name) for c in chunks]) for name in PLOT_COLUMNS))
 
     @staticmethod
-    def empty() -> "PlotChunk":
+    def empty() -> PlotChunk:
         f, i = np.empty(0), np.empty(0, np.int64)
         return PlotChunk(f, f, f, f, i, i, i, i)
 
-    def select(self, mask: np.ndarray) -> "PlotChunk":
+    def select(self, mask: np.ndarray) -> PlotChunk:
         return PlotChunk(*(getattr(self, name)[mask] for name in PLOT_COLUMNS))
 
 
@@ -81,13 +82,13 @@ class TrackColumns:
     updates: np.ndarray
     age_s: np.ndarray
     ended: np.ndarray  # ids of tracks ended in this period
-    names: "RadarNames"
+    names: RadarNames
     # Optional columns (None: not known). selected_fl: the selected or cleared level (float
     # FL, NaN unknown; Mode S BDS 4,0 or the flight plan's CFL), which caps the safety
     # nets' vertical prediction. safety_eligible: which tracks the safety nets judge (bool);
     # None means every track that is not tentative (see safety_nets.prediction.eligible).
-    selected_fl: Optional[np.ndarray] = None
-    safety_eligible: Optional[np.ndarray] = None
+    selected_fl: np.ndarray | None = None
+    safety_eligible: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.track_id.shape[0])
@@ -142,23 +143,31 @@ class TrackColumns:
         masks = self.sources.tolist()
         mode_s = self.mode_s.tolist()
         cols = (
-            self.track_id.tolist(), repeat(self.t_s, n), _STATUS_NAMES[self.status].tolist(), lat.tolist(),
-            lon.tolist(), x[:, 0].tolist(), x[:, 3].tolist(), x[:, 1].tolist(), x[:, 4].tolist(),
+            self.track_id.tolist(),
+            repeat(self.t_s, n),
+            _STATUS_NAMES[self.status].tolist(),
+            lat.tolist(),
+            lon.tolist(),
+            x[:, 0].tolist(),
+            x[:, 3].tolist(),
+            x[:, 1].tolist(),
+            x[:, 4].tolist(),
             [None if f != f else f for f in np.round(self.fl, 2).tolist()],
             self.cov_xy.tolist(),
             self.names.sources(masks),
             [None if m < 0 else m for m in self.mode3a.tolist()],
             self.names.mode_s(mode_s),
-            self.updates.tolist(), self.age_s.tolist(),
-            [None if v != v else v for v in self.vrate_fpm.tolist()], x[:, 2].tolist(), x[:, 5].tolist(),
+            self.updates.tolist(),
+            self.age_s.tolist(),
+            [None if v != v else v for v in self.vrate_fpm.tolist()],
+            x[:, 2].tolist(),
+            x[:, 5].tolist(),
         )
         tracks = [dict(zip(TRACK_KEYS, row)) for row in zip(*cols)]
         return {"v": 1, "t": self.t_s, "period": self.period, "tracks": tracks, "ended": self.ended.tolist()}
 
     @classmethod
-    def from_message(
-        cls, message: Any, plane: SystemPlane, radar_ids: Optional[Sequence[str]] = None
-    ) -> "TrackColumns":
+    def from_message(cls, message: Any, plane: SystemPlane, radar_ids: Sequence[str] | None = None) -> TrackColumns:
         """Columns from a received TrackBatch (dict or ``wire.TrackBatch``) or a list of wire Tracks.
 
         For a consumer of the tracks topic (a stand-alone safety-nets process, a display):
@@ -190,8 +199,10 @@ class TrackColumns:
         def int_col(name: str, parse: Any = int) -> np.ndarray:
             return np.fromiter((-1 if get(t, name) is None else parse(get(t, name)) for t in tracks), np.int64, n)
 
-        ids = list(radar_ids) if radar_ids is not None else list(
-            dict.fromkeys(r for t in tracks for r in get(t, "sources", ()))
+        ids = (
+            list(radar_ids)
+            if radar_ids is not None
+            else list(dict.fromkeys(r for t in tracks for r in get(t, "sources", ())))
         )
         if len(ids) > 64:
             raise ValueError("at most 64 radars (sources are a 64-bit mask)")
@@ -204,8 +215,9 @@ class TrackColumns:
             t_s=float(batch["t"]) if batch is not None else t_first,
             track_id=np.fromiter((int(get(t, "track_id")) for t in tracks), np.int64, n),
             status=np.fromiter((_STATUS_CODES.get(s, TENTATIVE) for s in status_names), np.int8, n),
-            x=np.column_stack([col("x_m"), col("vx_mps"), col("ax_mps2", 0.0), col("y_m"), col("vy_mps"),
-                               col("ay_mps2", 0.0)]).reshape(n, 6),
+            x=np.column_stack(
+                [col("x_m"), col("vx_mps"), col("ax_mps2", 0.0), col("y_m"), col("vy_mps"), col("ay_mps2", 0.0)]
+            ).reshape(n, 6),
             cov_xy=cov,
             fl=col("fl"),
             vrate_fpm=col("vrate_fpm"),
@@ -224,8 +236,27 @@ class TrackColumns:
 
 
 # wire.Track fields in the order TrackColumns.to_message builds them
-TRACK_KEYS = ("track_id", "t", "status", "lat_deg", "lon_deg", "x_m", "y_m", "vx_mps", "vy_mps", "fl", "cov_xy",
-              "sources", "mode3a", "mode_s", "updates", "age_s", "vrate_fpm", "ax_mps2", "ay_mps2")
+TRACK_KEYS = (
+    "track_id",
+    "t",
+    "status",
+    "lat_deg",
+    "lon_deg",
+    "x_m",
+    "y_m",
+    "vx_mps",
+    "vy_mps",
+    "fl",
+    "cov_xy",
+    "sources",
+    "mode3a",
+    "mode_s",
+    "updates",
+    "age_s",
+    "vrate_fpm",
+    "ax_mps2",
+    "ay_mps2",
+)
 
 _STATUS_NAMES = np.array(STATUS_NAMES, dtype=object)
 _STATUS_CODES = {name: code for code, name in enumerate(STATUS_NAMES)}
@@ -239,7 +270,7 @@ class RadarNames:
         self.radar_ids = radar_ids
         self.plane = plane
         self._sources: dict[int, list[str]] = {}
-        self._mode_s: dict[int, Optional[str]] = {}
+        self._mode_s: dict[int, str | None] = {}
 
     def sources(self, masks: list[int]) -> list[list[str]]:
         cache, names = self._sources, self.radar_ids
@@ -247,7 +278,7 @@ class RadarNames:
             cache[mask] = [names[b] for b in range(len(names)) if mask >> b & 1]
         return [cache[m] for m in masks]
 
-    def mode_s(self, addresses: list[int]) -> list[Optional[str]]:
+    def mode_s(self, addresses: list[int]) -> list[str | None]:
         cache = self._mode_s
         if len(cache) > 100_000:  # addresses of long-gone aircraft are forgotten
             cache.clear()

@@ -37,7 +37,7 @@ import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -101,7 +101,7 @@ class Prediction:
 class Engine:
     """Sans-I/O multi-radar fusion engine (DESIGN.md §2)."""
 
-    def __init__(self, settings: Settings, safety_nets: Optional[SafetyNets] = None):
+    def __init__(self, settings: Settings, safety_nets: SafetyNets | None = None):
         self.settings = settings
         sysc, trk = settings.system, settings.tracking
         self.radar_ids = [r.id for r in settings.radars]
@@ -114,8 +114,10 @@ class Engine:
         self.filter = SingerFilter(alpha_per_s=trk.alpha_per_s, sigma_m_mps2=trk.sigma_m_mps2)
         self.alt_filter = AltitudeFilter()
         self.manoeuvres = ManoeuvreDetector(
-            sigma_factor=trk.manoeuvre_sigma_factor, nis_on=trk.manoeuvre_nis_on,
-            nis_off=trk.manoeuvre_nis_off, nis_fading=trk.manoeuvre_nis_fading,
+            sigma_factor=trk.manoeuvre_sigma_factor,
+            nis_on=trk.manoeuvre_nis_on,
+            nis_off=trk.manoeuvre_nis_off,
+            nis_fading=trk.manoeuvre_nis_fading,
         )
         self.clustering = settings.clustering
         self.rules = settings.life_cycle
@@ -138,21 +140,24 @@ class Engine:
         self.rejected: Counter[str] = Counter()
         # how far past the newest watermark an event time may lie (Admission._future_limit_s)
         self.admission = Admission(
-            self.radar_ids, np.array([r.max_range_m for r in settings.radars]), self.buffer,
+            self.radar_ids,
+            np.array([r.max_range_m for r in settings.radars]),
+            self.buffer,
             future_margin_s=min(sysc.max_future_s, sysc.radar_timeout_s),
-            counters=self.counters, rejected=self.rejected,
+            counters=self.counters,
+            rejected=self.rejected,
         )
         self.radars = self.admission.radars
         self.clock = ClockCheck(len(self.radar_ids))
         self.tracks = TrackTable()
-        self.track_t_s: Optional[float] = None  # reference time of the newest closed period
+        self.track_t_s: float | None = None  # reference time of the newest closed period
         self.safety_nets = safety_nets
         self.periods_closed = 0
         self.processing_s: deque[float] = deque(maxlen=1000)
         self._names = RadarNames(self.radar_ids, self.plane)
 
     # ================================================================== input
-    def reject(self, reason: str, n: int = 1, radar_id: Optional[str] = None) -> None:
+    def reject(self, reason: str, n: int = 1, radar_id: str | None = None) -> None:
         """Count ``n`` rejections (also those the codec or the bus made before the engine saw them)."""
         self.admission.reject(reason, n, radar_id)
 
@@ -170,7 +175,7 @@ class Engine:
             self.clock.observe(i, float(batch.t_s.max()), self.buffer.watermark_s)
         return self.admission.admit_plots(batch)
 
-    def clock_offsets_s(self) -> list[Optional[float]]:
+    def clock_offsets_s(self) -> list[float | None]:
         """Each radar's estimated clock offset against the others (ClockCheck), s."""
         return self.clock.offsets_s()
 
@@ -239,8 +244,9 @@ class Engine:
             keys = radar_track_keys(raw.radar, raw.track_no, raw.mode_s)
             has_key = np.flatnonzero(keys >= 0)
             if has_key.size:
-                ok = self.outlier_gate.filter(keys[has_key], raw.t_s[has_key], raw.range_m[has_key],
-                                              raw.azimuth_deg[has_key])
+                ok = self.outlier_gate.filter(
+                    keys[has_key], raw.t_s[has_key], raw.range_m[has_key], raw.azimuth_deg[has_key]
+                )
                 if not ok.all():
                     wild = has_key[~ok]
                     self.counters["plots_wild"] += int(wild.size)
@@ -251,7 +257,12 @@ class Engine:
                     raw = raw.select(keep)
         altitude_m = flight_level_to_altitude_m(raw.fl)
         x_m, y_m, cov_m2, _ = polar_to_plane(
-            self.plane, self.sites, raw.radar, raw.range_m, raw.azimuth_deg, altitude_m,
+            self.plane,
+            self.sites,
+            raw.radar,
+            raw.range_m,
+            raw.azimuth_deg,
+            altitude_m,
             assumed_altitude_m=self.assumed_altitude_m,
         )
         return ConvertedPlots(raw.t_s, x_m, y_m, cov_m2, raw.radar, raw.mode_s, raw.mode3a, raw.fl)
@@ -274,8 +285,9 @@ class Engine:
         the state of ``_predict``; only the updated and the new ones are predicted again.
         The result's rows are the track table's."""
         n = len(self.tracks)
-        out = [np.concatenate([a, np.empty((n - len(a),) + a.shape[1:])])
-               for a in (pred.x, pred.P, pred.alt_x, pred.alt_P)]
+        out = [
+            np.concatenate([a, np.empty((n - len(a),) + a.shape[1:])]) for a in (pred.x, pred.P, pred.alt_x, pred.alt_P)
+        ]
         if changed.size:
             again = self._predict_rows(changed, t_ref_s - self.tracks.t_state_s[changed])
             for a, b in zip(out, (again.x, again.P, again.alt_x, again.alt_P)):
@@ -287,9 +299,20 @@ class Engine:
         """Time alignment and k-means clustering seeded by the tracks (Shu §2)."""
         tr = self.tracks
         res = cluster_plots(
-            plots.xy_m, plots.cov_m2, plots.t_s, plots.radar, plots.mode_s, plots.mode3a,
-            position_m(pred.x), velocity_mps(pred.x), cov_pos_m2(pred.P), cov_vel(pred.P),
-            tr.mode_s, tr.mode3a, t_ref_s, self.clustering,
+            plots.xy_m,
+            plots.cov_m2,
+            plots.t_s,
+            plots.radar,
+            plots.mode_s,
+            plots.mode3a,
+            position_m(pred.x),
+            velocity_mps(pred.x),
+            cov_pos_m2(pred.P),
+            cov_vel(pred.P),
+            tr.mode_s,
+            tr.mode3a,
+            t_ref_s,
+            self.clustering,
         )
         self.counters["plots_redundant"] += int(res.redundant.sum())
         self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())
@@ -328,9 +351,16 @@ class Engine:
         np.bitwise_or.at(sources, lab, np.left_shift(np.uint64(1), plots.radar[used].astype(np.uint64)))
         self.counters["plots_fused"] += int(used.sum())
         return ClusterMeasurements(
-            track_row=res.cluster_track, valid=n_in > 0, t_s=t_c, z_m=z_m, R_m2=R_m2,
+            track_row=res.cluster_track,
+            valid=n_in > 0,
+            t_s=t_c,
+            z_m=z_m,
+            R_m2=R_m2,
             fl=np.where(fl_n > 0, fl_sum / np.maximum(fl_n, 1), np.nan),
-            mode_s=mode_s, mode3a=mode3a, revisit_s=revisit_s, sources=sources,
+            mode_s=mode_s,
+            mode3a=mode3a,
+            revisit_s=revisit_s,
+            sources=sources,
         )
 
     # ---------------------------------------------------------------- update
@@ -355,8 +385,12 @@ class Engine:
         two = ~init
         if two.any():
             x, P = two_point_initiation(
-                tr.z1_m[rows[two]], tr.R1_m2[rows[two]], z_m[two], R_m2[two],
-                cl.t_s[matched[two]] - tr.t_state_s[rows[two]], self.filter.sigma_m_mps2,
+                tr.z1_m[rows[two]],
+                tr.R1_m2[rows[two]],
+                z_m[two],
+                R_m2[two],
+                cl.t_s[matched[two]] - tr.t_state_s[rows[two]],
+                self.filter.sigma_m_mps2,
             )
             x_c[two], P_c[two] = x, P
             tr.initiated[rows[two]] = True
@@ -409,10 +443,20 @@ class Engine:
         tr = self.tracks
         P = out.P
         return TrackColumns(
-            period=period, t_s=t_ref_s, track_id=tr.track_id.copy(), status=tr.status.copy(), x=out.x,
-            cov_xy=np.stack([P[:, 0, 0], P[:, 0, 3], P[:, 3, 3]], axis=1), fl=out.alt_x[:, 0].copy(),
-            vrate_fpm=out.alt_x[:, 1] * FT_PER_FL * 60.0, sources=tr.sources.copy(), mode3a=tr.mode3a.copy(),
-            mode_s=tr.mode_s.copy(), updates=tr.updates.copy(), age_s=t_ref_s - tr.first_t_s, ended=ended,
+            period=period,
+            t_s=t_ref_s,
+            track_id=tr.track_id.copy(),
+            status=tr.status.copy(),
+            x=out.x,
+            cov_xy=np.stack([P[:, 0, 0], P[:, 0, 3], P[:, 3, 3]], axis=1),
+            fl=out.alt_x[:, 0].copy(),
+            vrate_fpm=out.alt_x[:, 1] * FT_PER_FL * 60.0,
+            sources=tr.sources.copy(),
+            mode3a=tr.mode3a.copy(),
+            mode_s=tr.mode_s.copy(),
+            updates=tr.updates.copy(),
+            age_s=t_ref_s - tr.first_t_s,
+            ended=ended,
             names=self._names,
         )
 
@@ -427,9 +471,14 @@ class Engine:
             r = self.radars[i]
             wm = self.buffer.watermark_s[i]
             radars[rid] = {
-                "live": bool(live[i]), "watermark_t": float(wm) if math.isfinite(wm) else None,
-                "plots": r.plots, "batches": r.batches, "last_seq": r.last_seq, "seq_gaps": r.seq_gaps,
-                "rejected": dict(r.rejected), "wild": r.wild,
+                "live": bool(live[i]),
+                "watermark_t": float(wm) if math.isfinite(wm) else None,
+                "plots": r.plots,
+                "batches": r.batches,
+                "last_seq": r.last_seq,
+                "seq_gaps": r.seq_gaps,
+                "rejected": dict(r.rejected),
+                "wild": r.wild,
                 "clock_offset_s": offsets_s[i],
                 "clock_suspect": (offset_s := offsets_s[i]) is not None and abs(offset_s) > limit_s,
             }

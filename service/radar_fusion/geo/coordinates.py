@@ -53,15 +53,15 @@ from .units import M_PER_FL
 
 __all__ = [
     "WGS84_GEOD",
-    "gaussian_earth_radius_m",
-    "SystemPlane",
     "RadarSites",
-    "slant_to_ground_range",
+    "SystemPlane",
+    "altitude_m_to_flight_level",
+    "flight_level_to_altitude_m",
+    "gaussian_earth_radius_m",
+    "geodetic_to_polar",
     "ground_to_slant_range",
     "polar_to_plane",
-    "geodetic_to_polar",
-    "flight_level_to_altitude_m",
-    "altitude_m_to_flight_level",
+    "slant_to_ground_range",
 ]
 
 WGS84_GEOD = pyproj.Geod(ellps="WGS84")
@@ -128,8 +128,9 @@ class SystemPlane:
         lon, lat = self.proj(x, y, inverse=True, errcheck=False)
         return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
 
-    def meridian_factors(self, lat_deg: np.ndarray, lon_deg: np.ndarray, x_m: np.ndarray,
-                         y_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def meridian_factors(
+        self, lat_deg: np.ndarray, lon_deg: np.ndarray, x_m: np.ndarray, y_m: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Meridian convergence (degrees, as :meth:`grid_convergence_deg`) and point scale
         factor k at points whose plane coordinates (x_m, y_m) are already known.
 
@@ -187,13 +188,10 @@ class RadarSites:
         ids: Sequence[str] | None = None,
     ) -> None:
         arrays = [
-            np.array(v, dtype=float, ndmin=1)
-            for v in (lat_deg, lon_deg, alt_m, sigma_range_m, sigma_azimuth_deg)
+            np.array(v, dtype=float, ndmin=1) for v in (lat_deg, lon_deg, alt_m, sigma_range_m, sigma_azimuth_deg)
         ]
         n = arrays[0].shape[0]
-        for name, arr in zip(
-            ("lat_deg", "lon_deg", "alt_m", "sigma_range_m", "sigma_azimuth_deg"), arrays
-        ):
+        for name, arr in zip(("lat_deg", "lon_deg", "alt_m", "sigma_range_m", "sigma_azimuth_deg"), arrays):
             if arr.shape != (n,):
                 raise ValueError(f"{name} must be a 1-D sequence of length {n}, got shape {arr.shape}")
             if not np.all(np.isfinite(arr)):
@@ -215,7 +213,7 @@ class RadarSites:
             arr.setflags(write=False)
 
     @classmethod
-    def from_configs(cls, configs: Sequence[Any]) -> "RadarSites":
+    def from_configs(cls, configs: Sequence[Any]) -> RadarSites:
         """Build from objects with attributes ``lat_deg``, ``lon_deg``, ``alt_m``,
         ``sigma_range_m``, ``sigma_azimuth_deg`` (``lat``/``lon`` are accepted in place
         of ``lat_deg``/``lon_deg``, as in the daemon's TOML ``[[radars]]`` table) and
@@ -228,7 +226,7 @@ class RadarSites:
             raise AttributeError(f"radar config {c!r} has none of {names}")
 
         configs = list(configs)
-        ids = [getattr(c, "id") for c in configs] if all(hasattr(c, "id") for c in configs) else None
+        ids = [c.id for c in configs] if all(hasattr(c, "id") for c in configs) else None
         return cls(
             lat_deg=[get(c, "lat_deg", "lat") for c in configs],
             lon_deg=[get(c, "lon_deg", "lon") for c in configs],
@@ -412,9 +410,7 @@ def polar_to_plane(
     ground_m, valid, d_rho, d_h = slant_to_ground_range(r_m, h_r, h_used, rho_safe)
     valid &= finite_in
 
-    lon_t, lat_t, back_az_deg = WGS84_GEOD.fwd(
-        sites.lon_deg[idx], sites.lat_deg[idx], theta_safe, ground_m
-    )
+    lon_t, lat_t, back_az_deg = WGS84_GEOD.fwd(sites.lon_deg[idx], sites.lat_deg[idx], theta_safe, ground_m)
     lon_t = np.asarray(lon_t, dtype=float)
     lat_t = np.asarray(lat_t, dtype=float)
     back_az_deg = np.asarray(back_az_deg, dtype=float)
@@ -477,9 +473,7 @@ def geodetic_to_polar(
     lon = np.asarray(lon_deg, dtype=float)
     h_t = np.asarray(altitude_m, dtype=float)
     lat, lon, h_t, idx = (a.reshape(-1) for a in np.broadcast_arrays(lat, lon, h_t, idx))
-    az_deg, _back_az, ground_m = WGS84_GEOD.inv(
-        sites.lon_deg[idx], sites.lat_deg[idx], lon, lat
-    )
+    az_deg, _back_az, ground_m = WGS84_GEOD.inv(sites.lon_deg[idx], sites.lat_deg[idx], lon, lat)
     az_deg = np.mod(np.asarray(az_deg, dtype=float), 360.0)
     ground_m = np.asarray(ground_m, dtype=float)
     bad = ~(np.isfinite(lat) & np.isfinite(lon))

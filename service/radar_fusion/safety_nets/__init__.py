@@ -48,19 +48,19 @@ from .polygon import Polygon
 from .prediction import segment_conflicts
 
 __all__ = [
+    "CONSUMER_GROUP",
     "FT_PER_HPA",
+    "FUNCTION_GROUP",
     "STANDARD_PRESSURE_HPA",
-    "StcaAreaOverride",
-    "SafetyNetsConfig",
     "Area",
+    "Hooks",
     "MsaMap",
     "Polygon",
-    "load_areas",
-    "load_msa",
-    "Hooks",
-    "load_hooks",
     "SafetyNets",
+    "SafetyNetsConfig",
+    "StcaAreaOverride",
+    "load_areas",
+    "load_hooks",
+    "load_msa",
     "segment_conflicts",
-    "CONSUMER_GROUP",
-    "FUNCTION_GROUP",
 ]

@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from ..engine.columns import TrackColumns
 
 
-def apw_hits(cfg: SafetyNetsConfig, areas: list[Area], tr: "TrackColumns", accel: np.ndarray) -> list[Hit]:
+def apw_hits(cfg: SafetyNetsConfig, areas: list[Area], tr: TrackColumns, accel: np.ndarray) -> list[Hit]:
     """[APW-GUID]: inside a volume now, or predicted to enter it within the look-ahead.
 
     The horizontal path is the turn prediction for turning tracks, linear otherwise;

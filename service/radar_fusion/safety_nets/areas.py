@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ class MsaMap:
     def __init__(
         self,
         polygons: Sequence[tuple[str, Polygon, float]] = (),
-        grid: Optional[dict[str, Any]] = None,
+        grid: dict[str, Any] | None = None,
     ) -> None:
         self.polygons = list(polygons)
         self.grid = grid
@@ -94,7 +95,7 @@ class MsaMap:
                 maxima.append(float(np.nanmax(g)))
         self.max_alt_ft = max(maxima) if maxima else -math.inf
 
-    def lookup(self, plane_xy: np.ndarray, latlon: Optional[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    def lookup(self, plane_xy: np.ndarray, latlon: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """MSA (ft) and the id of the polygon/grid that sets it, for (M, 2) points."""
         m = plane_xy.shape[0]
         msa = np.full(m, -np.inf)

@@ -8,7 +8,7 @@ by :class:`~radar_fusion.safety_nets.SafetyNets`; the references ([STCA-SPEC],
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -66,10 +66,10 @@ class SafetyNetsConfig(BaseModel):
     stca_overrides: list[StcaAreaOverride] = Field(
         default_factory=list, description="per-volume minima; a pair uses the first volume that holds both tracks"
     )
-    stca_proximity_h_nm: Optional[float] = Field(
+    stca_proximity_h_nm: float | None = Field(
         None, gt=0, description="current proximity filter, horizontal (default: the pair's minimum)"
     )
-    stca_proximity_v_ft: Optional[float] = Field(
+    stca_proximity_v_ft: float | None = Field(
         None, gt=0, description="current proximity filter, vertical (default: the pair's minimum less tolerance)"
     )
     stca_confirm_periods: int = Field(2, ge=1, description="consecutive predicted-conflict periods before alerting")
@@ -85,8 +85,8 @@ class SafetyNetsConfig(BaseModel):
 
     # APW
     apw_enabled: bool = True
-    areas_file: Optional[Path] = Field(None, description="GeoJSON of APW volumes (properties id, lower_fl, upper_fl)")
-    apw_look_ahead_s: Optional[float] = Field(None, gt=0, le=600, description="default: look_ahead_s")
+    areas_file: Path | None = Field(None, description="GeoJSON of APW volumes (properties id, lower_fl, upper_fl)")
+    apw_look_ahead_s: float | None = Field(None, gt=0, le=600, description="default: look_ahead_s")
     apw_confirm_periods: int = Field(2, ge=1)
     apw_unknown_fl_inside: bool = Field(
         False, description="a track without a flight level counts as inside every volume's vertical band"
@@ -94,17 +94,15 @@ class SafetyNetsConfig(BaseModel):
 
     # MSAW
     msaw_enabled: bool = True
-    msa_file: Optional[Path] = Field(
-        None, description="GeoJSON polygons with property min_alt_ft, or a JSON MsaGrid"
-    )
-    msaw_look_ahead_s: Optional[float] = Field(None, gt=0, le=600, description="default: look_ahead_s")
+    msa_file: Path | None = Field(None, description="GeoJSON polygons with property min_alt_ft, or a JSON MsaGrid")
+    msaw_look_ahead_s: float | None = Field(None, gt=0, le=600, description="default: look_ahead_s")
     msaw_confirm_periods: int = Field(2, ge=1)
     qnh_hpa: float = Field(
         STANDARD_PRESSURE_HPA, ge=900, le=1100, description="altitude = 100·FL + (QNH − 1013.25)·27 ft"
     )
 
     @model_validator(mode="after")
-    def _turn_rates(self) -> "SafetyNetsConfig":
+    def _turn_rates(self) -> SafetyNetsConfig:
         if self.turn_max_dps < self.turn_min_dps:
             raise ValueError("turn_max_dps must be at least turn_min_dps")
         return self

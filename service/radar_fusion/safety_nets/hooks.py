@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import inspect
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import metadata
-from typing import Any, Callable, Optional
+from typing import Any
 
 from ..geo.coordinates import SystemPlane
 from .config import SafetyNetsConfig
@@ -42,7 +43,7 @@ def _entry_points(group: str) -> list[Any]:
     return list(eps.get(group, []))  # type: ignore[union-attr]  # Python < 3.10 API
 
 
-def load_hooks(config: Optional[SafetyNetsConfig] = None, plane: Optional[SystemPlane] = None) -> Hooks:
+def load_hooks(config: SafetyNetsConfig | None = None, plane: SystemPlane | None = None) -> Hooks:
     """Discover hooks through ``importlib.metadata`` entry points.
 
     ``radar_fusion.alert_consumers``: each entry point loads a callable ``f(alert_dict)``

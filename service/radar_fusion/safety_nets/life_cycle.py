@@ -15,7 +15,7 @@ never reused.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +39,7 @@ class _AlertState:
     track_ids: list[int]
     hits: int = 0  # consecutive periods with a hit
     misses: int = 0  # consecutive periods without a hit (active alerts)
-    alert_id: Optional[int] = None  # set when confirmed
+    alert_id: int | None = None  # set when confirmed
     figures: dict[str, Any] = field(default_factory=dict)
 
 
@@ -60,8 +60,14 @@ class AlertLifeCycle:
         return {"apw": c.apw_confirm_periods, "msaw": c.msaw_confirm_periods}[hit.kind]
 
     def _message(self, st: _AlertState, t_s: float, status: str) -> dict:
-        msg = {"v": 1, "kind": st.kind, "alert_id": st.alert_id, "t": t_s, "track_ids": list(st.track_ids),
-               "status": status}
+        msg = {
+            "v": 1,
+            "kind": st.kind,
+            "alert_id": st.alert_id,
+            "t": t_s,
+            "track_ids": list(st.track_ids),
+            "status": status,
+        }
         msg.update(st.figures)
         return msg
 

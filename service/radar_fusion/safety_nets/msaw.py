@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 
 
 def msaw_hits(
-    cfg: SafetyNetsConfig, msa_map: MsaMap, plane: SystemPlane, tr: "TrackColumns", accel: np.ndarray
+    cfg: SafetyNetsConfig, msa_map: MsaMap, plane: SystemPlane, tr: TrackColumns, accel: np.ndarray
 ) -> list[Hit]:
     """[MSAW-GUID]: below the minimum safe altitude now, or predicted to be within the look-ahead.
 

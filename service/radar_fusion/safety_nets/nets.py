@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING
 
 from pydantic import ValidationError
 
@@ -43,10 +43,10 @@ class SafetyNets:
 
     def __init__(
         self,
-        config: Optional[SafetyNetsConfig] = None,
-        plane: Optional[SystemPlane] = None,
-        hooks: Optional[Hooks] = None,
-        base_dir: Optional[Path] = None,
+        config: SafetyNetsConfig | None = None,
+        plane: SystemPlane | None = None,
+        hooks: Hooks | None = None,
+        base_dir: Path | None = None,
     ) -> None:
         self.config = config or SafetyNetsConfig()
         if plane is None:
@@ -54,13 +54,13 @@ class SafetyNets:
         self.plane = plane
         cfg = self.config
 
-        def resolve(p: Optional[Path]) -> Optional[Path]:
+        def resolve(p: Path | None) -> Path | None:
             if p is None:
                 return None
             return p if p.is_absolute() or base_dir is None else Path(base_dir) / p
 
         self.areas: list[Area] = load_areas(resolve(cfg.areas_file), plane) if cfg.areas_file else []
-        self.msa: Optional[MsaMap] = load_msa(resolve(cfg.msa_file), plane) if cfg.msa_file else None
+        self.msa: MsaMap | None = load_msa(resolve(cfg.msa_file), plane) if cfg.msa_file else None
         self.stca = Stca(cfg, plane)
         if hooks is None:
             hooks = load_hooks(cfg, plane) if cfg.load_entry_point_hooks else Hooks()
@@ -78,7 +78,7 @@ class SafetyNets:
         self.vertical_history = VerticalRateHistory()
 
     @classmethod
-    def from_settings(cls, settings: "Settings", base_dir: Optional[Path] = None) -> "SafetyNets":
+    def from_settings(cls, settings: Settings, base_dir: Path | None = None) -> SafetyNets:
         """Build from the daemon's ``Settings`` (its ``safety_nets`` section and ``system`` centre)."""
         plane = SystemPlane(settings.system.center_lat, settings.system.center_lon)
         return cls(settings.safety_nets, plane, base_dir=base_dir)
@@ -93,7 +93,7 @@ class SafetyNets:
         """The confirmed alerts currently open (for a health or status view)."""
         return self.life_cycle.active_alerts
 
-    def update(self, t_s: float, tracks: "TrackColumns") -> list[dict]:
+    def update(self, t_s: float, tracks: TrackColumns) -> list[dict]:
         """Run the safety nets for one closed period; return this period's Alert dicts."""
         cfg = self.config
         self.counters["periods"] += 1

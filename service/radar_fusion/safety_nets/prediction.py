@@ -59,7 +59,7 @@ HISTORY_PERIODS = 4
 # --------------------------------------------------------------------------- track columns
 
 
-def eligible(tr: "TrackColumns") -> np.ndarray:
+def eligible(tr: TrackColumns) -> np.ndarray:
     """The tracks the safety nets judge, bool per track.
 
     ``tr.safety_eligible`` when the columns carry it (built from a received TrackBatch:
@@ -71,14 +71,14 @@ def eligible(tr: "TrackColumns") -> np.ndarray:
     return tr.status != TENTATIVE
 
 
-def selected_fl(tr: "TrackColumns", idx: np.ndarray) -> np.ndarray:
+def selected_fl(tr: TrackColumns, idx: np.ndarray) -> np.ndarray:
     """Selected or cleared flight levels of tracks ``idx`` (NaN unknown; all NaN without the column)."""
     if tr.selected_fl is None:
         return np.full(idx.shape[0], np.nan)
     return tr.selected_fl[idx]
 
 
-def moving(tr: "TrackColumns") -> np.ndarray:
+def moving(tr: TrackColumns) -> np.ndarray:
     """Tracks with a finite position and velocity, the only ones a path can be predicted for."""
     return np.isfinite(tr.x_m) & np.isfinite(tr.y_m) & np.isfinite(tr.vx_mps) & np.isfinite(tr.vy_mps)
 
@@ -144,7 +144,7 @@ class Prediction:
     z_ft: np.ndarray  # (E, M) altitude (100·FL) in feet; NaN unknown
 
 
-def turn_rate_rps(tr: "TrackColumns", idx: np.ndarray, cfg: SafetyNetsConfig) -> np.ndarray:
+def turn_rate_rps(tr: TrackColumns, idx: np.ndarray, cfg: SafetyNetsConfig) -> np.ndarray:
     """ω = (vx·ay − vy·ax)/|v|² (rad/s), zero below ``turn_min_dps``, capped at ``turn_max_dps``."""
     vx, vy = tr.vx_mps[idx], tr.vy_mps[idx]
     ax = np.nan_to_num(tr.ax_mps2[idx])
@@ -190,8 +190,13 @@ def horizontal_paths(
 
 
 def vertical_paths(
-    z0_ft: np.ndarray, vrate_fpm: np.ndarray, accel_fpm_s: np.ndarray, sel_fl: np.ndarray, t: np.ndarray,
-    cfg: SafetyNetsConfig, return_bent: bool = False,
+    z0_ft: np.ndarray,
+    vrate_fpm: np.ndarray,
+    accel_fpm_s: np.ndarray,
+    sel_fl: np.ndarray,
+    t: np.ndarray,
+    cfg: SafetyNetsConfig,
+    return_bent: bool = False,
 ) -> Any:
     """Predicted altitude (ft) at times ``t``: level / linear / capture, capped at a selected level.
 
@@ -224,7 +229,7 @@ def vertical_paths(
 
 
 def sampled_paths(
-    tr: "TrackColumns", e: np.ndarray, accel: np.ndarray, horizon_s: float, cfg: SafetyNetsConfig
+    tr: TrackColumns, e: np.ndarray, accel: np.ndarray, horizon_s: float, cfg: SafetyNetsConfig
 ) -> Prediction:
     """Paths of tracks ``e`` every ``sample_step_s`` up to ``horizon_s`` (APW, MSAW)."""
     t = np.arange(0.0, horizon_s + 1e-9, cfg.sample_step_s)

@@ -58,7 +58,7 @@ class Stca:
         self.last_candidate_pairs = 0
 
     def _pair_minima(
-        self, tr: "TrackColumns", e: np.ndarray, ia: np.ndarray, ib: np.ndarray
+        self, tr: TrackColumns, e: np.ndarray, ia: np.ndarray, ib: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Horizontal (m) and vertical (ft) minima per pair: the first override volume holding both."""
         cfg = self.config
@@ -80,7 +80,7 @@ class Stca:
             v[m] = o.v_min_ft
         return h, v
 
-    def hits(self, tr: "TrackColumns", accel: np.ndarray) -> list[Hit]:
+    def hits(self, tr: TrackColumns, accel: np.ndarray) -> list[Hit]:
         """This period's STCA hits; ``accel`` is the vertical acceleration per track (fpm/s)."""
         cfg = self.config
         elig = eligible(tr) & moving(tr)
@@ -156,8 +156,12 @@ class Stca:
                 continue
             a1, b1 = ia[sel], ib[sel]
             r = segment_conflicts(
-                (x_lin[b1] - x_lin[a1])[:, cols], (y_lin[b1] - y_lin[a1])[:, cols], dz[sel][:, cols],
-                knots[cols], h_min[sel], v_eff[sel],
+                (x_lin[b1] - x_lin[a1])[:, cols],
+                (y_lin[b1] - y_lin[a1])[:, cols],
+                dz[sel][:, cols],
+                knots[cols],
+                h_min[sel],
+                v_eff[sel],
             )
             for k, v in r.items():
                 lin.setdefault(k, np.empty(ia.size, dtype=v.dtype))[sel] = v

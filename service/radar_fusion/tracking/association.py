@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 if TYPE_CHECKING:
     from .clustering import ClusteringParams
 
-__all__ = ["align_to_reference", "transfer_rho", "gated_pairs", "assign_per_radar", "transfer_track_clusters"]
+__all__ = ["align_to_reference", "assign_per_radar", "gated_pairs", "transfer_rho", "transfer_track_clusters"]
 
 
 def align_to_reference(
@@ -48,9 +48,7 @@ def align_to_reference(
     return aligned_xy, aligned_cov
 
 
-def transfer_rho(
-    p_xy: ArrayLike, centroid_xy: ArrayLike, n_members: ArrayLike, own: ArrayLike
-) -> np.ndarray:
+def transfer_rho(p_xy: ArrayLike, centroid_xy: ArrayLike, n_members: ArrayLike, own: ArrayLike) -> np.ndarray:
     """ρ of Shu eq. 3 in its corrected form (Duda & Hart), vectorised.
 
     own = True  (p is in the cluster):  ρ_i = N_i/(N_i − 1)·|p − m_i|²  (0 when N_i ≤ 1)
@@ -95,9 +93,7 @@ def mahalanobis2_2x2(y: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.where((det > 0) & (a > 0), d2, np.inf)
 
 
-def identity_compatible(
-    s1: np.ndarray, s2: np.ndarray, a1: np.ndarray, a2: np.ndarray, use_mode3a: bool
-) -> np.ndarray:
+def identity_compatible(s1: np.ndarray, s2: np.ndarray, a1: np.ndarray, a2: np.ndarray, use_mode3a: bool) -> np.ndarray:
     """Mode S (and optionally Mode 3/A) codes agree or at least one is unknown (−1)."""
     ok = (s1 < 0) | (s2 < 0) | (s1 == s2)
     if use_mode3a:
@@ -331,9 +327,21 @@ def transfer_track_clusters(
 
 
 def gated_pairs(
-    plot_xy: np.ndarray, plot_cov: np.ndarray, plot_t: np.ndarray, dt_s: np.ndarray, plot_ok: np.ndarray,
-    plot_ms: np.ndarray, plot_3a: np.ndarray, track_xy: np.ndarray, track_v: np.ndarray, track_cp: np.ndarray,
-    track_cv: np.ndarray, track_ok: np.ndarray, track_ms: np.ndarray, track_3a: np.ndarray, t_ref: float,
+    plot_xy: np.ndarray,
+    plot_cov: np.ndarray,
+    plot_t: np.ndarray,
+    dt_s: np.ndarray,
+    plot_ok: np.ndarray,
+    plot_ms: np.ndarray,
+    plot_3a: np.ndarray,
+    track_xy: np.ndarray,
+    track_v: np.ndarray,
+    track_cp: np.ndarray,
+    track_cv: np.ndarray,
+    track_ok: np.ndarray,
+    track_ms: np.ndarray,
+    track_3a: np.ndarray,
+    t_ref: float,
     params: ClusteringParams,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Steps 1-3 of clustering.py: candidate (plot, track) pairs, each plot aligned to

@@ -62,7 +62,6 @@ track clusters, are in association.py, step 6, the new targets, here:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -81,7 +80,7 @@ from .association import (
 )
 from .initiation import unknown_velocity_var_m2ps2
 
-__all__ = ["CHI2_2DOF_P999", "ClusteringParams", "ClusterResult", "cluster_plots"]
+__all__ = ["CHI2_2DOF_P999", "ClusterResult", "ClusteringParams", "cluster_plots"]
 
 #: 99.9 % quantile of the chi-square distribution with 2 degrees of freedom,
 #: -2·ln(0.001) (= scipy.stats.chi2.ppf(0.999, 2)).
@@ -101,20 +100,23 @@ class ClusteringParams(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     gate_chi2: float = Field(
-        CHI2_2DOF_P999, gt=0,
+        CHI2_2DOF_P999,
+        gt=0,
         description="Mahalanobis gate d² ≤ gate_chi2 for a plot to join a track's cluster. Default 13.8155, the "
         "chi-square 99.9 % quantile for 2 dof: a correct plot falls outside the gate once in a thousand, which "
         "then costs at most one false new-target cluster.",
     )
-    max_gate_m: Optional[float] = Field(
-        9_260.0, gt=0,
+    max_gate_m: float | None = Field(
+        9_260.0,
+        gt=0,
         description="Absolute cap on |aligned plot − predicted track position|, m, or none. Default 9,260 m (5 NM, "
         "the en-route separation minimum): a coasting track's covariance may grow to tens of km, and a gate wider "
         "than the separation minimum would capture the plots of a properly separated neighbour. It also bounds the "
         "k-d tree query radius.",
     )
     new_target_gate_m: float = Field(
-        3_000.0, ge=0,
+        3_000.0,
+        ge=0,
         description="Maximum distance between two plots of one new-target cluster, before the motion allowance, m. "
         "Default 3,000 m: the difference of two plots with cross-range σ ≈ 470 m each (0.1° azimuth noise at "
         "~145 NM) has σ ≈ 665 m, so 3,000 m is 4.5σ, which leaves room for the radars' relative biases (not "
@@ -122,14 +124,16 @@ class ClusteringParams(BaseModel):
         "aircraft are not merged.",
     )
     max_speed_mps: float = Field(
-        350.0, gt=0,
+        350.0,
+        gt=0,
         description="Maximum ground speed of a target without a track, m/s. Two plots of one new target taken at "
         "t_p and t_q may be up to max_speed_mps·|t_p − t_q| further apart, and its velocity prior is "
         "initiation.unknown_velocity_var_m2ps2(max_speed_mps). Default 350 m/s (680 kt), above the ground speed "
         "of civil jets with a strong tail wind.",
     )
     max_iterations: int = Field(
-        20, ge=0,
+        20,
+        ge=0,
         description="Cap on the batched transfer rounds (track clusters) and on the sequential transfer sweeps "
         "(each new-target conflict component). Each round strictly decreases E, so the cap only bounds the worst "
         "case; 20 is far above the 1-3 rounds seen in practice.",
@@ -140,7 +144,8 @@ class ClusteringParams(BaseModel):
         "clustered together. Set false to tolerate squawk changes.",
     )
     track_anchor_weight: float = Field(
-        1.0, gt=0,
+        1.0,
+        gt=0,
         description="Weight of a track's predicted point as a member of its own cluster (Shu §2.1: the "
         "representative 自成一类, forms a class by itself). It keeps the centroid of a track's cluster tied to the "
         "prediction; it must be > 0, otherwise a track with no plot would be an empty cluster with ρ_j = 0 that "
@@ -356,9 +361,7 @@ def _cluster_new_targets(
             compat = np.eye(nodes.size, dtype=bool)
             compat[local[a[edges]], local[b[edges]]] = True
             compat[local[b[edges]], local[a[edges]]] = True
-            s_lab, f_lab, k_sweeps = _kmeans_component(
-                xy[nodes], radar[nodes], compat, params.max_iterations
-            )
+            s_lab, f_lab, k_sweeps = _kmeans_component(xy[nodes], radar[nodes], compat, params.max_iterations)
             seed[nodes] = n_seed + s_lab
             labels[nodes] = n_final + f_lab
             n_seed += int(s_lab.max()) + 1
@@ -437,7 +440,7 @@ def cluster_plots(
     track_mode_s: np.ndarray,
     track_mode3a: np.ndarray,
     t_ref_s: float,
-    params: ClusteringParams = ClusteringParams(),
+    params: ClusteringParams | None = None,
 ) -> ClusterResult:
     """Align one period's plots to ``t_ref_s`` and cluster them (see the module docstring).
 
@@ -447,6 +450,7 @@ def cluster_plots(
     velocity covariances (N, 2, 2), Mode S / Mode 3/A identity (N,), −1 = unknown.
     Plots or tracks with non-finite values are ignored (plots get label −1).
     """
+    params = ClusteringParams() if params is None else params
     plot_xy = np.asarray(plot_xy_m, dtype=float).reshape(-1, 2)
     n_plots = plot_xy.shape[0]
     plot_cov = np.asarray(plot_cov_m2, dtype=float).reshape(n_plots, 2, 2)
@@ -467,11 +471,7 @@ def cluster_plots(
     radar = radar.reshape(n_plots).astype(np.intp)
     n_radars = int(radar.max()) + 1 if n_plots else 1
     dt_s = t_ref - plot_t
-    plot_ok = (
-        np.isfinite(plot_xy).all(axis=1)
-        & np.isfinite(plot_cov).all(axis=(1, 2))
-        & np.isfinite(dt_s)
-    )
+    plot_ok = np.isfinite(plot_xy).all(axis=1) & np.isfinite(plot_cov).all(axis=(1, 2)) & np.isfinite(dt_s)
     track_ok = (
         np.isfinite(track_xy).all(axis=1)
         & np.isfinite(track_v).all(axis=1)
@@ -481,15 +481,27 @@ def cluster_plots(
 
     # 1-3: candidate pairs, time alignment with the track's velocity, gating.
     pair_plot, pair_track, pair_xy, pair_cov, d2 = gated_pairs(
-        plot_xy, plot_cov, plot_t, dt_s, plot_ok, plot_ms, plot_3a,
-        track_xy, track_v, track_cp, track_cv, track_ok, track_ms, track_3a, t_ref, params,
+        plot_xy,
+        plot_cov,
+        plot_t,
+        dt_s,
+        plot_ok,
+        plot_ms,
+        plot_3a,
+        track_xy,
+        track_v,
+        track_cp,
+        track_cv,
+        track_ok,
+        track_ms,
+        track_3a,
+        t_ref,
+        params,
     )
     pair_radar = radar[pair_plot]
 
     # 4: seed, nearest representative with one plot per radar per cluster.
-    seed_assign = assign_per_radar(
-        pair_plot, pair_track * n_radars + pair_radar, d2, n_plots, params.gate_chi2
-    )
+    seed_assign = assign_per_radar(pair_plot, pair_track * n_radars + pair_radar, d2, n_plots, params.gate_chi2)
     # 5: transfers among the track clusters (eq. 3 corrected).
     assign, track_rounds = transfer_track_clusters(
         seed_assign,
@@ -521,9 +533,7 @@ def cluster_plots(
     # default; the assigned track's velocity for track clusters; the best gated track's
     # for the redundant plots.
     v_var = unknown_velocity_var_m2ps2(params.max_speed_mps)
-    aligned_xy, aligned_cov = align_to_reference(
-        plot_xy, plot_cov, plot_t, t_ref, np.zeros(2), v_var * np.eye(2)
-    )
+    aligned_xy, aligned_cov = align_to_reference(plot_xy, plot_cov, plot_t, t_ref, np.zeros(2), v_var * np.eye(2))
     if pair_plot.size:
         best = first_per_group(pair_plot, d2)
         aligned_xy[pair_plot[best]] = pair_xy[best]
@@ -533,12 +543,8 @@ def cluster_plots(
     aligned_cov[used] = pair_cov[assign[used]]
     redundant = in_gate & (assign < 0)
 
-    labels, cluster_track = _labels_from_assignment(
-        assign, pair_track, new_idx, new_labels, n_plots
-    )
-    seed_labels, seed_cluster_track = _labels_from_assignment(
-        seed_assign, pair_track, new_idx, new_seed, n_plots
-    )
+    labels, cluster_track = _labels_from_assignment(assign, pair_track, new_idx, new_labels, n_plots)
+    seed_labels, seed_cluster_track = _labels_from_assignment(seed_assign, pair_track, new_idx, new_seed, n_plots)
     seed_xy = aligned_xy.copy()
     seed_used = np.flatnonzero(seed_assign >= 0)
     seed_xy[seed_used] = pair_xy[seed_assign[seed_used]]

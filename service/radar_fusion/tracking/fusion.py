@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from .singer_filter import inv_2x2
 
-__all__ = ["fuse_clusters", "FUSION_METHODS"]
+__all__ = ["FUSION_METHODS", "fuse_clusters"]
 
 FUSION_METHODS = ("scalar", "matrix")
 

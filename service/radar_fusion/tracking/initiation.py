@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .singer_filter import POS_IDX, STATE_DIM, as_tracks
 
-__all__ = ["unknown_velocity_var_m2ps2", "one_point_initiation", "two_point_initiation"]
+__all__ = ["one_point_initiation", "two_point_initiation", "unknown_velocity_var_m2ps2"]
 
 Float = NDArray[np.float64]
 

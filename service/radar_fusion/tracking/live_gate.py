@@ -64,9 +64,19 @@ class LiveOutlierGate:
     _row_key: NDArray[np.int64]
     _cap: int
 
-    def __init__(self, window: int = 8, k: int = 3, threshold: float = 6.0, enabled: bool = True,
-                 min_history: int = 4, sigma_floor_m: float = 150.0, relock_after: int = 6,
-                 max_gap_s: float = 60.0, evict_after_s: float = 300.0, max_keys: int = 100_000) -> None:
+    def __init__(
+        self,
+        window: int = 8,
+        k: int = 3,
+        threshold: float = 6.0,
+        enabled: bool = True,
+        min_history: int = 4,
+        sigma_floor_m: float = 150.0,
+        relock_after: int = 6,
+        max_gap_s: float = 60.0,
+        evict_after_s: float = 300.0,
+        max_keys: int = 100_000,
+    ) -> None:
         if window < 3:
             raise ValueError("window must be >= 3")
         if not 1 <= k <= min_history <= window:
@@ -100,10 +110,17 @@ class LiveOutlierGate:
         old = getattr(self, "_cap", 0)
         w, p = self.window, self.relock_after - 1
         specs: dict[str, tuple[tuple[int, ...], float, type]] = {
-            "_x": ((w,), 0.0, float), "_y": ((w,), 0.0, float), "_t": ((w,), 0.0, float),
-            "_px": ((p,), 0.0, float), "_py": ((p,), 0.0, float), "_pt": ((p,), 0.0, float),
-            "_count": ((), 0, np.int64), "_head": ((), 0, np.int64), "_npend": ((), 0, np.int64),
-            "_last_t": ((), -np.inf, float), "_row_key": ((), -1, np.int64),
+            "_x": ((w,), 0.0, float),
+            "_y": ((w,), 0.0, float),
+            "_t": ((w,), 0.0, float),
+            "_px": ((p,), 0.0, float),
+            "_py": ((p,), 0.0, float),
+            "_pt": ((p,), 0.0, float),
+            "_count": ((), 0, np.int64),
+            "_head": ((), 0, np.int64),
+            "_npend": ((), 0, np.int64),
+            "_last_t": ((), -np.inf, float),
+            "_row_key": ((), -1, np.int64),
         }
         for name, (tail, fill, dtype) in specs.items():
             arr: NDArray[Any] = np.full((capacity,) + tail, fill, dtype=dtype)
@@ -126,8 +143,22 @@ class LiveOutlierGate:
     @property
     def memory_bytes(self) -> int:
         """Bytes held by the per-key arrays."""
-        return sum(a.nbytes for a in (self._x, self._y, self._t, self._px, self._py, self._pt,
-                                      self._count, self._head, self._npend, self._last_t, self._row_key))
+        return sum(
+            a.nbytes
+            for a in (
+                self._x,
+                self._y,
+                self._t,
+                self._px,
+                self._py,
+                self._pt,
+                self._count,
+                self._head,
+                self._npend,
+                self._last_t,
+                self._row_key,
+            )
+        )
 
     def _evict_rows(self, rows: NDArray[np.int64]) -> None:
         gone = np.isin(self._skeys, self._row_key[rows])
@@ -182,8 +213,9 @@ class LiveOutlierGate:
         return rows  # keys beyond max_keys keep row -1: they are accepted untracked
 
     # -- decision ------------------------------------------------------------------
-    def filter(self, keys: npt.ArrayLike, t_s: npt.ArrayLike, range_m: npt.ArrayLike,
-               azimuth_deg: npt.ArrayLike) -> NDArray[np.bool_]:
+    def filter(
+        self, keys: npt.ArrayLike, t_s: npt.ArrayLike, range_m: npt.ArrayLike, azimuth_deg: npt.ArrayLike
+    ) -> NDArray[np.bool_]:
         """Boolean mask `accept` for a batch of plots (True = pass on to clustering).
 
         keys: int64 per plot; t_s: detection time (s); range_m; azimuth_deg (clockwise
@@ -220,8 +252,9 @@ class LiveOutlierGate:
         self.rejected += int(n - accept.sum())
         return accept
 
-    def _decide(self, rows: NDArray[np.int64], t: NDArray[np.float64], x: NDArray[np.float64],
-                y: NDArray[np.float64]) -> NDArray[np.bool_]:
+    def _decide(
+        self, rows: NDArray[np.int64], t: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64]
+    ) -> NDArray[np.bool_]:
         """Decide one plot per row (rows unique), update the rows, return accept."""
         w = self.window
         stale = (t - self._last_t[rows]) > self.max_gap_s
@@ -261,8 +294,8 @@ class LiveOutlierGate:
             ey = wy - vy[:, None] * dt
             d = np.hypot(x[gi, None] - ex, y[gi, None] - ey)
             d = np.where(valid, d, np.inf)
-            kmd = np.partition(d, self.k - 1, axis=1)[:, :self.k].mean(axis=1)
-            ratio = kmd / np.sqrt(var_fit + self.sigma_floor_m ** 2)
+            kmd = np.partition(d, self.k - 1, axis=1)[:, : self.k].mean(axis=1)
+            ratio = kmd / np.sqrt(var_fit + self.sigma_floor_m**2)
             ok[gi] = ratio <= self.threshold
         # Rejected plots: keep aside; relock after relock_after consecutive rejections.
         rej = np.flatnonzero(~ok)

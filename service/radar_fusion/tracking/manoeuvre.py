@@ -52,9 +52,7 @@ class ManoeuvreDetector:
         avg = self.nis_fading * nis_avg + (1.0 - self.nis_fading) * normalised_innovation_sq(nu, S)
         return avg, np.where(manoeuvre, avg > self.nis_off, avg > self.nis_on)
 
-    def predict(
-        self, singer: SingerFilter, x: Float, P: Float, dt_s: Float, manoeuvre: Bool
-    ) -> tuple[Float, Float]:
+    def predict(self, singer: SingerFilter, x: Float, P: Float, dt_s: Float, manoeuvre: Bool) -> tuple[Float, Float]:
         """Singer prediction (Shu eq. 8, 11) over per-track ``dt_s``, with σ_m raised by
         ``sigma_factor`` for the manoeuvring tracks."""
         x, P = singer.predict(x, P, dt_s)

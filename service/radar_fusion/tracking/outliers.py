@@ -54,22 +54,22 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 __all__ = [
-    "OutlierParams",
     "OutlierAnalysis",
-    "window_start_indices",
-    "soft_edge_weight",
-    "hard_edge_weight",
+    "OutlierParams",
+    "analyse",
+    "decide_wild",
+    "detect_outliers",
     "edge_points",
-    "segment_at_edges",
-    "subsequence_features",
-    "minmax_normalise",
+    "hard_edge_weight",
+    "innovation_gate_3sigma",
     "k_distance",
     "k_mean_distance",
+    "minmax_normalise",
     "outlier_factor",
-    "decide_wild",
-    "analyse",
-    "detect_outliers",
-    "innovation_gate_3sigma",
+    "segment_at_edges",
+    "soft_edge_weight",
+    "subsequence_features",
+    "window_start_indices",
 ]
 
 METHODS = ("soft", "kmodf")
@@ -229,7 +229,7 @@ def subsequence_features(s: np.ndarray, starts: np.ndarray, stops: np.ndarray) -
     mean = (csum[stops] - csum[starts]) / length
     # Sum of squared deviations per sub-sequence without a Python loop.
     seg_id = np.repeat(np.arange(starts.size), stops - starts)
-    dev2 = (s[starts[0]:stops[-1]] - mean[seg_id]) ** 2
+    dev2 = (s[starts[0] : stops[-1]] - mean[seg_id]) ** 2
     ss = np.bincount(seg_id, weights=dev2, minlength=starts.size)
     std = np.where(length > 1, np.sqrt(ss / np.maximum(length - 1.0, 1.0)), 0.0)
     return np.column_stack((height, length, mean, std))
@@ -294,8 +294,9 @@ def outlier_factor(features_normalised: np.ndarray, k: int, epsilon: float = 1e-
     return of, dist
 
 
-def decide_wild(of: np.ndarray, edge_run_length: np.ndarray, params: OutlierParams,
-                interior: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+def decide_wild(
+    of: np.ndarray, edge_run_length: np.ndarray, params: OutlierParams, interior: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
     """Decision rule: wild when OF > threshold and 1 <= edge run length <= max_wild_length
     (and, when `interior` is given, the edge run has trajectory samples on both sides).
 
@@ -318,8 +319,9 @@ def decide_wild(of: np.ndarray, edge_run_length: np.ndarray, params: OutlierPara
     return wild, thr
 
 
-def analyse(s: np.ndarray, t: np.ndarray | None = None, method: str = "soft",
-            params: OutlierParams | None = None) -> OutlierAnalysis:
+def analyse(
+    s: np.ndarray, t: np.ndarray | None = None, method: str = "soft", params: OutlierParams | None = None
+) -> OutlierAnalysis:
     """Run the whole batch pipeline on series s and return every intermediate result.
 
     s: the measurement series s_1..s_n (e.g. azimuth in degrees) in time order.
@@ -360,19 +362,26 @@ def analyse(s: np.ndarray, t: np.ndarray | None = None, method: str = "soft",
         e_un = np.empty_like(edge)
         e_un[order] = edge
         weight, edge = w_un, e_un
-    return OutlierAnalysis(weight, edge, starts, stops, edge_stops, feats, feats_n, dist, of,
-                           float(thr), wild_sub, wild)
+    return OutlierAnalysis(
+        weight, edge, starts, stops, edge_stops, feats, feats_n, dist, of, float(thr), wild_sub, wild
+    )
 
 
-def detect_outliers(s: np.ndarray, t: np.ndarray | None = None, method: str = "soft",
-                    params: OutlierParams | None = None) -> np.ndarray:
+def detect_outliers(
+    s: np.ndarray, t: np.ndarray | None = None, method: str = "soft", params: OutlierParams | None = None
+) -> np.ndarray:
     """Boolean mask of the wild samples of s (True = remove); see :func:`analyse`."""
     return analyse(s, t, method, params).wild
 
 
-def innovation_gate_3sigma(s: np.ndarray, t: np.ndarray | None = None, sigma: float | None = None,
-                           accel_sigma: float | None = None, gate_sigma: float = 3.0,
-                           max_misses: int = 8) -> np.ndarray:
+def innovation_gate_3sigma(
+    s: np.ndarray,
+    t: np.ndarray | None = None,
+    sigma: float | None = None,
+    accel_sigma: float | None = None,
+    gate_sigma: float = 3.0,
+    max_misses: int = 8,
+) -> np.ndarray:
     """Baseline: constant-velocity Kalman predictor, flag |innovation| > gate_sigma * sqrt(S).
 
     State [s, ds/dt]; white-acceleration process noise of spectral density accel_sigma^2.
@@ -394,9 +403,9 @@ def innovation_gate_3sigma(s: np.ndarray, t: np.ndarray | None = None, sigma: fl
         sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
         sigma = max(sigma, 1e-12)
     if accel_sigma is None:
-        accel_sigma = 0.1 * sigma / dt_med ** 2
-    r = sigma ** 2
-    q = accel_sigma ** 2
+        accel_sigma = 0.1 * sigma / dt_med**2
+    r = sigma**2
+    q = accel_sigma**2
     flagged = np.zeros(n, dtype=bool)
     if n == 0:
         return flagged
@@ -407,12 +416,12 @@ def innovation_gate_3sigma(s: np.ndarray, t: np.ndarray | None = None, sigma: fl
     for i in range(1, n):
         dt = t[i] - t_prev
         f = np.array([[1.0, dt], [0.0, 1.0]])
-        qm = q * np.array([[dt ** 3 / 3.0, dt ** 2 / 2.0], [dt ** 2 / 2.0, dt]])
+        qm = q * np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
         xp = f @ x
         pp = f @ p @ f.T + qm
         innov = s[i] - xp[0]
         s_var = pp[0, 0] + r
-        if innov * innov > gate_sigma ** 2 * s_var:
+        if innov * innov > gate_sigma**2 * s_var:
             flagged[i] = True
             misses += 1
             if misses > max_misses:

@@ -50,21 +50,21 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = [
-    "STATE_DIM",
     "POS_IDX",
+    "STATE_DIM",
+    "AltitudeFilter",
     "H",
+    "SingerFilter",
+    "singer_process_noise",
     "singer_sigma_m_mps2",
     "singer_transition",
     "singer_transition_printed",
-    "singer_process_noise",
-    "SingerFilter",
-    "AltitudeFilter",
 ]
 
 STATE_DIM = 6
@@ -85,7 +85,7 @@ def singer_sigma_m_mps2(a_max_mps2: float, p_max: float, p_0: float) -> float:
     probability P_0, and otherwise uniformly in (−A_max, A_max); then
     ``σ_m² = A_max²/3 · (1 + 4·P_max − P_0)``.
     """
-    if not (0.0 <= p_max and 0.0 <= p_0 and 2.0 * p_max + p_0 <= 1.0):
+    if not (p_max >= 0.0 and p_0 >= 0.0 and 2.0 * p_max + p_0 <= 1.0):
         raise ValueError("need p_max, p_0 >= 0 and 2*p_max + p_0 <= 1")
     return math.sqrt(a_max_mps2**2 / 3.0 * (1.0 + 4.0 * p_max - p_0))
 
@@ -131,11 +131,22 @@ def _series(numerator: dict[tuple[Any, ...], int | Fraction], power: int) -> np.
 # q13 and q22 misprints fixed).  Keys: (row, col) in the 3×3 per-axis block.
 _Q_NUMERATORS: dict[tuple[int, int], tuple[dict[tuple[Any, ...], int | Fraction], int]] = {
     # q11: (1 − e^{−2x} + 2x + 2x³/3 − 2x² − 4x e^{−x}) / 2x⁵
-    (0, 0): ({("poly", 0): 1, ("exp", 2, 0): -1, ("poly", 1): 2, ("poly", 3): Fraction(2, 3),
-              ("poly", 2): -2, ("exp", 1, 1): -4}, 5),
+    (0, 0): (
+        {
+            ("poly", 0): 1,
+            ("exp", 2, 0): -1,
+            ("poly", 1): 2,
+            ("poly", 3): Fraction(2, 3),
+            ("poly", 2): -2,
+            ("exp", 1, 1): -4,
+        },
+        5,
+    ),
     # q12: (1 + e^{−2x} − 2e^{−x} + 2x e^{−x} − 2x + x²) / 2x⁴
-    (0, 1): ({("poly", 0): 1, ("exp", 2, 0): 1, ("exp", 1, 0): -2, ("exp", 1, 1): 2,
-              ("poly", 1): -2, ("poly", 2): 1}, 4),
+    (0, 1): (
+        {("poly", 0): 1, ("exp", 2, 0): 1, ("exp", 1, 0): -2, ("exp", 1, 1): 2, ("poly", 1): -2, ("poly", 2): 1},
+        4,
+    ),
     # q13: (1 − e^{−2x} − 2x e^{−x}) / 2x³
     (0, 2): ({("poly", 0): 1, ("exp", 2, 0): -1, ("exp", 1, 1): -2}, 3),
     # q22: (4e^{−x} − 3 − e^{−2x} + 2x) / 2x³
@@ -406,9 +417,7 @@ class SingerFilter:
         return x_pred, _sym(P_pred)
 
     @staticmethod
-    def innovation(
-        x_pred: ArrayLike, P_pred: ArrayLike, z: ArrayLike, R: ArrayLike
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def innovation(x_pred: ArrayLike, P_pred: ArrayLike, z: ArrayLike, R: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Innovation ν = z − H x(k+1|k) (N,2) and its covariance S = H P Hᵀ + R (N,2,2)."""
         x_pred = np.asarray(x_pred, dtype=float)
         P_pred = np.asarray(P_pred, dtype=float)
@@ -487,7 +496,7 @@ class AltitudeFilter:
     meas_var_fl2: float = MODE_C_QUANT_VAR_FL2 + 0.2**2
     rate_var0_fl2_ps2: float = 0.5**2
 
-    def initiate(self, fl_measured: ArrayLike, var_fl: Optional[ArrayLike] = None) -> tuple[np.ndarray, np.ndarray]:
+    def initiate(self, fl_measured: ArrayLike, var_fl: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """State from a first altitude: x = [FL, 0], P = diag(var_fl, rate_var0).
 
         Tracks whose FL is NaN (no Mode C) get NaN states; ``update`` initialises them
@@ -501,7 +510,7 @@ class AltitudeFilter:
         P[:, 1, 1] = np.where(np.isnan(fl), np.nan, self.rate_var0_fl2_ps2)
         return x, P
 
-    def _var(self, var_fl: Optional[ArrayLike], n: int) -> np.ndarray:
+    def _var(self, var_fl: ArrayLike | None, n: int) -> np.ndarray:
         if var_fl is None:
             return np.full(n, self.meas_var_fl2)
         return np.broadcast_to(np.asarray(var_fl, dtype=float), (n,))
@@ -521,7 +530,7 @@ class AltitudeFilter:
         return x_pred, P_pred
 
     def update(
-        self, x: ArrayLike, P: ArrayLike, fl_measured: ArrayLike, var_fl: Optional[ArrayLike] = None
+        self, x: ArrayLike, P: ArrayLike, fl_measured: ArrayLike, var_fl: ArrayLike | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Scalar Kalman update with z = FL; tracks with NaN FL keep the prediction.
 

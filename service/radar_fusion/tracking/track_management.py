@@ -26,8 +26,6 @@ Life cycle
 
 from __future__ import annotations
 
-from typing import Optional
-
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
@@ -48,35 +46,40 @@ class LifeCycle(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     confirm_updates: int = Field(
-        3, ge=2,
+        3,
+        ge=2,
         description="Updates (M of M-of-N) that confirm a tentative track. Default 3: one update is any plot, two "
         "give the first velocity (two-point initiation), the third is the first that the velocity predicted.",
     )
     confirm_window_s: float = Field(
-        40.0, gt=0,
+        40.0,
+        gt=0,
         description="... within this time from its first plot (the N of M-of-N), s. Default 40 s: three updates "
         "of the slowest (12 s) radar with one scan missed; a tentative track that takes longer ends.",
     )
     coast_after_scans: float = Field(
-        1.5, gt=0,
+        1.5,
+        gt=0,
         description="Missed scans before a confirmed track is shown coasting. Default 1.5: one scan missed is "
         "common (Pd 0.9); half a scan more absorbs the jitter of plot times within a scan.",
     )
     delete_tentative_after_scans: float = Field(
-        2.5, gt=0,
+        2.5,
+        gt=0,
         description="Missed scans that end a tentative track. Default 2.5: clutter rarely repeats at one place, "
         "and a real aircraft with two misses in a row is picked up again within a few scans.",
     )
     delete_after_scans: float = Field(
-        6.5, gt=0,
+        6.5,
+        gt=0,
         description="Missed scans that end a confirmed or coasting track. Default 6.5: a run of 5 rejected wild "
         "plots (the live gate re-locks at the 6th) must not end a track.",
     )
-    coast_after_s: Optional[float] = Field(None, gt=0, description="A fixed coasting time, s, instead of scans.")
-    delete_tentative_after_s: Optional[float] = Field(
+    coast_after_s: float | None = Field(None, gt=0, description="A fixed coasting time, s, instead of scans.")
+    delete_tentative_after_s: float | None = Field(
         None, gt=0, description="A fixed time, s, instead of scans, that ends a tentative track."
     )
-    delete_after_s: Optional[float] = Field(
+    delete_after_s: float | None = Field(
         None, gt=0, description="A fixed time, s, instead of scans, that ends a confirmed or coasting track."
     )
 
@@ -194,8 +197,10 @@ def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndar
 
     end = (
         (status == TENTATIVE)
-        & ((since_update > limit(rules.delete_tentative_after_s, rules.delete_tentative_after_scans))
-           | (age > rules.confirm_window_s))
+        & (
+            (since_update > limit(rules.delete_tentative_after_s, rules.delete_tentative_after_scans))
+            | (age > rules.confirm_window_s)
+        )
     ) | ((status != TENTATIVE) & (since_update > limit(rules.delete_after_s, rules.delete_after_scans)))
     ended: np.ndarray = table.track_id[end].copy()
     if end.any():
