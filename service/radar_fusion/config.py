@@ -6,7 +6,7 @@
     [tracking] the filter: Singer model, fusion, manoeuvre detection (all defaulted)
     [clustering] association gates and new-target clustering (tracking/clustering.py)
     [life_cycle] track confirmation, coasting and deletion (tracking/track_management.py)
-    [outliers] live wild-plot gate (Hu 2013) parameters (all defaulted)
+    [outliers] the live wild-plot gate (tracking/live_gate.py LiveGateParams, all defaulted)
     [safety_nets] STCA / APW / MSAW parameters (all defaulted)
     [metrics]  listen = "127.0.0.1:9108": Prometheus endpoint (off when absent)
 
@@ -26,6 +26,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from .safety_nets.config import SafetyNetsConfig
 from .tracking.clustering import ClusteringParams
+from .tracking.live_gate import LiveGateParams
 from .tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2
 from .tracking.track_management import LifeCycle
 
@@ -162,14 +163,6 @@ class TrackingConfig(_Section):
     )
 
 
-class OutlierConfig(_Section):
-    enabled: bool = True
-    window: int = Field(8, ge=4, le=256, description="plots of one radar track kept as its recent window")
-    k: int = Field(3, ge=1, description="k of the k-mean distance (Hu 2013)")
-    threshold: float = Field(6.0, gt=0, description="standardised k-mean distance above which a plot is wild")
-    relock_after: int = Field(6, ge=2, description="this many consecutive rejections are a genuine jump")
-
-
 class Settings(BaseSettings):
     """The whole daemon configuration."""
 
@@ -183,7 +176,7 @@ class Settings(BaseSettings):
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
     clustering: ClusteringParams = Field(default_factory=ClusteringParams)
     life_cycle: LifeCycle = Field(default_factory=LifeCycle)
-    outliers: OutlierConfig = Field(default_factory=OutlierConfig)
+    outliers: LiveGateParams = Field(default_factory=LiveGateParams)
     metrics: MetricsConfig = Field(default_factory=MetricsConfig)
     safety_nets: SafetyNetsConfig = Field(default_factory=SafetyNetsConfig)
 

@@ -123,12 +123,7 @@ class Engine:
         self.rules = settings.life_cycle
         self.assumed_altitude_m = trk.assumed_altitude_ft * M_PER_FT
         self.one_plot_vel_var_m2ps2 = unknown_velocity_var_m2ps2(self.clustering.max_speed_mps)
-        out = settings.outliers
-        self.outlier_gate = (
-            LiveOutlierGate(window=out.window, k=out.k, threshold=out.threshold, relock_after=out.relock_after)
-            if out.enabled
-            else None
-        )
+        self.outlier_gate = LiveOutlierGate.from_params(settings.outliers) if settings.outliers.enabled else None
         self.buffer = PeriodBuffer(
             period_s=sysc.period_s,
             allowed_lateness_s=sysc.allowed_lateness_s,
