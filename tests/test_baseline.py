@@ -158,7 +158,7 @@ def test_bench_side_by_side_end_to_end(tmp_path, capsys):
     assert row["engine"]["plots_per_s"] > 0
     assert row["bus"]["completed"] and row["bus"]["plots_per_s"] > 0
     assert row["bus"]["plots"] == row["sim"]["plots"]
-    assert row["bus"]["e2e_periods"] > 0 and 0 < row["bus"]["e2e_p50_ms"] < 5000
+    assert row["bus"]["e2e_periods"] > 0 and row["bus"]["e2e_p50_ms"] > 0  # a figure for the report, not a goal
     assert "bus_paced" not in row  # --latency-speed 0
     assert row["reference"]["completed"] and row["reference"]["plots_per_s"] > 0
     assert row["reference"]["scores"]["n_displayed_tracks"] > 0
