@@ -351,7 +351,7 @@ def add_arguments_out(parser: argparse.ArgumentParser) -> None:
 class Cat062Writer:
     """Turns TrackBatch payloads into CAT062 blocks and sends or appends them."""
 
-    def __init__(self, encoder: Cat062Encoder, send: Callable[[bytes], None]):
+    def __init__(self, encoder: Cat062Encoder, send: Callable[[bytes], object]):  # what send returns is unused
         self.encoder = encoder
         self.send = send
         self.counts = {"batches": 0, "blocks": 0, "rejected": 0, "send_errors": 0}
@@ -362,6 +362,7 @@ class Cat062Writer:
             self.counts["rejected"] += 1
             log.warning("track batch refused: %s %s", batch.reason, batch.detail)
             return
+        assert isinstance(batch, TrackBatch)  # decode_message returns an instance of the model it is given
         self.counts["batches"] += 1
         for block in self.encoder.encode(batch):
             try:
@@ -391,7 +392,7 @@ def run_out(args: argparse.Namespace) -> int:
             print(f"cannot resolve {args.udp[0]}: {exc}", file=sys.stderr)
             return 2
         dest = args.udp
-        send: Callable[[bytes], None] = lambda block: sock.sendto(block, dest)
+        send: Callable[[bytes], object] = lambda block: sock.sendto(block, dest)
         closer: Callable[[], None] = sock.close
     else:
         f = open(args.file, "ab")  # noqa: SIM115  # open for the writer's life; closer closes it

@@ -75,7 +75,7 @@ from pydantic import TypeAdapter, ValidationError
 from radar_fusion import wire
 from radar_fusion.tracking.outliers import METHODS, OutlierParams, analyse
 
-from ..recording import RecordingWriter, read_header, read_recording
+from ..recording import Record, RecordingWriter, read_header, read_recording
 from .detrend import polar_residuals, robust_z
 
 __all__ = [
@@ -258,7 +258,9 @@ def _valid_plots(raw: list) -> list[wire.Plot | None]:
         return out
 
 
-def collect_plots(records: Iterable[tuple[float, str, bytes]], summary: CleanSummary | None = None) -> PlotTable:
+def collect_plots(
+    records: Iterable[tuple[float, str, bytes] | Record], summary: CleanSummary | None = None
+) -> PlotTable:
     """Read every plot batch of ``records`` ((t_s, key, payload) or Record) into a PlotTable.
 
     Counts messages, batches, invalid and keyless plots in ``summary`` when given.
@@ -269,7 +271,7 @@ def collect_plots(records: Iterable[tuple[float, str, bytes]], summary: CleanSum
         k: [] for k in ("message", "plot", "radar", "key_kind", "key_value", "t_s", "range_m", "azimuth_deg")
     }
     for i, rec in enumerate(records):
-        key, payload = (rec.key, rec.payload) if hasattr(rec, "key") else (rec[1], rec[2])
+        key, payload = (rec.key, rec.payload) if isinstance(rec, Record) else (rec[1], rec[2])
         s.messages += 1
         if not key.endswith("/plots"):
             continue
@@ -405,14 +407,16 @@ def removed_plots(table: PlotTable, removal: Removal) -> dict[int, set[int]]:
 
 
 def clean_messages(
-    records: Iterable[tuple[float, str, bytes]], drop: dict[int, set[int]], summary: CleanSummary | None = None
+    records: Iterable[tuple[float, str, bytes] | Record],
+    drop: dict[int, set[int]],
+    summary: CleanSummary | None = None,
 ) -> Iterator[tuple[float, str, bytes]]:
     """Yield (t_s, key, payload) of ``records`` with the plots in ``drop`` removed.
 
     Messages without removals are yielded with their payload unchanged (the same bytes).
     """
     for i, rec in enumerate(records):
-        t_s, key, payload = (rec.t_s, rec.key, rec.payload) if hasattr(rec, "key") else rec
+        t_s, key, payload = (rec.t_s, rec.key, rec.payload) if isinstance(rec, Record) else rec
         gone = drop.get(i)
         if gone:
             obj = _plot_batch(payload)

@@ -75,6 +75,7 @@ from typing import Any
 
 import msgpack
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from ..recording import read_recording
@@ -347,7 +348,9 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         g_dist[b], g_loc[b], g_mis[b], g_fal[b] = g.distance_m, g.localisation, g.missed, g.false
         g_nmis[b], g_nfal[b] = g.n_missed, g.n_false
 
-    cat = lambda parts, dtype: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+    def cat(parts: list[Any], dtype: npt.DTypeLike) -> np.ndarray:
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
     pb, pt, pk = cat(pair_batch, np.int64), cat(pair_target, np.int64), cat(pair_track, np.int64)
     epos, evel = cat(pair_epos, float), cat(pair_evel, float)
     settled, in_rms = cat(pair_settled, bool), cat(pair_rms, bool)

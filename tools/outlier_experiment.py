@@ -150,7 +150,7 @@ def table_lines(sc: Scenario, masks: dict[str, np.ndarray]) -> list[str]:
 
 def evaluate(seeds: int, first_seed: int = 0, params: OutlierParams | None = None) -> dict[str, dict[str, float]]:
     """Precision, recall (all, isolated, runs) and false removals over many seeds."""
-    totals = {m: {} for m in METHODS}
+    totals: dict[str, dict[str, int]] = {m: {} for m in METHODS}
     for seed in range(first_seed, first_seed + seeds):
         sc = make_scenario(seed)
         for m in METHODS:

@@ -12,8 +12,12 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 from ..recording import Record, read_recording
+
+if TYPE_CHECKING:
+    import zenoh
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,7 +46,7 @@ def replay_records(
     """Publish records on ``session``; returns messages sent per key."""
     from radar_fusion.bus import reliable_publisher
 
-    pubs = {}
+    pubs: dict[str, zenoh.Publisher] = {}
     sent: Counter = Counter()
     t0_rec = t0_wall = None
     show = progress_total > 0 and sys.stderr.isatty()
@@ -51,7 +55,7 @@ def replay_records(
             if not rec.key.startswith(only):
                 continue
             if speed is not None:
-                if t0_rec is None:
+                if t0_rec is None or t0_wall is None:  # both None until the first record
                     t0_rec, t0_wall = rec.t_s, time.monotonic()
                 wait = t0_wall + (rec.t_s - t0_rec) / speed - time.monotonic()
                 if wait > 0:
@@ -101,16 +105,16 @@ def replay_into_engine(engine, records: Iterable[tuple[float, str, bytes]]) -> l
     outputs = []
     for _t_s, key, payload in records:
         if key.endswith("/plots"):
-            decoded = decode_plot_batch(payload)
-            if isinstance(decoded, Rejection):
-                engine.reject(decoded.reason)
+            plots = decode_plot_batch(payload)
+            if isinstance(plots, Rejection):
+                engine.reject(plots.reason)
                 continue
-            engine.ingest_plots(decoded)
+            engine.ingest_plots(plots)
         elif key.endswith("/status"):
-            decoded = decode_message(payload, RadarStatus)
-            if isinstance(decoded, Rejection):
-                engine.reject(decoded.reason)
+            status = decode_message(payload, RadarStatus)
+            if isinstance(status, Rejection):
+                engine.reject(status.reason)
                 continue
-            engine.ingest_status(decoded)
+            engine.ingest_status(status)
         outputs += engine.poll()
     return outputs + engine.flush()

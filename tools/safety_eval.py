@@ -195,12 +195,16 @@ def truth_event_time(sc: Scenario, truth: Truth, plane: SystemPlane, cfg: Safety
         d = np.hypot(truth.x_m[i] - truth.x_m[j], truth.y_m[i] - truth.y_m[j])
         lost = (d < cfg.stca_h_min_nm * M_PER_NM) & (np.abs(truth.fl[i] - truth.fl[j]) * FT_PER_FL < cfg.stca_v_min_ft)
     elif sc.kind == "apw":
+        if cfg.areas_file is None:
+            raise ValueError(f"{sc.name}: an APW scenario needs areas_file")
         areas = load_areas(cfg.areas_file, plane)
         pts = np.column_stack([truth.x_m[0], truth.y_m[0]])
         lost = np.zeros(truth.t_s.size, bool)
         for a in areas:
             lost |= a.polygon.contains(pts) & (truth.fl[0] >= a.lower_fl) & (truth.fl[0] <= a.upper_fl)
     elif sc.kind == "msaw":
+        if cfg.msa_file is None:
+            raise ValueError(f"{sc.name}: an MSAW scenario needs msa_file")
         msa, _ = load_msa(cfg.msa_file, plane).lookup(np.column_stack([truth.x_m[0], truth.y_m[0]]), None)
         lost = truth.fl[0] * FT_PER_FL < msa
     else:

@@ -79,7 +79,7 @@ def soak_scenario(n_aircraft: int = 300, duration_s: float = 3600.0, n_radars: i
     from .simulate.scenario import mode3a_codes, mode_s_addresses
 
     base = sim.scenario_for_benchmark(n_aircraft=n_aircraft, n_radars=n_radars, duration_s=duration_s, seed=seed)
-    radius_m = max(math.hypot(t.plan.start_x_m, t.plan.start_y_m) for t in base.targets)
+    radius_m = max(math.hypot(t.plan.start_x_m, t.plan.start_y_m) for t in base.targets if t.plan is not None)
     rng = np.random.default_rng([seed, 0x50A4])
 
     def draw(n: int):
@@ -120,6 +120,7 @@ def soak_scenario(n_aircraft: int = 300, duration_s: float = 3600.0, n_radars: i
     targets = []
     for k in range(n):
         life = float(life_s[k])
+        legs: tuple[sim.Leg, ...]
         if kind[k] < 0.6:
             legs = (sim.Leg(life),)
         else:
@@ -269,9 +270,9 @@ class SoakReport:
     messages_sent: int = 0
     plots_sent: int = 0
     heartbeats_sent: int = 0
-    sent: dict[str, dict[str, int]] = field(
+    sent: dict[str, dict[str, int | None]] = field(
         default_factory=dict
-    )  # per radar: batches, plots, statuses, last_seq, seq_gaps
+    )  # per radar: batches, plots, statuses, last_seq (None before any batch), seq_gaps
     daemon: dict[str, dict[str, Any]] = field(default_factory=dict)  # per radar, as counted by the daemon
     counters: dict[str, int] = field(default_factory=dict)  # daemon counters over the run
     rejected: dict[str, int] = field(default_factory=dict)
@@ -389,6 +390,7 @@ def run_soak(
             if not monitor.cond.wait_for(lambda: monitor.health is not None, 30.0):
                 raise RuntimeError("no health message from the daemon within 30 s")
             base = monitor.health
+        assert base is not None  # wait_for saw it set, and the monitor never resets it
         base_c, base_r = base["counters"], base["radars"]
         if pid is not None:
             idle = rss_bytes(pid)
@@ -405,7 +407,7 @@ def run_soak(
         t0_wall = time.monotonic()
 
         def outstanding() -> int:
-            if last_ready is None:
+            if last_ready is None or k_start is None:  # both set on the first radar message
                 return 0
             got = monitor.batches[-1][0] if monitor.batches else k_start - 1
             return max(0, last_ready - max(got, k_start - 1))
@@ -437,7 +439,7 @@ def run_soak(
             if radar in sent and len(wm_s) >= 1:
                 closable_s = min(wm_s[r] for r in wm_s if r in sent) - lateness_s
                 k_ready = math.floor(closable_s / period_s) - 1  # the last period ending at or before it
-                if k_start is None:
+                if k_start is None or last_ready is None:  # both None until this first radar message
                     k_start = math.floor(t_s / period_s)
                     last_ready = k_start - 1
                 if k_ready > last_ready:
@@ -507,10 +509,11 @@ def run_soak(
             report.daemon_exit_status = daemon.stop()
 
     # ------------------------------------------------------------------ verdicts
-    report.traffic_s = (t_last - t_first) if t_first is not None else 0.0
+    report.traffic_s = (t_last - t_first) if t_first is not None and t_last is not None else 0.0
     report.messages_sent = sent_total
     report.plots_sent = sum(c["plots"] for c in sent.values())
     report.sent = {rid: {**dict(c), "last_seq": last_seq.get(rid)} for rid, c in sent.items()}
+    assert final is not None  # as base: set before the run, never reset
     fc = final["counters"]
     report.counters = {
         k: v - base_c.get(k, 0)
@@ -560,14 +563,15 @@ def run_soak(
         rss = np.array([s[1] for s in samples]) / MIB
         warm_i = int(np.searchsorted(frac, 0.1))
         warm = float(rss[min(warm_i, rss.size - 1)])
-        report.rss_mib.update(warm=warm, peak=float(rss.max()), end=float(rss[-1]))
+        end = float(rss[-1])
+        report.rss_mib.update(warm=warm, peak=float(rss.max()), end=end)
         at = np.minimum(np.searchsorted(frac, np.arange(1, 11) / 10.0), rss.size - 1)
         report.rss_profile_mib = [round(float(v), 1) for v in rss[at]]
         tail = frac >= 0.1
         if tail.sum() >= 3 and np.ptp(frac[tail]) > 0:
             slope_per_fraction = float(np.polyfit(frac[tail], rss[tail], 1)[0])
             report.rss_slope_mib_per_h = slope_per_fraction * 3600.0 / max(report.traffic_s, 1e-9)
-        report.checks["memory flat"] = report.rss_mib["end"] - warm <= max(0.10 * warm, 32.0)
+        report.checks["memory flat"] = end - warm <= max(0.10 * warm, 32.0)
 
     lat = [(k, arr - ready_wall[k], n) for k, _t, arr, n in monitor.batches if k in ready_wall]
     if lat:
@@ -575,6 +579,7 @@ def run_soak(
         first, last = lat[:m], lat[-m:]
         f50, f99 = _percentiles_ms([x[1] for x in first])
         l50, l99 = _percentiles_ms([x[1] for x in last])
+        assert f50 is not None and l50 is not None  # first and last are not empty
         report.latency_ms = {"first_p50": f50, "first_p99": f99, "last_p50": l50, "last_p99": l99, "periods_each": m}
         report.tracks_mean = {
             "first": float(np.mean([x[2] for x in first])),

@@ -14,7 +14,7 @@ import csv
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -35,6 +35,9 @@ TRUTH_COLUMNS = (
 )
 REQUIRED_COLUMNS = ("t_s", "target_id", "x_m", "y_m", "vx_mps", "vy_mps")
 """What scoring needs; the other columns are optional when reading (NaN / "" / detectable when absent)."""
+
+Column: TypeAlias = Sequence[Any] | np.ndarray
+"""One per-row column as :meth:`Truth.from_columns` takes it: a list (of numbers or strings) or a numpy array."""
 
 
 @dataclass
@@ -77,21 +80,21 @@ class Truth:
     @classmethod
     def from_columns(
         cls,
-        t_s: Sequence[float],
-        target_id: Sequence[Any],
-        x_m: Sequence[float],
-        y_m: Sequence[float],
-        vx_mps: Sequence[float],
-        vy_mps: Sequence[float],
-        detectable: Sequence[Any] | None = None,
-        mode_s: Sequence[Any] | None = None,
-        callsign: Sequence[Any] | None = None,
+        t_s: Column,
+        target_id: Column,
+        x_m: Column,
+        y_m: Column,
+        vx_mps: Column,
+        vy_mps: Column,
+        detectable: Column | None = None,
+        mode_s: Column | None = None,
+        callsign: Column | None = None,
         *,
-        lat_deg: Sequence[Any] | None = None,
-        lon_deg: Sequence[Any] | None = None,
-        alt_ft: Sequence[Any] | None = None,
-        vrate_fpm: Sequence[Any] | None = None,
-        target_index: Sequence[int] | None = None,
+        lat_deg: Column | None = None,
+        lon_deg: Column | None = None,
+        alt_ft: Column | None = None,
+        vrate_fpm: Column | None = None,
+        target_index: Column | None = None,
     ) -> Truth:
         """Build from per-row columns in any order (rows are sorted by target, time)."""
         ids = np.asarray([str(v) for v in target_id], dtype=object)
@@ -152,7 +155,7 @@ def _truthy(v: Any) -> bool:
     return bool(v)
 
 
-def _floats(values: Sequence[Any] | None, n: int) -> np.ndarray:
+def _floats(values: Column | None, n: int) -> np.ndarray:
     """An optional float column: NaN when absent, and for empty or None cells."""
     if values is None:
         return np.full(n, np.nan)
@@ -185,7 +188,10 @@ def load_truth(path: str | Path) -> Truth:
         detectable=[v if v != "" else "1" for v in cols["detectable"]],
         mode_s=cols["mode_s"],
         callsign=cols["callsign"],
-        **optional,
+        lat_deg=optional["lat_deg"],
+        lon_deg=optional["lon_deg"],
+        alt_ft=optional["alt_ft"],
+        vrate_fpm=optional["vrate_fpm"],
     )
 
 
@@ -219,7 +225,7 @@ def write_truth(truth: Truth, path: str | Path) -> None:
         )
 
 
-def as_truth(truth: Truth | str | Path | Mapping[str, Sequence] | Sequence[Mapping[str, Any]]) -> Truth:
+def as_truth(truth: Truth | str | Path | Mapping[str, Column] | Sequence[Mapping[str, Any]]) -> Truth:
     """Accept a :class:`Truth`, a CSV path, a mapping of column arrays, or a list of row dicts."""
     if isinstance(truth, Truth):
         return truth
@@ -262,7 +268,7 @@ class TruthAtTimes:
     vy_mps: np.ndarray
 
 
-def interpolate_truth(truth: Truth, times_s: Sequence[float], max_gap_s: float = 10.0) -> TruthAtTimes:
+def interpolate_truth(truth: Truth, times_s: Column, max_gap_s: float = 10.0) -> TruthAtTimes:
     """Interpolate each target linearly in time to ``times_s`` (see :mod:`radar_fusion.tools.evaluate`)."""
     times = np.asarray(times_s, float)
     k, m = truth.n_targets, times.shape[0]

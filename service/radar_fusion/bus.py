@@ -27,7 +27,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import msgpack
 import zenoh
@@ -248,13 +248,14 @@ class FusionDaemon:
                 for reason, n in decoded.rejected.items():
                     self._log_rejection(reason, f"{n} plot(s) of {radar_id} seq {decoded.seq}")
         elif kind == "status":
-            decoded = decode_message(payload, RadarStatus, max_bytes)
-            if isinstance(decoded, Rejection):
-                self._reject(decoded, radar_id)
-            elif decoded.radar_id != radar_id:
-                self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
+            # decode_message returns an instance of the model it is given (or a Rejection)
+            status = cast("RadarStatus | Rejection", decode_message(payload, RadarStatus, max_bytes))
+            if isinstance(status, Rejection):
+                self._reject(status, radar_id)
+            elif status.radar_id != radar_id:
+                self._reject(Rejection("key_mismatch", f"{status.radar_id} on {key}"), radar_id)
             else:
-                self.engine.ingest_status(decoded)
+                self.engine.ingest_status(status)
         else:
             self._reject(Rejection("schema", f"unknown key {key}"), radar_id)
 

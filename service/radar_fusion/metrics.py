@@ -26,10 +26,12 @@ import logging
 import math
 import re
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from datetime import UTC, datetime
 from typing import Any
+from wsgiref.simple_server import WSGIServer
 
 from prometheus_client import CollectorRegistry, Histogram, start_http_server
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
@@ -173,8 +175,8 @@ class DaemonMetrics:
         )
         self.health: dict[str, Any] | None = None
         self.registry.register(_HealthCollector(self))
-        self._server = None
-        self._thread = None
+        self._server: WSGIServer | None = None
+        self._thread: threading.Thread | None = None
         self.address: tuple[str, int] | None = None
 
     def start(self) -> DaemonMetrics:
@@ -182,9 +184,11 @@ class DaemonMetrics:
         if self.listen and self._server is None:
             host, port = parse_listen(self.listen)
             self._server, self._thread = start_http_server(port, addr=host, registry=self.registry)
-            self.address = self._server.server_address[:2]
+            bound_host, bound_port = self._server.server_address[:2]
+            # typeshed allows bytes for AF_UNIX paths; an AF_INET(6) server's host is already a str
+            self.address = (str(bound_host), bound_port)
             log.info(
-                "metrics endpoint on http://%s:%d/metrics", host, self.address[1], extra={"metrics_listen": self.listen}
+                "metrics endpoint on http://%s:%d/metrics", host, bound_port, extra={"metrics_listen": self.listen}
             )
         return self
 

@@ -15,7 +15,7 @@ import gzip
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, Literal
 
 import msgpack
 
@@ -29,10 +29,11 @@ class Record:
     payload: bytes
 
 
-def _open(path: Path, mode: str) -> BinaryIO:
+def _open(path: Path, mode: Literal["r", "w"]) -> BinaryIO | gzip.GzipFile:
+    binary_mode: Literal["rb", "wb"] = "rb" if mode == "r" else "wb"
     if str(path).endswith(".gz"):
-        return gzip.open(path, mode + "b", compresslevel=3)  # type: ignore[return-value]
-    return open(path, mode + "b")
+        return gzip.open(path, binary_mode, compresslevel=3)
+    return open(path, binary_mode)
 
 
 class RecordingWriter:

@@ -612,7 +612,7 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
                 )
         if use_ref:
             est = _estimate_reference_s(ref_cost, sim["plots"], eng["tracks_per_period"])
-            if est is not None and est > args.reference_budget_s:
+            if ref_cost is not None and est is not None and est > args.reference_budget_s:  # est needs ref_cost
                 row["reference"] = {
                     "skipped": True,
                     "estimate_s": est,

@@ -124,7 +124,7 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     raw.setdefault("outliers", {})["enabled"] = bool(gate)
     settings = config.settings_from_dict(raw, source="benchmark scenario")
     engine = Engine(settings, safety_nets=None)
-    events = [
+    events: list[tuple[int, Any]] = [  # (0, PlotColumns) or (1, RadarStatus)
         (0, obj)
         if kind == 0
         else (1, wire.RadarStatus(radar_id=obj[0], t=obj[1], kind=obj[2], sector=obj[3], rotation_period_s=obj[4]))
@@ -170,7 +170,7 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
             t_poll += t2 - t1
             if outs:
                 keep(outs)
-                outs = None
+                del outs
         else:
             t0 = perf()
             ingest_status(obj)
@@ -263,15 +263,16 @@ def _profile_summary(profiler, top: int, total_s: float) -> dict[str, Any]:
     import pstats
 
     stats = pstats.Stats(profiler)
+    func_stats = stats.stats  # type: ignore[attr-defined]  # typeshed's pstats.Stats does not declare .stats
     stage_rows = []
     for label, fname, func in STAGES:
         ct, calls = 0.0, 0
-        for (file, _line, name), (_cc, nc, _tt, cum, _callers) in stats.stats.items():
+        for (file, _line, name), (_cc, nc, _tt, cum, _callers) in func_stats.items():
             if name == func and os.path.basename(file) == fname:
                 ct += cum
                 calls += nc
         stage_rows.append((label, calls, ct))
     buf = io.StringIO()
     pstats.Stats(profiler, stream=buf).strip_dirs().sort_stats("cumulative").print_stats(top)
-    prof_total = sum(tt for (_cc, _nc, tt, _ct, _c) in stats.stats.values())
+    prof_total = sum(tt for (_cc, _nc, tt, _ct, _c) in func_stats.values())
     return {"stages": stage_rows, "text": buf.getvalue(), "profiled_total_s": prof_total, "wall_s": total_s}

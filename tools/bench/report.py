@@ -151,6 +151,7 @@ def scaling_lines(rows: list[dict[str, Any]]) -> list[str]:
 def machine_lines() -> list[str]:
     import numpy as np
 
+    affinity: int | None
     try:
         affinity = len(os.sched_getaffinity(0))
     except AttributeError:
@@ -457,7 +458,8 @@ def summary_table(rows: list[dict[str, Any]], header: list[str]) -> str:
         "|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|",
     ]
     for row in rows:
-        e, b, bp, ref, acc = (row.get(k) for k in ("engine", "bus", "bus_paced", "reference", "accuracy"))
+        e = row["engine"]
+        b, bp, ref, acc = (row.get(k) for k in ("bus", "bus_paced", "reference", "accuracy"))
         s = ref.get("scores") if ref else None
         one = acc["single"][acc["best_single_radar"]] if acc and acc.get("best_single_radar") else None
         ref_cell = (

@@ -117,7 +117,7 @@ def _rates_from(d: dict[str, Any], base: Rates) -> Rates:
     unknown = set(d) - known
     if unknown:
         raise ValueError(f"unknown rates fields {sorted(unknown)}")
-    vals = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
+    vals: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
     return dataclasses.replace(base, **vals)
 
 
@@ -155,8 +155,8 @@ def load_scenario(path: str | Path) -> Scenario:
         td = dict(td)
         try:
             if "start_lat" in td:
-                x0, y0 = plane.to_plane(float(td.pop("start_lat")), float(td.pop("start_lon")))
-                x0, y0 = float(x0), float(y0)
+                px, py = plane.to_plane(float(td.pop("start_lat")), float(td.pop("start_lon")))
+                x0, y0 = float(px), float(py)
             else:
                 x0, y0 = float(td.pop("start_x_m")), float(td.pop("start_y_m"))
             legs = tuple(Leg(**leg) for leg in td.pop("legs"))

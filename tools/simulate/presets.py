@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -429,6 +430,7 @@ def scenario_for_benchmark(
     codes = mode3a_codes(rng, n)
     targets = []
     for k in range(n):
+        legs: tuple[Leg, ...]
         if kind[k] < 0.6:
             legs = (Leg(total),)
         elif kind[k] < 0.8:
@@ -462,7 +464,7 @@ def scenario_for_benchmark(
     )
 
 
-PRESETS = {
+PRESETS: dict[str, Callable[..., Scenario]] = {
     "demo": demo_scenario,
     "adsb": adsb_scenario,
     "benchmark": scenario_for_benchmark,

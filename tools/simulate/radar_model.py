@@ -116,8 +116,9 @@ class TargetTable:
 
 def radar_plots(
     sim_ctx: dict, r: int, spec: RadarSpec, rates: Rates, phase_deg: float, rng: np.random.Generator
-) -> dict[str, np.ndarray]:
-    """All plots (true, wild and false) of radar ``r`` over the scenario, as columns."""
+) -> tuple[dict[str, np.ndarray], dict[str, int]]:
+    """All plots (true, wild and false) of radar ``r`` over the scenario, as columns; and
+    the radar's counts (crossings in coverage, detections, target, wild and false plots)."""
     traj: Trajectories = sim_ctx["traj"]
     plane: SystemPlane = sim_ctx["plane"]
     sites: RadarSites = sim_ctx["sites"]
@@ -150,7 +151,7 @@ def radar_plots(
     if n_followed:
         _, lift, _, _ = polar(np.full(n_followed, t_start))
         n_rev = np.ceil((beam_angle(t_start) - lift) / 360.0)
-        step = 0
+        step_no = 0
         while True:
             t_c = beam_time(360.0 * n_rev + lift)
             if np.all(t_c >= t_end + period):
@@ -164,11 +165,11 @@ def radar_plots(
             keep = (t_c >= t_start) & (t_c < t_end)
             if np.any(keep):
                 cols["tgt"].append(idx[keep])
-                cols["step"].append(np.full(int(keep.sum()), step))
+                cols["step"].append(np.full(int(keep.sum()), step_no))
                 for k, v in (("t", t_c), ("rho", rho), ("az", az), ("g", g), ("alt", st.alt_m), ("active", st.active)):
                     cols[k].append(v[keep])
             n_rev += 1.0
-            step += 1
+            step_no += 1
     c = {
         k: (np.concatenate(v) if v else np.zeros(0, dtype=np.intp if k in ("tgt", "step") else float))
         for k, v in cols.items()
@@ -215,11 +216,11 @@ def radar_plots(
     rev0 = math.floor(beam_angle(t_start) / 360.0)
     rev1 = math.ceil(beam_angle(t_end) / 360.0)
     counts = rng.poisson(rates.false_plots_per_scan, size=max(rev1 - rev0, 0))
-    k = int(counts.sum())
+    n_false = int(counts.sum())
     rev = np.repeat(np.arange(rev0, rev1), counts)
-    f_az = rng.uniform(0.0, 360.0, k)
+    f_az = rng.uniform(0.0, 360.0, n_false)
     r_min = 2000.0
-    f_range = np.sqrt(rng.uniform(r_min**2, spec.max_range_m**2, k))
+    f_range = np.sqrt(rng.uniform(r_min**2, spec.max_range_m**2, n_false))
     f_t = beam_time(360.0 * rev + f_az)
     f_keep = (f_t >= t_start) & (f_t < t_end)
 
@@ -240,11 +241,11 @@ def radar_plots(
     out["azimuth_deg"] = np.where(az >= 360.0, 0.0, az)
     order = np.argsort(out["t_s"], kind="stable")
     out = {k2: v[order] for k2, v in out.items()}
-    out["_stats"] = {
+    stats = {
         "crossings_in_coverage": int(cover.sum()),
         "detections": int(detected.sum()),
         "target_plots": int(sel.size),
         "wild_plots": int(wild[sel].sum()),
         "false_plots": int(f_keep.sum()),
     }
-    return out
+    return out, stats

@@ -13,7 +13,7 @@ Messages of all radars are merged in time order. Only sectors whose sweep ends i
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -101,27 +101,33 @@ class Simulation:
         each plot is not kept: use :attr:`plot_columns` for per-radar work)."""
         cols = self.plot_columns
         cat = lambda name: np.concatenate([getattr(c, name) for c in cols]) if cols else np.zeros(0)
-        return PlotColumns(
-            radar_id="*",
-            radar_index=-1,
-            seq=-1,
-            t_pub_s=math.nan,
-            **{
-                name: cat(name)
-                for name in (
-                    "t_s",
-                    "range_m",
-                    "azimuth_deg",
-                    "fl",
-                    "mode3a",
-                    "mode_s",
-                    "track_no",
-                    "kind",
-                    "target_index",
-                    "wild",
-                )
-            },
-        )
+        return _plot_columns("*", -1, -1, math.nan, {name: cat(name) for name in _PLOT_COLUMNS})
+
+
+_PLOT_COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "target_index", "wild")
+"""The per-plot columns of a :class:`PlotColumns`."""
+
+
+def _plot_columns(
+    radar_id: str, radar_index: int, seq: int, t_pub_s: float, c: Mapping[str, np.ndarray]
+) -> PlotColumns:
+    """A :class:`PlotColumns` of the columns ``c`` (keys :data:`_PLOT_COLUMNS`)."""
+    return PlotColumns(
+        radar_id=radar_id,
+        radar_index=radar_index,
+        seq=seq,
+        t_pub_s=t_pub_s,
+        t_s=c["t_s"],
+        range_m=c["range_m"],
+        azimuth_deg=c["azimuth_deg"],
+        fl=c["fl"],
+        mode3a=c["mode3a"],
+        mode_s=c["mode_s"],
+        track_no=c["track_no"],
+        kind=c["kind"],
+        target_index=c["target_index"],
+        wild=c["wild"],
+    )
 
 
 def _mode_s_str(a: np.ndarray) -> np.ndarray:
@@ -147,8 +153,8 @@ def _sample_truth(sim_ctx: dict, scenario: Scenario) -> Truth:
     """The truth every second of the scenario while each target exists (``target_index``: its scenario row)."""
     traj: Trajectories = sim_ctx["traj"]
     times = scenario.start_t_s + np.arange(0.0, math.floor(scenario.duration_s) + 1.0)
-    tgt, tk = np.meshgrid(np.arange(traj.n), times, indexing="ij")
-    tgt, tk = tgt.reshape(-1), tk.reshape(-1)
+    tgt_grid, t_grid = np.meshgrid(np.arange(traj.n), times, indexing="ij")
+    tgt, tk = tgt_grid.reshape(-1), t_grid.reshape(-1)
     st = traj.state(tgt, tk)
     keep = st.active
     tgt, tk = tgt[keep], tk[keep]
@@ -219,8 +225,7 @@ def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
     stats: dict[str, dict[str, int]] = {}
     for r, spec in enumerate(scenario.radars):
         rng = np.random.default_rng(seeds[r + 1])
-        p = radar_plots(ctx, r, spec, scenario.rates_of(spec), float(phases[r]), rng)
-        stats[spec.id] = p.pop("_stats")
+        p, stats[spec.id] = radar_plots(ctx, r, spec, scenario.rates_of(spec), float(phases[r]), rng)
         period, phase = spec.rotation_period_s, float(phases[r])
         width = 360.0 / spec.n_sectors
         angle = lambda t, period=period, phase=phase: 360.0 * (t - t_start) / period + phase
@@ -236,9 +241,7 @@ def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
         rb, rp, rs = [], [], []
         for b, q in enumerate(sweeps):
             lo, hi = int(bounds[b]), int(bounds[b + 1])
-            cols = PlotColumns(
-                radar_id=spec.id, radar_index=r, seq=b, t_pub_s=float(t_pub[b]), **{k: v[lo:hi] for k, v in p.items()}
-            )
+            cols = _plot_columns(spec.id, r, b, float(t_pub[b]), {k: v[lo:hi] for k, v in p.items()})
             rb.append(cols)
             if encode:
                 rp.append(batch_payload(spec.id, b, data[offsets[lo] : offsets[hi]].tobytes(), hi - lo))

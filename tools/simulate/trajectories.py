@@ -76,11 +76,12 @@ class Trajectories:
         smp = [i for i in range(n) if not self._synthetic[i]]
         self._local[syn] = np.arange(len(syn))
         self._local[smp] = np.arange(len(smp))
-        self._build_segments([targets[i].plan for i in syn], start_t_s)
+        self._build_segments([pl for i in syn if (pl := targets[i].plan) is not None], start_t_s)
         if syn:
             self.t_begin_s[syn] = self._seg_t0[:, 0]
             self.t_end_s[syn] = self._syn_t_end
-        self._build_knots([targets[i].path for i in smp], plane)
+        # a target without a plan has a path (Target checks it)
+        self._build_knots([pa for i in smp if (pa := targets[i].path) is not None], plane)
         if smp:
             self.t_begin_s[smp] = self._k_t[self._k_off[:-1]]
             self.t_end_s[smp] = self._k_t[self._k_off[1:] - 1]
@@ -214,4 +215,5 @@ class Trajectories:
                 for o, v in zip(out, vals):
                     o[mask] = v
         active = (t >= self.t_begin_s[idx]) & (t <= self.t_end_s[idx])
-        return KinematicState(*out, active=active)
+        x, y, z, vx, vy, vz = out
+        return KinematicState(x, y, z, vx, vy, vz, active=active)

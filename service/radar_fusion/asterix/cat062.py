@@ -70,7 +70,7 @@ class Cat062Encoder:
         self.max_block_bytes = min(max_block_bytes, 65_535)
         self._seen: set[int] = set()
 
-    def _common(self, track_no: int, t_s: float, status: dict[str, int], n_groups: int) -> dict[str, Any]:
+    def _common(self, track_no: int, t_s: float, status: dict[str, int], n_groups: int) -> CAT062.cv_record.cv_arg:
         return {
             "010": (("SAC", self.sac), ("SIC", self.sic)),
             "015": self.service_id,

@@ -284,14 +284,16 @@ def decode_cat062_block(block: bytes, counters: DecodeCounters | None = None) ->
             continue
         lat = lon = x = y = vx = vy = fl = None
         if (i105 := rec.get_item("105")) is not None:
-            v = i105.variation
-            lat, lon = _element(v.get_item("LAT")).as_quantity("°"), _element(v.get_item("LON")).as_quantity("°")
+            v105 = i105.variation
+            lat = _element(v105.get_item("LAT")).as_quantity("°")
+            lon = _element(v105.get_item("LON")).as_quantity("°")
         if (i100 := rec.get_item("100")) is not None:
-            v = i100.variation
-            x, y = _element(v.get_item("X")).as_quantity("m"), _element(v.get_item("Y")).as_quantity("m")
+            v100 = i100.variation
+            x, y = _element(v100.get_item("X")).as_quantity("m"), _element(v100.get_item("Y")).as_quantity("m")
         if (i185 := rec.get_item("185")) is not None:
-            v = i185.variation
-            vx, vy = _element(v.get_item("VX")).as_quantity("m/s"), _element(v.get_item("VY")).as_quantity("m/s")
+            v185 = i185.variation
+            vx = _element(v185.get_item("VX")).as_quantity("m/s")
+            vy = _element(v185.get_item("VY")).as_quantity("m/s")
         if (i136 := rec.get_item("136")) is not None:
             fl = _element(i136).as_quantity("FL")
         mode3a = None
@@ -301,7 +303,7 @@ def decode_cat062_block(block: bytes, counters: DecodeCounters | None = None) ->
         mode_s = None
         if (i380 := rec.get_item("380")) is not None and (adr := i380.variation.get_item("ADR")) is not None:
             mode_s = f"{adr.as_uint():06X}"
-        status = _fields(rec.get_item("080").variation) if rec.get_item("080") is not None else {}
+        status = _fields(i080.variation) if (i080 := rec.get_item("080")) is not None else {}
         sx = sy = cov = None
         if (i500 := rec.get_item("500")) is not None:
             comp = i500.variation

@@ -140,7 +140,7 @@ def load_msa(path: str | Path, plane: SystemPlane) -> MsaMap:
     doc = _read_json(path)
     if isinstance(doc, dict) and doc.get("type") == "MsaGrid":
         try:
-            grid = {k: float(doc[k]) for k in ("lat0_deg", "lon0_deg", "dlat_deg", "dlon_deg")}
+            grid: dict[str, Any] = {k: float(doc[k]) for k in ("lat0_deg", "lon0_deg", "dlat_deg", "dlon_deg")}
             arr = np.array([[np.nan if v is None else float(v) for v in row] for row in doc["min_alt_ft"]], float)
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{path}: bad MsaGrid: {exc}") from None

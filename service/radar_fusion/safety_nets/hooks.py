@@ -40,7 +40,7 @@ def _entry_points(group: str) -> list[Any]:
     eps = metadata.entry_points()
     if hasattr(eps, "select"):
         return list(eps.select(group=group))
-    return list(eps.get(group, []))  # type: ignore[union-attr]  # Python < 3.10 API
+    return list(eps.get(group, []))  # Python < 3.10 API
 
 
 def load_hooks(config: SafetyNetsConfig | None = None, plane: SystemPlane | None = None) -> Hooks:
@@ -59,10 +59,11 @@ def load_hooks(config: SafetyNetsConfig | None = None, plane: SystemPlane | None
             try:
                 obj = ep.load()
                 if inspect.isclass(obj):
-                    if group == FUNCTION_GROUP and _positional_arity(obj) >= 2:
-                        obj = obj(config, plane)
+                    hook_cls: type[Any] = obj  # isclass() narrows to type[object], which takes no arguments
+                    if group == FUNCTION_GROUP and _positional_arity(hook_cls) >= 2:
+                        obj = hook_cls(config, plane)
                     else:
-                        obj = obj()
+                        obj = hook_cls()
                 if group == CONSUMER_GROUP:
                     if not callable(obj):
                         raise TypeError("alert consumer is not callable")

@@ -54,9 +54,7 @@ class SafetyNets:
         self.plane = plane
         cfg = self.config
 
-        def resolve(p: Path | None) -> Path | None:
-            if p is None:
-                return None
+        def resolve(p: Path) -> Path:
             return p if p.is_absolute() or base_dir is None else Path(base_dir) / p
 
         self.areas: list[Area] = load_areas(resolve(cfg.areas_file), plane) if cfg.areas_file else []

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -106,9 +107,9 @@ class Polygon:
         return inside
 
     @classmethod
-    def from_geojson(cls, plane: SystemPlane, geometry: dict) -> Polygon:
+    def from_geojson(cls, plane: SystemPlane, geometry: dict[str, Any]) -> Polygon:
         gtype = geometry.get("type")
-        coords = geometry.get("coordinates")
+        coords: Any = geometry.get("coordinates")  # parsed JSON: nested lists of positions
         if gtype == "Polygon":
             polys = [coords]
         elif gtype == "MultiPolygon":

@@ -149,7 +149,7 @@ class Stca:
         dz[unknown[ia] | unknown[ib]] = 0.0  # only with stca_unknown_fl == "conflict"
         # linear prediction filter: one segment [0, T] when both vertical paths are straight
         # (the relative motion is then exactly linear), the knots otherwise
-        lin = {}
+        lin: dict[str, np.ndarray] = {}
         seg = bent[ia] | bent[ib]
         for sel, cols in ((~seg, [0, n_knots]), (seg, slice(None))):
             if not sel.any():
@@ -186,15 +186,15 @@ class Stca:
         hit = np.flatnonzero(conflict | prox)
         out = []
         ids = tr.track_id[e]
-        for k in hit:
-            i, j = sorted((int(ids[ia[k]]), int(ids[ib[k]])))
-            tv = fig["t_violation_s"][k]
-            mv = fig["min_vsep_ft"][k]
+        for pk in hit:
+            id_a, id_b = sorted((int(ids[ia[pk]]), int(ids[ib[pk]])))
+            tv = fig["t_violation_s"][pk]
+            mv = fig["min_vsep_ft"][pk]
             figures = {
-                "time_to_cpa_s": float(fig["t_cpa_s"][k]),
-                "min_sep_m": float(fig["min_sep_m"][k]),
-                "min_vsep_ft": float(mv) if np.isfinite(mv) else float(abs(dz[k, 0])),
+                "time_to_cpa_s": float(fig["t_cpa_s"][pk]),
+                "min_sep_m": float(fig["min_sep_m"][pk]),
+                "min_vsep_ft": float(mv) if np.isfinite(mv) else float(abs(dz[pk, 0])),
                 "time_to_violation_s": float(tv) if np.isfinite(tv) else 0.0,
             }
-            out.append(Hit(("stca", i, j), "stca", [i, j], figures, immediate=bool(prox[k])))
+            out.append(Hit(("stca", id_a, id_b), "stca", [id_a, id_b], figures, immediate=bool(prox[pk])))
         return out
