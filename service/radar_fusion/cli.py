@@ -101,6 +101,12 @@ SUBCOMMANDS = {
         "run",
         "replay a long recording through the daemon as fast as it takes it; check no loss, flat memory, no drift",
     ),
+    "identity": (
+        "radar_fusion.tools.identity",
+        "add_arguments",
+        "run",
+        "Mode S identity of the tracks on an ASTERIX recording (default the Barcelona hour): ids per segment",
+    ),
     "schemas": ("radar_fusion.cli", "_schemas_arguments", "_schemas", "write the wire contract's JSON Schema files"),
 }
 
