@@ -463,10 +463,18 @@ def test_identity_mode_s_and_mode3a():
     # Same Mode S or none: joins.
     assert run(make_plots(near, [0], mode_s=[0x3C0001]), tracks).cluster_track.tolist() == [0]
     assert run(make_plots(near, [0]), tracks).cluster_track.tolist() == [0]
-    # Different Mode 3/A: kept apart by default, joins when the check is off.
-    plots = make_plots(near, [0], mode3a=[0o7000])
+    # Different Mode 3/A without an address on both: kept apart by default, joins when the
+    # check is off.
+    plots = make_plots(near, [0], mode3a=[0o4321])
     assert run(plots, tracks).cluster_track.tolist() == [-1]
     assert run(plots, tracks, ClusteringParams(use_mode3a=False)).cluster_track.tolist() == [0]
+    # The address decides when both have one: a squawk change is the same aircraft.
+    plots = make_plots(near, [0], mode_s=[0x3C0001], mode3a=[0o4321])
+    assert run(plots, tracks).cluster_track.tolist() == [0]
+    # Emergency and conspicuity codes are no identity: a track squawking 1234 that turns
+    # to 7700, and a 7000 plot, may be the same aircraft.
+    for code in (0o7700, 0o7600, 0o7500, 0o7000, 0o2000, 0o1200):
+        assert run(make_plots(near, [0], mode3a=[code]), tracks).cluster_track.tolist() == [0], oct(code)
     # Two new plots with different Mode S never share a cluster.
     res = run(make_plots([[0.0, 0.0], [50.0, 0.0]], [0, 1], mode_s=[1, 2]), NO_TRACKS)
     assert res.n_clusters == 2
@@ -520,3 +528,62 @@ def test_brute_force_small_exhaustive_e_check():
                 c_to = cluster_track.size - 1
             labels[p] = c_to
             assert result_sse(labels, cluster_track, plots, tracks) >= e0 - 1e-6
+
+
+# --------------------------------------------------------------------------------------
+# identity association (issue 15): a plot with a live track's Mode S address joins it
+
+
+def run_last(plots, tracks, last_xy, last_t, params=None):
+    n = np.asarray(last_xy, float).reshape(-1, 2).shape[0]
+    return cluster_plots(
+        *plots,
+        *tracks,
+        T_REF,
+        params,
+        track_last_xy_m=np.asarray(last_xy, float).reshape(n, 2),
+        track_last_cov_m2=np.tile(150.0**2 * np.eye(2), (n, 1, 1)),
+        track_last_t_s=np.asarray(last_t, float),
+    )
+
+
+def test_a_plot_with_the_address_of_a_turning_track_joins_it_outside_the_gate():
+    """The track was last seen 12 s ago at the origin flying east at 200 m/s; its
+    prediction is 2.4 km east. The aircraft turned north: its plot is 2 km north-east of
+    the origin, 2.2 km from the prediction (χ² d² ≈ 100 with σ 150 m): outside the gate,
+    but well within 12 s × 350 m/s of where it was last seen."""
+    tracks = make_tracks([[2400.0, 0.0]], v=[[200.0, 0.0]], mode_s=[0x4B1234])
+    plot_xy = [[1400.0, 1400.0]]
+    plain = run(make_plots(plot_xy, [0], mode_s=[0x4B1234]), tracks)
+    assert plain.cluster_track.tolist() == [-1]  # without the identity rule: a new track
+    res = run_last(make_plots(plot_xy, [0], mode_s=[0x4B1234]), tracks, [[0.0, 0.0]], [T_REF - 12.0])
+    assert res.cluster_track.tolist() == [0] and res.labels.tolist() == [0]
+    # the rule can be switched off
+    off = ClusteringParams(identity_association=False)
+    res = run_last(make_plots(plot_xy, [0], mode_s=[0x4B1234]), tracks, [[0.0, 0.0]], [T_REF - 12.0], off)
+    assert res.cluster_track.tolist() == [-1]
+    # a plot without the address stays a new target
+    res = run_last(make_plots(plot_xy, [0]), tracks, [[0.0, 0.0]], [T_REF - 12.0])
+    assert res.cluster_track.tolist() == [-1]
+
+
+def test_the_sanity_gate_refuses_an_address_too_far_to_have_been_flown():
+    tracks = make_tracks([[2400.0, 0.0]], v=[[200.0, 0.0]], mode_s=[0x4B1234])
+    # 12 s at 350 m/s is 4.2 km, plus 3·sqrt(100² + 150²) = 541 m: a plot 4.9 km away is refused
+    res = run_last(make_plots([[0.0, 4_900.0]], [0], mode_s=[0x4B1234]), tracks, [[0.0, 0.0]], [T_REF - 12.0])
+    assert res.cluster_track.tolist() == [-1]
+    res = run_last(make_plots([[0.0, 4_600.0]], [0], mode_s=[0x4B1234]), tracks, [[0.0, 0.0]], [T_REF - 12.0])
+    assert res.cluster_track.tolist() == [0]
+
+
+def test_a_plot_with_an_address_goes_to_its_track_not_to_a_nearer_anonymous_one():
+    """Track 0 (no address) sits on the plot; track 1 carries the plot's address, 600 m
+    away (inside both gates). By distance the plot is track 0's; by identity, track 1's."""
+    tracks = make_tracks([[0.0, 0.0], [600.0, 0.0]], mode_s=[-1, 0x4B1234])
+    plots = make_plots([[10.0, 0.0]], [0], mode_s=[0x4B1234])
+    res = run_last(plots, tracks, [[0.0, 0.0], [600.0, 0.0]], [T_REF - 4.0, T_REF - 4.0])
+    assert res.cluster_track[res.labels[0]] == 1
+    # with two plots of two radars, each track keeps the right one
+    plots = make_plots([[10.0, 0.0], [20.0, 0.0]], [0, 1], mode_s=[0x4B1234, -1])
+    res = run_last(plots, tracks, [[0.0, 0.0], [600.0, 0.0]], [T_REF - 4.0, T_REF - 4.0])
+    assert [int(res.cluster_track[lab]) for lab in res.labels] == [1, 0]

@@ -243,3 +243,26 @@ def test_engine_health_reports_the_clock_suspect():
         eng2.ingest_plots(plot_of(eng2, 0, k + 1, T0 + k))
         eng2.ingest_plots(plot_of(eng2, 1, k + 1, T0 + k + 0.5 + 3.0))
     assert eng2.health()["radars"]["b"]["clock_suspect"]
+
+
+# ------------------------------------------------------------------ merge
+def test_two_tracks_on_one_address_merge_into_the_older_id():
+    """Radar a sees the aircraft where it is; radar b reports the same address 6 km away
+    (a reflection, or b's bias): too far apart for one new-target cluster, so two tracks
+    start on one address in the same period. They become one: the older id, the state of
+    the most recent measurement, the other id ended in that very period."""
+    eng = Engine(settings())
+    t = T0 + 1.0
+    good = plot_of(eng, 0, 1, t)
+    far = plot_of(eng, 1, 1, t + 2.0)
+    far.range_m = far.range_m + 6_000.0
+    eng.ingest_plots(good)
+    eng.ingest_plots(far)
+    eng.ingest_plots(plot_of(eng, 0, 2, T0 + 5.5))  # watermarks past the period's end + lateness
+    eng.ingest_plots(plot_of(eng, 1, 2, T0 + 5.6))
+    [out] = eng.poll()
+    assert eng.counters["tracks_initiated"] == 2 and eng.counters["tracks_merged"] == 1
+    cols = out.track_columns
+    assert cols.track_id.tolist() == [1] and cols.ended.tolist() == [2]
+    assert cols.mode_s.tolist() == [0x4B1234]
+    assert eng.tracks.t_state_s[0] == pytest.approx(t + 2.0)  # the newest member's state

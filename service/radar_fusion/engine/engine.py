@@ -17,6 +17,7 @@ step each (``_process_period`` reads as this list):
     update    Kalman update of the tracks that got a cluster (Shu eq. 7, 9, 10), or their
               two-point initiation (Shu §4, initiation.py); manoeuvre detection
     initiate  new tentative tracks from the clusters no track claims (Shu §2 cases 1, 3)
+    merge     tracks with one Mode S address become one, with the oldest id
     manage    the track life cycle: confirm, coast, end (track_management.py)
     output    TrackColumns at the reference time (→ TrackBatch on demand), safety nets
 
@@ -53,6 +54,7 @@ from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.singer_filter import AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
+    TENTATIVE,
     TrackTable,
     apply_life_cycle,
     cov_pos_m2,
@@ -216,12 +218,13 @@ class Engine:
             changed = np.concatenate([self._update(clusters, t_ref_s), self._initiate(clusters, t_ref_s)])
         self.track_t_s = t_ref_s
         out = self._predict_changed(pred, changed, t_ref_s)
+        out, merged = self._merge_identities(out)
         ids = self.tracks.track_id  # the rows of ``out``, before the life cycle drops any
         ended = self._manage(t_ref_s)
         if ended.size:
             alive = ~np.isin(ids, ended)
             out = Prediction(out.x[alive], out.P[alive], out.alt_x[alive], out.alt_P[alive])
-        columns = self._output(period, t_ref_s, ended, out)
+        columns = self._output(period, t_ref_s, np.concatenate([merged, ended]), out)
         # the safety nets judge every track that is not tentative (safety_nets.prediction.eligible)
         alerts = self.safety_nets.update(t_ref_s, columns) if self.safety_nets is not None else []
         dt = time.perf_counter() - t0
@@ -291,7 +294,8 @@ class Engine:
 
     # ------------------------------------------------------------- associate
     def _associate(self, plots: ConvertedPlots, pred: Prediction, t_ref_s: float) -> ClusterResult:
-        """Time alignment and k-means clustering seeded by the tracks (Shu §2)."""
+        """Time alignment and k-means clustering seeded by the tracks (Shu §2); a plot with a
+        live track's Mode S address goes to that track (association.identity_pairs)."""
         tr = self.tracks
         res = cluster_plots(
             plots.xy_m,
@@ -308,6 +312,9 @@ class Engine:
             tr.mode3a,
             t_ref_s,
             self.clustering,
+            track_last_xy_m=position_m(tr.x),
+            track_last_cov_m2=cov_pos_m2(tr.P),
+            track_last_t_s=tr.t_state_s,
         )
         self.counters["plots_redundant"] += int(res.redundant.sum())
         self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())
@@ -333,6 +340,12 @@ class Engine:
         v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
         z_plot = plots.xy_m[used] + v * dt_p[:, None]
         R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
+        # A plot that joined its track by its Mode S address from outside the χ² gate counts
+        # as if it lay on the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
+        # plot moves the track no more than a plot at the gate's edge would, while a genuine
+        # manoeuvre pulls it scan after scan, and its NIS switches manoeuvre noise on.
+        beyond = np.fmax(res.plot_d2[used] / self.clustering.gate_chi2, 1.0)
+        R_plot = R_plot * beyond[:, None, None]
         z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
@@ -425,6 +438,63 @@ class Engine:
         tr.revisit_s[new] = cl.revisit_s[new_cl]
         tr.sources[new] = cl.sources[new_cl]
         return np.arange(new.start, new.stop, dtype=np.int64)
+
+    # ----------------------------------------------------------------- merge
+    def _merge_identities(self, out: Prediction) -> tuple[Prediction, np.ndarray]:
+        """Two tracks never carry one Mode S address at once: they are one aircraft.
+
+        Each group of tracks with the same address becomes one track with the oldest id
+        (its first time, its update count); it takes the state of the most recently updated
+        member that is itself established (``confirm_updates`` updates: the one that
+        followed the aircraft), never a young one-point state that would throw away the
+        old track's velocity; the other ids end in this period.
+        Association already sends a live track's address to that track
+        (association.identity_pairs), so this is rare: two new tracks started on one
+        address in the same period, or a track that acquired its address late.
+        Returns ``out`` without the merged-away rows, and their ids.
+        """
+        tr = self.tracks
+        rows = np.flatnonzero(tr.mode_s >= 0)
+        order = rows[np.lexsort((tr.track_id[rows], tr.mode_s[rows]))]  # by address, then oldest id first
+        same = tr.mode_s[order][1:] == tr.mode_s[order][:-1]
+        if not same.any():
+            return out, np.empty(0, np.int64)
+        keep = np.ones(len(tr), bool)
+        group_start = np.flatnonzero(np.r_[True, ~same])
+        for a, b in zip(group_start, np.r_[group_start[1:], order.size]):
+            members = order[a:b]
+            if members.size < 2:
+                continue
+            oldest = members[0]
+            established = members[(tr.updates[members] >= self.rules.confirm_updates) | (members == oldest)]
+            newest = established[np.argmax(tr.t_state_s[established])]
+            if newest != oldest:
+                for name in (
+                    "x",
+                    "P",
+                    "t_state_s",
+                    "alt_x",
+                    "alt_P",
+                    "initiated",
+                    "last_update_t_s",
+                    "z1_m",
+                    "R1_m2",
+                    "mode3a",
+                    "sources",
+                    "revisit_s",
+                    "nis_avg",
+                    "manoeuvre",
+                ):
+                    getattr(tr, name)[oldest] = getattr(tr, name)[newest]
+                for column in (out.x, out.P, out.alt_x, out.alt_P):
+                    column[oldest] = column[newest]
+            tr.updates[oldest] = tr.updates[members].max()
+            tr.status[oldest] = CONFIRMED if (tr.status[members] != TENTATIVE).any() else TENTATIVE
+            keep[members[1:]] = False
+        merged = tr.track_id[~keep].copy()
+        tr.keep(keep)
+        self.counters["tracks_merged"] += int(merged.size)
+        return Prediction(out.x[keep], out.P[keep], out.alt_x[keep], out.alt_P[keep]), merged
 
     # ---------------------------------------------------------------- manage
     def _manage(self, t_ref_s: float) -> np.ndarray:

@@ -93,12 +93,72 @@ def mahalanobis2_2x2(y: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.where((det > 0) & (a > 0), d2, np.inf)
 
 
+#: Mode 3/A codes that say nothing of who flies (ICAO Doc 8168 / the European code plan):
+#: emergency 7700, radio failure 7600, unlawful interference 7500 (a squawk an aircraft
+#: changes *to*), the conspicuity codes 7000 (VFR, Europe), 2000 (entering SSR airspace),
+#: 1200 (VFR, North America) and 0000. They never make two reports incompatible.
+NON_IDENTITY_MODE3A = np.array([0o7700, 0o7600, 0o7500, 0o7000, 0o2000, 0o1200, 0o0000], dtype=np.int64)
+
+
 def identity_compatible(s1: np.ndarray, s2: np.ndarray, a1: np.ndarray, a2: np.ndarray, use_mode3a: bool) -> np.ndarray:
-    """Mode S (and optionally Mode 3/A) codes agree or at least one is unknown (−1)."""
+    """May two reports be one aircraft by their identities (−1 unknown)?
+
+    The Mode S address decides: two different addresses are two aircraft, the same address
+    one (whatever the Mode 3/A codes say: a squawk change is an instruction, not a new
+    aircraft). Without an address on both, Mode 3/A is a soft cue (codes are reused and
+    changed): two different codes keep reports apart only when both are known and neither
+    is one of :data:`NON_IDENTITY_MODE3A`.
+    """
     ok = (s1 < 0) | (s2 < 0) | (s1 == s2)
     if use_mode3a:
-        ok &= (a1 < 0) | (a2 < 0) | (a1 == a2)
+        by_address = (s1 >= 0) & (s2 >= 0)
+        same_or_unknown = (a1 < 0) | (a2 < 0) | (a1 == a2)
+        generic = np.isin(a1, NON_IDENTITY_MODE3A) | np.isin(a2, NON_IDENTITY_MODE3A)
+        ok &= by_address | same_or_unknown | generic
     return np.asarray(ok)
+
+
+def identity_pairs(
+    plot_ms: np.ndarray,
+    plot_ok: np.ndarray,
+    plot_xy: np.ndarray,
+    plot_cov: np.ndarray,
+    plot_t: np.ndarray,
+    track_ms: np.ndarray,
+    track_ok: np.ndarray,
+    last_xy: np.ndarray,
+    last_cov: np.ndarray,
+    last_t: np.ndarray,
+    max_speed_mps: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(plot, track) pairs of one Mode S address, inside a sanity gate from the maximum speed.
+
+    A plot that carries the address of a live track belongs to that track, even when a
+    manoeuvre has taken it out of the statistical gate (the prediction ran straight on
+    while the aircraft turned): the address is the aircraft's own. The only check is that
+    the aircraft could have flown there: the plot lies within
+
+        max_speed · |t_plot − t_last| + 3·sqrt(λ_max(R_plot) + λ_max(P_last))
+
+    of the track's last measured position (its state at its own time t_last), which
+    refuses a corrupted or duplicated address far away. With two live tracks on one
+    address (until the engine merges them), the older (its row comes first) is taken.
+    """
+    has = np.flatnonzero(plot_ok & (plot_ms >= 0))
+    rows = np.flatnonzero(track_ok & (track_ms >= 0))
+    empty = np.empty(0, dtype=np.intp)
+    if not has.size or not rows.size:
+        return empty, empty
+    order = rows[np.argsort(track_ms[rows], kind="stable")]
+    keys = track_ms[order]
+    at = np.minimum(np.searchsorted(keys, plot_ms[has]), keys.size - 1)
+    hit = keys[at] == plot_ms[has]
+    p, t = has[hit], order[at[hit]]
+    margin_m = 3.0 * np.sqrt(lambda_max_2x2(plot_cov[p]) + lambda_max_2x2(last_cov[t]))
+    reach_m = max_speed_mps * np.abs(plot_t[p] - last_t[t]) + margin_m
+    d = plot_xy[p] - last_xy[t]
+    ok = np.hypot(d[:, 0], d[:, 1]) <= reach_m
+    return p[ok].astype(np.intp), t[ok].astype(np.intp)
 
 
 def first_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
@@ -326,6 +386,12 @@ def transfer_track_clusters(
     return assign, rounds
 
 
+#: assignment cost factor of a pair whose plot carries its track's Mode S address: such a
+#: pair is preferred to every pair without it (costs of other pairs are d² ≥ 0), while the
+#: order by d² among a track's own-address plots is kept
+IDENTITY_COST_FACTOR = 1.0e-6
+
+
 def gated_pairs(
     plot_xy: np.ndarray,
     plot_cov: np.ndarray,
@@ -343,11 +409,19 @@ def gated_pairs(
     track_3a: np.ndarray,
     t_ref: float,
     params: ClusteringParams,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Steps 1-3 of clustering.py: candidate (plot, track) pairs, each plot aligned to
     t_ref with the track's velocity, kept when inside the Mahalanobis gate (and the
     absolute cap) with compatible identities. Returns the kept pairs' plot and track
-    indices, aligned positions and covariances, and d²."""
+    indices, aligned positions and covariances, d², and the assignment cost: d², scaled by
+    :data:`IDENTITY_COST_FACTOR` for a plot with its track's Mode S address.
+
+    ``last``: the tracks' last measured positions, their covariances and times. With it
+    (and ``params.identity_association``), a plot with a live track's address joins that
+    track inside the sanity gate of :func:`identity_pairs` even outside the statistical
+    gate, and is offered to no other track.
+    """
     pair_plot, pair_track = candidate_pairs(
         plot_xy, plot_cov, dt_s, plot_ok, track_xy, track_v, track_cp, track_cv, track_ok, params
     )
@@ -376,4 +450,24 @@ def gated_pairs(
     pair_xy = pair_xy[gated]
     pair_cov = pair_cov[gated]
     d2 = d2[gated]
-    return pair_plot, pair_track, pair_xy, pair_cov, d2
+    if last is not None and params.identity_association:
+        id_plot, id_track = identity_pairs(
+            plot_ms, plot_ok, plot_xy, plot_cov, plot_t, track_ms, track_ok, *last, params.max_speed_mps
+        )
+        n_tracks = track_xy.shape[0]
+        # a plot of a live track's address is offered to that track only
+        keep = ~np.isin(pair_plot, id_plot) | np.isin(pair_plot * n_tracks + pair_track, id_plot * n_tracks + id_track)
+        new = ~np.isin(id_plot * n_tracks + id_track, pair_plot * n_tracks + pair_track)
+        add_plot, add_track = id_plot[new], id_track[new]
+        add_xy, add_cov = align_to_reference(
+            plot_xy[add_plot], plot_cov[add_plot], plot_t[add_plot], t_ref, track_v[add_track], track_cv[add_track]
+        )
+        add_d2 = mahalanobis2_2x2(add_xy - track_xy[add_track], track_cp[add_track] + add_cov)
+        pair_plot = np.concatenate([pair_plot[keep], add_plot])
+        pair_track = np.concatenate([pair_track[keep], add_track])
+        pair_xy = np.concatenate([pair_xy[keep], add_xy])
+        pair_cov = np.concatenate([pair_cov[keep], add_cov])
+        d2 = np.concatenate([d2[keep], add_d2])
+    own = (plot_ms[pair_plot] >= 0) & (plot_ms[pair_plot] == track_ms[pair_track])
+    cost = np.where(own, d2 * IDENTITY_COST_FACTOR, d2)
+    return pair_plot, pair_track, pair_xy, pair_cov, d2, cost

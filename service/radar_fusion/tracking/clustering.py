@@ -138,10 +138,18 @@ class ClusteringParams(BaseModel):
         "(each new-target conflict component). Each round strictly decreases E, so the cap only bounds the worst "
         "case; 20 is far above the 1-3 rounds seen in practice.",
     )
+    identity_association: bool = Field(
+        True,
+        description="A plot with the Mode S address of a live track joins that track, also outside the χ² gate, "
+        "while it lies within what the aircraft could have flown at max_speed_mps since the track's last update "
+        "(issue 15: after a turn the prediction runs straight on, and the plots of the turning aircraft started a "
+        "second track with the same address). The address is the aircraft's own; ARTAS associates by it too.",
+    )
     use_mode3a: bool = Field(
         True,
-        description="A plot and a track (or two plots) whose Mode 3/A codes are both known and differ are never "
-        "clustered together. Set false to tolerate squawk changes.",
+        description="Mode 3/A as a soft cue: a plot and a track (or two plots) without a Mode S address on both, "
+        "whose codes are both known and differ, are not clustered together, unless either code is an emergency or "
+        "conspicuity code (association.NON_IDENTITY_MODE3A). Set false to ignore Mode 3/A altogether.",
     )
     track_anchor_weight: float = Field(
         1.0,
@@ -171,6 +179,9 @@ class ClusterResult:
                         predicted point with weight ``track_anchor_weight``.
     redundant:          (M,) bool, plot inside some track's gate but left out because
                         that radar's slot in every such cluster is taken (duplicate).
+    plot_d2:            (M,) squared Mahalanobis distance of each plot in a track cluster to
+                        that track's prediction (NaN for other plots); above ``gate_chi2``
+                        only for a plot that joined by its Mode S address.
     seed_labels, seed_cluster_track, sse_seed_m2:
                         the same for the initial (seed) assignment, before transfers.
     """
@@ -182,6 +193,7 @@ class ClusterResult:
     n_iterations: int
     sse_m2: float
     redundant: np.ndarray
+    plot_d2: np.ndarray
     seed_labels: np.ndarray
     seed_cluster_track: np.ndarray
     sse_seed_m2: float
@@ -441,6 +453,10 @@ def cluster_plots(
     track_mode3a: np.ndarray,
     t_ref_s: float,
     params: ClusteringParams | None = None,
+    *,
+    track_last_xy_m: np.ndarray | None = None,
+    track_last_cov_m2: np.ndarray | None = None,
+    track_last_t_s: np.ndarray | None = None,
 ) -> ClusterResult:
     """Align one period's plots to ``t_ref_s`` and cluster them (see the module docstring).
 
@@ -449,6 +465,9 @@ def cluster_plots(
     Tracks, predicted to t_ref_s: position (N, 2), velocity (N, 2) in m/s, position and
     velocity covariances (N, 2, 2), Mode S / Mode 3/A identity (N,), −1 = unknown.
     Plots or tracks with non-finite values are ignored (plots get label −1).
+    ``track_last_*``: each track's last measured position (N, 2), its covariance (N, 2, 2) and
+    time (N,); given, a plot with a track's Mode S address joins it inside a sanity gate
+    from the maximum speed (association.identity_pairs), not only inside the χ² gate.
     """
     params = ClusteringParams() if params is None else params
     plot_xy = np.asarray(plot_xy_m, dtype=float).reshape(-1, 2)
@@ -466,6 +485,13 @@ def cluster_plots(
     track_ms = np.asarray(track_mode_s, dtype=np.int64).reshape(n_tracks)
     track_3a = np.asarray(track_mode3a, dtype=np.int64).reshape(n_tracks)
     t_ref = float(t_ref_s)
+    last = None
+    if track_last_xy_m is not None and track_last_cov_m2 is not None and track_last_t_s is not None:
+        last = (
+            np.asarray(track_last_xy_m, dtype=float).reshape(n_tracks, 2),
+            np.asarray(track_last_cov_m2, dtype=float).reshape(n_tracks, 2, 2),
+            np.asarray(track_last_t_s, dtype=float).reshape(n_tracks),
+        )
 
     _, radar = np.unique(plot_radar_raw, return_inverse=True)
     radar = radar.reshape(n_plots).astype(np.intp)
@@ -480,7 +506,7 @@ def cluster_plots(
     )
 
     # 1-3: candidate pairs, time alignment with the track's velocity, gating.
-    pair_plot, pair_track, pair_xy, pair_cov, d2 = gated_pairs(
+    pair_plot, pair_track, pair_xy, pair_cov, d2, cost = gated_pairs(
         plot_xy,
         plot_cov,
         plot_t,
@@ -497,11 +523,12 @@ def cluster_plots(
         track_3a,
         t_ref,
         params,
+        last,
     )
     pair_radar = radar[pair_plot]
 
     # 4: seed, nearest representative with one plot per radar per cluster.
-    seed_assign = assign_per_radar(pair_plot, pair_track * n_radars + pair_radar, d2, n_plots, params.gate_chi2)
+    seed_assign = assign_per_radar(pair_plot, pair_track * n_radars + pair_radar, cost, n_plots, params.gate_chi2)
     # 5: transfers among the track clusters (eq. 3 corrected).
     assign, track_rounds = transfer_track_clusters(
         seed_assign,
@@ -535,13 +562,15 @@ def cluster_plots(
     v_var = unknown_velocity_var_m2ps2(params.max_speed_mps)
     aligned_xy, aligned_cov = align_to_reference(plot_xy, plot_cov, plot_t, t_ref, np.zeros(2), v_var * np.eye(2))
     if pair_plot.size:
-        best = first_per_group(pair_plot, d2)
+        best = first_per_group(pair_plot, cost)
         aligned_xy[pair_plot[best]] = pair_xy[best]
         aligned_cov[pair_plot[best]] = pair_cov[best]
     used = np.flatnonzero(assign >= 0)
     aligned_xy[used] = pair_xy[assign[used]]
     aligned_cov[used] = pair_cov[assign[used]]
     redundant = in_gate & (assign < 0)
+    plot_d2 = np.full(n_plots, np.nan)
+    plot_d2[used] = d2[assign[used]]
 
     labels, cluster_track = _labels_from_assignment(assign, pair_track, new_idx, new_labels, n_plots)
     seed_labels, seed_cluster_track = _labels_from_assignment(seed_assign, pair_track, new_idx, new_seed, n_plots)
@@ -557,6 +586,7 @@ def cluster_plots(
         n_iterations=max(track_rounds, new_sweeps),
         sse_m2=_sse_m2(labels, cluster_track, aligned_xy, track_xy, w),
         redundant=redundant,
+        plot_d2=plot_d2,
         seed_labels=seed_labels,
         seed_cluster_track=seed_cluster_track,
         sse_seed_m2=_sse_m2(seed_labels, seed_cluster_track, seed_xy, track_xy, w),
