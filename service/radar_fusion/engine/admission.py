@@ -221,15 +221,22 @@ class ClockCheck:
         self._samples: list[list[deque[float]]] = [
             [deque(maxlen=window) for _ in range(n_radars)] for _ in range(n_radars)
         ]
+        # the watermarks of the other radars at each radar's previous message; +inf on the
+        # diagonal, so that a radar never samples itself
         self._seen_wm_s = np.full((n_radars, n_radars), -np.inf)
+        np.fill_diagonal(self._seen_wm_s, np.inf)
         self._not_self = ~np.eye(n_radars, dtype=bool)
 
     def observe(self, radar: int, t_s: float, watermark_s: np.ndarray) -> None:
         """A message of ``radar`` stamped ``t_s``; ``watermark_s``: every radar's watermark before it."""
-        moved = (watermark_s > self._seen_wm_s[radar]) & self._not_self[radar]
-        for j in np.flatnonzero(moved).tolist():
-            self._samples[radar][j].append(t_s - float(watermark_s[j]))
-        self._seen_wm_s[radar, moved] = watermark_s[moved]
+        seen = self._seen_wm_s[radar]  # a view: updated in place
+        moved = np.flatnonzero(watermark_s > seen)
+        if moved.size:
+            w = watermark_s[moved]
+            samples = self._samples[radar]
+            for j, w_j in zip(moved.tolist(), w.tolist()):
+                samples[j].append(t_s - w_j)
+            seen[moved] = w
 
     def offsets_s(self) -> list[float | None]:
         """Estimated clock offset of each radar in seconds (None: not enough data yet)."""
