@@ -114,17 +114,32 @@ def test_first_period_initiates_one_tentative_track_from_the_fused_pair():
     assert eng.tracks.mode_s[0] == 0x4B1234 and bin(int(cols.sources[0])).count("1") == 2
 
 
-def test_second_period_is_the_two_point_initiation_third_confirms():
+def test_second_period_is_the_two_point_initiation_and_two_radars_confirm_it():
+    """Two radars (and a Mode S address) agree: the track is confirmed at its second
+    update, the first with a velocity (life_cycle.confirm_radars, confirm_agreed_updates)."""
     eng = Engine(settings())
     outs = closed(eng, 3)
     assert [len(o.track_columns) for o in outs] == [1, 1, 1]
     assert eng.counters["tracks_initiated"] == 1  # one track for the whole run
-    assert [int(o.track_columns.status[0]) for o in outs] == [TENTATIVE, TENTATIVE, CONFIRMED]
+    assert [int(o.track_columns.status[0]) for o in outs] == [TENTATIVE, CONFIRMED, CONFIRMED]
     assert len({int(o.track_columns.track_id[0]) for o in outs}) == 1
     # the velocity after three updates of noise-free plots: the true velocity, up to the
     # earth-curvature error of the alignment (a few m/s at most)
     v = outs[-1].track_columns.x[0, [1, 4]]
     assert np.hypot(*(v - V_MPS)) < 5.0
+
+
+def test_one_radar_without_mode_s_confirms_by_m_of_n():
+    """Primary plots of one radar: no agreement, so M of N (3 updates) confirms."""
+    eng = Engine(settings_from_dict({**settings().model_dump(), "radars": [settings().radars[0].model_dump()]}))
+    outs = []
+    for k in range(4):
+        plot = plot_of(eng, 0, k + 1, T0 + 4.0 * k + 1.0)
+        plot.mode_s = np.array([-1])
+        eng.ingest_plots(plot)
+        outs += eng.poll()
+    statuses = [int(o.track_columns.status[0]) for o in outs]
+    assert statuses == [TENTATIVE, TENTATIVE, CONFIRMED]
 
 
 def test_output_is_every_track_at_the_reference_time():

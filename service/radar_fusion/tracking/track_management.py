@@ -14,7 +14,8 @@ Life cycle
   (Shu eq. 7-11).
 * Confirmation (M of N): a tentative track with ``confirm_updates`` updates within
   ``confirm_window_s`` of its first plot becomes *confirmed*; one that fails to do so
-  ends.
+  ends. A track whose update of this period has plots of ``confirm_radars`` radars, or a
+  Mode S address, is confirmed at once (issue 15).
 * Coasting: a confirmed track that missed ``coast_after_scans`` scans (of its own
   revisit time) is *coasting* (predicted, not measured); an update confirms it again.
 * Deletion: a tentative track that missed ``delete_tentative_after_scans`` scans, or a
@@ -56,6 +57,25 @@ class LifeCycle(BaseModel):
         gt=0,
         description="... within this time from its first plot (the N of M-of-N), s. Default 40 s: three updates "
         "of the slowest (12 s) radar with one scan missed; a tentative track that takes longer ends.",
+    )
+    confirm_radars: int = Field(
+        2,
+        ge=0,
+        description="A tentative track is confirmed at once when this many radars agree on it in one period "
+        "(their plots form one cluster); 0 = off. Default 2: two radars' clutter hardly ever coincides, while an "
+        "aircraft seen by two radars is real (issue 15: a track was shown only after three periods, 8-12 s, where "
+        "a plot-at-a-time tracker confirms from three plots of three radars within one rotation)",
+    )
+    confirm_mode_s: bool = Field(
+        True,
+        description="A tentative track is confirmed at once when its plots carry a Mode S address: the address is "
+        "the transponder's reply, clutter has none",
+    )
+    confirm_agreed_updates: int = Field(
+        2,
+        ge=1,
+        description="... from this many updates on. Default 2: the second update is the two-point initiation "
+        "(Shu §4), the first with a velocity; a one-plot track shown confirmed would stand still on a display",
     )
     coast_after_scans: float = Field(
         1.5,
@@ -179,6 +199,12 @@ def cov_vel(P: np.ndarray) -> np.ndarray:
     return P[:, [1, 4]][:, :, [1, 4]]
 
 
+def radar_count(sources: np.ndarray) -> np.ndarray:
+    """Number of radars in each 64-bit ``sources`` mask (population count)."""
+    bits = np.unpackbits(np.ascontiguousarray(sources, dtype=np.uint64).view(np.uint8).reshape(-1, 8), axis=1)
+    return np.asarray(bits.sum(axis=1), dtype=np.int64)
+
+
 def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndarray:
     """Confirm, coast and end tracks at time ``t_s``; returns the ids of ended tracks."""
     since_update = t_s - table.last_update_t_s
@@ -190,6 +216,13 @@ def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndar
         return fixed_s if fixed_s is not None else scans * revisit
 
     confirm = (status == TENTATIVE) & (table.updates >= rules.confirm_updates) & (age <= rules.confirm_window_s)
+    # confirmed at once: several radars, or a Mode S address, in the update of this period
+    agree = np.zeros(len(table), bool)
+    if rules.confirm_radars:
+        agree |= radar_count(table.sources) >= rules.confirm_radars
+    if rules.confirm_mode_s:
+        agree |= table.mode_s >= 0
+    confirm |= (status == TENTATIVE) & agree & (since_update <= 0.0) & (table.updates >= rules.confirm_agreed_updates)
     status[confirm] = CONFIRMED
     recovered = (status == COASTING) & (since_update <= 0.0)
     status[recovered] = CONFIRMED
