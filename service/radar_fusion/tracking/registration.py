@@ -1,0 +1,541 @@
+"""Online radar registration: each radar's systematic errors, from the aircraft several radars see.
+
+Bias model (per radar r; Burke 1966, Dana 1990, Helmick & Rice 1993, Zhou, Leung & Yip 1997)
+----------------------------------------------------------------------------------------------
+A radar reports, for a target at true slant range rho, true azimuth theta and true time t,
+
+    rho_m   = (1 + gain_r) rho + range_offset_r             (gain_r dimensionless; kept in ppm)
+    theta_m = theta + azimuth_offset_r
+    t_m     = t + time_offset_r
+
+plus zero-mean noise. The correction (:meth:`RadarRegistration.correct`) inverts it:
+rho = (rho_m - range_offset) / (1 + gain), theta = theta_m - azimuth_offset, t = t_m - time_offset.
+
+Linearisation in the system plane (:meth:`RegistrationGeometry.jacobian`)
+------------------------------------------------------------------------
+A plot converted by :func:`radar_fusion.geo.coordinates.polar_to_plane` and aligned to its
+cluster's time t_c with the velocity v of its track (z = z(t_m) + v (t_c - t_m), as the
+engine's fusion step does) moves with the biases b_r = (range_offset_m, gain_ppm,
+azimuth_offset_deg, time_offset_s) as z_m = z_true + J b_r + O(b^2), the columns of J being
+
+    dz/d range_offset  = k g' u                          g' = dg/drho (EUROCONTROL sphere)
+    dz/d gain_ppm      = k g' rho 1e-6 u
+    dz/d azimuth_deg   = k R sin(g / R) (pi / 180) w     R sin(g/R): lateral shift per radian
+    dz/d time_offset   = -v                              (the plot is aligned from the wrong time)
+
+with g the ground range, R the site's Gaussian earth radius, k the point scale of the
+stereographic plane (k = 1 + d^2 / 4R0^2, d the distance from the plane's centre, R0 the
+conformal sphere's radius), u = (sin beta, cos beta) the radial unit vector at the target and
+w = (cos beta, -sin beta) the cross-range one (azimuth grows clockwise). beta, the grid
+bearing of the radial line at the target, comes without a second geodesic: the stereographic
+projection maps great circles to circles, and for a circular arc the chord's direction is the
+mean of the two end tangents, so beta = 2 beta_chord - beta_site, beta_site = theta - c_site
+(c_site the site's meridian convergence; the map is conformal, so true azimuths become grid
+bearings by subtracting c). The test checks J against finite differences of polar_to_plane.
+
+Estimation: target positions eliminated exactly (Zhou, Leung & Yip 1997, linearised)
+------------------------------------------------------------------------------------
+The plots i of one cluster c (one aircraft, one period, several radars) are
+z_i = p_c + J_i b + n_i, n_i ~ N(0, R_i), with p_c the unknown aircraft position. The joint
+weighted least-squares (maximum-likelihood for Gaussian noise) over (p_c, b) eliminates p_c
+in closed form, p_c = S_c^-1 sum_i W_i (z_i - J_i b), W_i = R_i^-1, S_c = sum_i W_i, leaving
+the normal equations of b alone (a Schur complement; this is the exact treatment of the
+common target, not the sum of pairwise differences, which would count plots twice):
+
+    I_c = sum_i J_i^T W_i J_i - T_c^T S_c^-1 T_c,        T_c = sum_i W_i J_i
+    y_c = sum_i J_i^T W_i z_i - T_c^T S_c^-1 m_c,        m_c = sum_i W_i z_i
+
+A one-plot cluster gives I_c = 0: only aircraft seen by at least two radars inform.
+Each plot's residual against the others' fused position (leave-one-out, with its
+covariance R_i + S_{c,-i}^-1) is gated at a chi^2 bound first, so a mis-associated plot is
+dropped before it biases anything.
+
+Recursion: exponentially weighted least squares in information form with a stabilising prior
+(Ljung & Soederstroem 1983 ch. 5 for exponential forgetting; Kulhavy & Zarrop 1993 for
+forgetting towards a prior, which keeps the information matrix bounded below: no wind-up)
+
+    Lambda_k = lam Lambda_{k-1} + (1 - lam) Lambda_0 + sum_c I_c,   lam = exp(-dt / tau)
+    eta_k    = lam eta_{k-1}                         + sum_c y_c,     (prior mean 0)
+    b_k = Lambda_k^-1 eta_k,   cov(b_k) = Lambda_k^-1,
+
+Lambda_0 = diag(1 / sigma_prior^2). The memory is one (4M x 4M) matrix and one vector whatever
+the run length; old data fade with time constant tau, so slow drift is followed; the prior
+always weighs as one prior (sum of (1 - lam) lam^j = 1), so a direction the data do not
+excite relaxes to 0 with the prior's sigma instead of blowing up.
+
+Observability and how it is pinned
+----------------------------------
+Polar biases of radars at distinct sites are observable from relative residuals (Dana 1990):
+the same range offset on two radars shifts their plots along two different radials, the same
+azimuth offset rotates their pictures about two different centres (a net translation of
+offset x baseline). Only the time offset common to all radars is not: it moves every aligned
+plot by the same -v tau. The weak zero-mean prior pins it, so the reported time offsets are
+relative to the radars' (prior-weighted) mean, and a clock error shared by all radars stays
+in the tracks. Weakly excited combinations (range offset against gain over a short range
+spread; azimuth against time offset for tangential traffic) are shrunk towards 0 by the
+same prior. ``reference_radar_id`` instead fixes one radar's biases at 0 (a surveyed or
+ADS-B-calibrated reference): the others are then relative to it. Absolute accuracy needs
+such a reference; relative registration is what removes the shadows and the fused errors.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from ..geo.coordinates import RadarSites, SystemPlane, gaussian_earth_radius_m, slant_to_ground_range
+
+__all__ = ["BIAS_NAMES", "N_BIAS", "RadarRegistration", "RegistrationGeometry", "RegistrationParams"]
+
+BIAS_NAMES = ("range_offset_m", "range_gain_ppm", "azimuth_offset_deg", "time_offset_s")
+"""The per-radar bias components, in the order of the state vector (and of J's columns)."""
+N_BIAS = len(BIAS_NAMES)
+RANGE_OFFSET, RANGE_GAIN, AZIMUTH_OFFSET, TIME_OFFSET = range(N_BIAS)
+_PPM = 1e-6
+_PINNED_PRIOR_FACTOR = 1e12  # information multiplier of a reference radar's prior: fixed at 0
+
+
+class RegistrationParams(BaseModel):
+    """Parameters of :class:`RadarRegistration` (a ``[registration]`` section of the configuration)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    enabled: bool = Field(
+        True,
+        description="estimate and correct. Default on: corrections only start once a radar's estimate rests on "
+        "min_plots plots, and with unbiased radars the estimates stay within their noise of 0",
+    )
+    forgetting_time_s: float = Field(
+        1800.0,
+        gt=0,
+        description="time constant tau of the exponential forgetting, s. Default 30 min: radar biases drift over "
+        "hours (temperature, maintenance), and 30 min of traffic averages the noise down to a few metres; it does not "
+        "slow the start (information accumulates from the first period)",
+    )
+    min_plots: float = Field(
+        300.0,
+        ge=0,
+        description="effective (forgetting-weighted) number of a radar's plots in multi-radar clusters before its "
+        "correction is applied. Default 300: a few minutes of a dozen shared aircraft, by when the estimate's sigma is "
+        "well below the radar's noise",
+    )
+    estimate_time_offset: bool = Field(
+        True,
+        description="estimate each radar's time-stamping offset too (needs the tracks' velocities). Relative "
+        "offsets are observable from aircraft flying in different directions; the common one is not (see the module)",
+    )
+    prior_sigma_range_offset_m: float = Field(
+        100.0, gt=0, description="prior sigma of a range offset, m: weak (a bias over 100 m would be a fault)"
+    )
+    prior_sigma_range_gain_ppm: float = Field(
+        300.0, gt=0, description="prior sigma of a range gain, ppm (300 ppm = 30 m at 100 km): weak"
+    )
+    prior_sigma_azimuth_offset_deg: float = Field(
+        0.2, gt=0, description="prior sigma of an azimuth offset, deg (0.2 deg = 350 m at 100 km): weak"
+    )
+    prior_sigma_time_offset_s: float = Field(
+        0.5,
+        gt=0,
+        description="prior sigma of a time offset, s: weak, and the value the unobservable common offset is pinned "
+        "to 0 with",
+    )
+    residual_gate_chi2: float = Field(
+        25.0,
+        gt=0,
+        description="squared Mahalanobis distance (2 dof) of a plot from the rest of its cluster above which it is "
+        "left out. Default 25 (p = 4e-6 for a correct plot): drops mis-associations, keeps biased plots while the "
+        "estimate is still far off",
+    )
+    use_plots_without_altitude: bool = Field(
+        False,
+        description="use plots without Mode C. Default off: their ground range rests on an assumed height, an error "
+        "that is systematic per aircraft and would be taken for a range bias",
+    )
+    max_clusters_per_update: int = Field(
+        1000,
+        ge=1,
+        description="multi-radar clusters used per period at most (a rotating subset beyond, so every aircraft "
+        "contributes in turn). Default 1000: with a 30-minute memory that is far more information than the noise "
+        "needs, and it bounds the cost per period (about 15 ms at 40,000 plots) whatever the traffic",
+    )
+    reference_radar_id: str | None = Field(
+        None,
+        description="a radar whose biases are fixed at 0 (surveyed, or calibrated against ADS-B); the others are "
+        "then estimated relative to it. Default none: every radar carries the weak prior",
+    )
+
+
+def _wrap_pi(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    wrapped: NDArray[np.float64] = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
+    return wrapped
+
+
+def _group_sum(keys: NDArray[np.intp], values: NDArray[np.float64], n_groups: int) -> NDArray[np.float64]:
+    """Sum ``values`` (n, ...) over equal ``keys`` -> (n_groups, ...), one bincount per element."""
+    flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
+    out = np.empty((n_groups, flat.shape[1]))
+    for col in range(flat.shape[1]):  # over matrix elements (<= 16), not plots
+        out[:, col] = np.bincount(keys, weights=flat[:, col], minlength=n_groups)
+    return out.reshape((n_groups,) + values.shape[1:])
+
+
+def _compact(labels: NDArray[np.intp]) -> tuple[NDArray[np.intp], int]:
+    """Non-negative labels renumbered 0..k-1 in their order; returns (labels, k)."""
+    if labels.size == 0:
+        return labels.astype(np.intp), 0
+    top = int(labels.max())
+    if top <= 4 * labels.size + 1024:  # the engine's compact cluster indices: one bincount
+        present = np.bincount(labels, minlength=top + 1) > 0
+        new = np.cumsum(present) - 1
+        return new[labels].astype(np.intp), int(present.sum())
+    uniq, inv = np.unique(labels, return_inverse=True)
+    return inv.astype(np.intp).reshape(-1), int(uniq.size)
+
+
+def _inv_2x2(m: NDArray[np.float64]) -> NDArray[np.float64]:
+    a, b, c, d = m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1]
+    det = a * d - b * c
+    inv = np.empty_like(m)
+    inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 0], inv[:, 1, 1] = d / det, -b / det, -c / det, a / det
+    return inv
+
+
+def _chol_2x2(m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Lower Cholesky factor L (L L^T = m) of a stack of SPD 2x2 matrices."""
+    l11 = np.sqrt(m[:, 0, 0])
+    l21 = m[:, 1, 0] / l11
+    l22 = np.sqrt(np.maximum(m[:, 1, 1] - l21 * l21, 0.0))
+    out = np.zeros_like(m)
+    out[:, 0, 0], out[:, 1, 0], out[:, 1, 1] = l11, l21, l22
+    return out
+
+
+class RegistrationGeometry:
+    """The per-radar constants of the linearisation: site positions and meridian convergence
+    in the system plane, the site's Gaussian earth radius and the plane's sphere radius."""
+
+    def __init__(self, plane: SystemPlane, sites: RadarSites) -> None:
+        self.plane = plane
+        self.sites = sites
+        self.site_x_m, self.site_y_m = sites.plane_positions(plane)
+        self.site_convergence_rad = np.radians(plane.grid_convergence_deg(sites.lat_deg, sites.lon_deg))
+        self.sphere_radius_m = float(gaussian_earth_radius_m(plane.center_lat_deg))
+
+    def jacobian(
+        self,
+        radar_index: npt.ArrayLike,
+        range_m: npt.ArrayLike,
+        azimuth_deg: npt.ArrayLike,
+        altitude_m: npt.ArrayLike,
+        x_m: npt.ArrayLike,
+        y_m: npt.ArrayLike,
+        velocity_mps: npt.ArrayLike | None = None,
+        assumed_altitude_m: float = 3000.0,
+    ) -> NDArray[np.float64]:
+        """J (n, 2, 4): d(x_m, y_m)/d(range_offset_m, range_gain_ppm, azimuth_offset_deg, time_offset_s)
+        of plots at plane positions (x_m, y_m) (module docstring). ``altitude_m`` NaN: the
+        engine's ``assumed_altitude_m`` is used, as polar_to_plane does. ``velocity_mps`` (n, 2)
+        is the velocity the plot was aligned in time with; None gives a zero time column.
+        Plots in the cone of silence (no valid ground range) get NaN rows."""
+        idx = self.sites.check_index(radar_index)
+        rho = np.asarray(range_m, dtype=float)
+        theta = np.radians(np.asarray(azimuth_deg, dtype=float))
+        h_t = np.asarray(altitude_m, dtype=float)
+        h_t = np.where(np.isfinite(h_t), h_t, assumed_altitude_m)
+        x = np.asarray(x_m, dtype=float)
+        y = np.asarray(y_m, dtype=float)
+        r_site_m = self.sites.earth_radius_m[idx]
+        ground_m, valid, dg_drho, _ = slant_to_ground_range(r_site_m, self.sites.alt_m[idx], h_t, rho)
+        dx, dy = x - self.site_x_m[idx], y - self.site_y_m[idx]
+        beta_site = theta - self.site_convergence_rad[idx]
+        beta_chord = np.arctan2(dx, dy)
+        beta = np.where(ground_m > 0.0, beta_chord + _wrap_pi(beta_chord - beta_site), beta_site)
+        k = 1.0 + (x * x + y * y) / (4.0 * self.sphere_radius_m**2)
+        radial = np.stack([np.sin(beta), np.cos(beta)], axis=-1)  # u
+        cross = np.stack([np.cos(beta), -np.sin(beta)], axis=-1)  # w
+        d_range = (k * dg_drho)[:, None] * radial
+        jac = np.zeros((idx.shape[0], 2, N_BIAS))
+        jac[:, :, RANGE_OFFSET] = d_range
+        jac[:, :, RANGE_GAIN] = d_range * (rho * _PPM)[:, None]
+        jac[:, :, AZIMUTH_OFFSET] = (k * r_site_m * np.sin(ground_m / r_site_m) * np.pi / 180.0)[:, None] * cross
+        if velocity_mps is not None:
+            jac[:, :, TIME_OFFSET] = -np.asarray(velocity_mps, dtype=float).reshape(-1, 2)
+        jac[~valid] = np.nan
+        return jac
+
+
+class RadarRegistration:
+    """Recursive estimate of every radar's range offset, range gain, azimuth offset and time
+    offset (module docstring for the model, the equations and the observability).
+
+    Per period, after clustering and time alignment: :meth:`update` with the period's plots
+    and their cluster labels. Before converting the next period's plots: :meth:`correct`.
+    :meth:`estimates` gives the values and sigmas per radar for the health message.
+    """
+
+    def __init__(self, params: RegistrationParams, plane: SystemPlane, sites: RadarSites) -> None:
+        self.params = params
+        self.geometry = RegistrationGeometry(plane, sites)
+        self.n_radars = len(sites)
+        self.ids = sites.ids
+        n_state = N_BIAS * self.n_radars
+        prior_sigma = np.array(
+            [
+                params.prior_sigma_range_offset_m,
+                params.prior_sigma_range_gain_ppm,
+                params.prior_sigma_azimuth_offset_deg,
+                params.prior_sigma_time_offset_s,
+            ]
+        )
+        prior_info = np.tile(1.0 / prior_sigma**2, (self.n_radars, 1))
+        if params.reference_radar_id is not None:
+            prior_info[sites.index_of(params.reference_radar_id)] *= _PINNED_PRIOR_FACTOR
+        self.prior_information = np.diag(prior_info.reshape(n_state))
+        self.information = self.prior_information.copy()  # Lambda_k
+        self.information_vector = np.zeros(n_state)  # eta_k
+        self.bias = np.zeros((self.n_radars, N_BIAS))  # b_k, rows = radars, columns = BIAS_NAMES
+        self.sigma = np.tile(prior_sigma, (self.n_radars, 1))
+        self.effective_plots = np.zeros(self.n_radars)  # forgetting-weighted count of plots used
+        self.t_last_s: float | None = None
+        self.updates = 0
+        self.plots_used = 0
+        self.plots_gated = 0
+
+    # ----------------------------------------------------------------- estimate
+    def update(
+        self,
+        t_s: float,
+        radar_index: npt.ArrayLike,
+        range_m: npt.ArrayLike,
+        azimuth_deg: npt.ArrayLike,
+        altitude_m: npt.ArrayLike,
+        xy_m: npt.ArrayLike,
+        cov_m2: npt.ArrayLike,
+        labels: npt.ArrayLike,
+        velocity_mps: npt.ArrayLike | None = None,
+        applied: npt.ArrayLike | None = None,
+        assumed_altitude_m: float = 3000.0,
+    ) -> int:
+        """One period. Per plot (n,): ``radar_index``; ``range_m``, ``azimuth_deg`` as converted
+        (corrected ones if a correction was applied); ``altitude_m`` (NaN without Mode C);
+        ``xy_m`` (n, 2) the plane position aligned to its cluster's time and ``cov_m2``
+        (n, 2, 2) its covariance (alignment included); ``labels`` the cluster of each plot, -1
+        for a plot not to use (pass only clusters of established tracks); ``velocity_mps``
+        (n, 2) the velocity the plot was aligned with (None: no time offset information);
+        ``applied`` (M, 4) the biases :meth:`correct` removed from these plots (None: raw
+        plots). ``t_s`` is the period's time, for the forgetting. Returns the plots used."""
+        if not self.params.enabled:
+            return 0
+        idx = self.geometry.sites.check_index(radar_index).reshape(-1)
+        lab = np.asarray(labels).astype(np.intp).reshape(-1)
+        z = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+        cov = np.asarray(cov_m2, dtype=float).reshape(-1, 2, 2)
+        rho = np.asarray(range_m, dtype=float).reshape(-1)
+        az = np.asarray(azimuth_deg, dtype=float).reshape(-1)
+        alt = np.asarray(altitude_m, dtype=float).reshape(-1)
+        vel = None
+        if velocity_mps is not None and self.params.estimate_time_offset:
+            vel = np.asarray(velocity_mps, dtype=float).reshape(-1, 2)
+        self._forget(float(t_s))
+        self.updates += 1
+
+        use = (lab >= 0) & np.all(np.isfinite(z), axis=1) & np.all(np.isfinite(cov), axis=(1, 2))
+        use &= np.isfinite(rho) & np.isfinite(az)
+        if not self.params.use_plots_without_altitude:
+            use &= np.isfinite(alt)
+        if vel is not None:
+            use &= np.all(np.isfinite(vel), axis=1)
+        sel = np.flatnonzero(use)
+        c, k_clusters = _compact(lab[sel])
+        multi = self._multi_radar(c, idx[sel], k_clusters)
+        sel, c = sel[multi], c[multi]
+        c, k_clusters = _compact(c)
+        stride = -(-k_clusters // self.params.max_clusters_per_update)  # ceil
+        if stride > 1:  # a rotating subset of the clusters: every aircraft contributes in turn
+            part = (c + self.updates) % stride == 0
+            sel, c = sel[part], c[part]
+            c, k_clusters = _compact(c)
+        jac = self.geometry.jacobian(
+            idx[sel],
+            rho[sel],
+            az[sel],
+            alt[sel],
+            z[sel, 0],
+            z[sel, 1],
+            None if vel is None else vel[sel],
+            assumed_altitude_m,
+        )
+        ok = np.all(np.isfinite(jac), axis=(1, 2))
+        sel, jac, c = sel[ok], jac[ok], c[ok]
+        r, z, w = idx[sel], z[sel], _inv_2x2(cov[sel])
+        if applied is not None:  # back to the raw plot (to first order): z_raw = z_corrected + J b_applied
+            z = z + np.einsum("nab,nb->na", jac, np.asarray(applied, dtype=float).reshape(self.n_radars, N_BIAS)[r])
+        # each cluster's plots shifted by their mean (numerics only: the elimination of p_c is
+        # invariant to a shift per cluster)
+        n_c = np.bincount(c, minlength=k_clusters)
+        z = z - (_group_sum(c, z, k_clusters) / np.maximum(n_c, 1)[:, None])[c]
+
+        keep = self._multi_radar(c, r, k_clusters)
+        if keep.any():  # leave-one-out residual gate, at the current estimate
+            d2 = self._leave_one_out_d2(c, z - np.einsum("nab,nb->na", jac, self.bias[r]), w, k_clusters)
+            gated = keep & ~(d2 <= self.params.residual_gate_chi2)
+            self.plots_gated += int(gated.sum())
+            keep &= ~gated
+            keep &= self._multi_radar(c, r, k_clusters, keep)
+        n_used = int(keep.sum())
+        if n_used:
+            info, vec = self._normal_equations(c[keep], r[keep], z[keep], w[keep], jac[keep], k_clusters)
+            self.information += info
+            self.information_vector += vec
+            self.effective_plots += np.bincount(r[keep], minlength=self.n_radars)
+            self.plots_used += n_used
+        self._solve()
+        return n_used
+
+    def _forget(self, t_s: float) -> None:
+        """Lambda <- lam Lambda + (1 - lam) Lambda_0, eta <- lam eta, lam = exp(-dt / tau)."""
+        dt_s = 0.0 if self.t_last_s is None else max(t_s - self.t_last_s, 0.0)
+        self.t_last_s = t_s if self.t_last_s is None else max(t_s, self.t_last_s)
+        lam = float(np.exp(-dt_s / self.params.forgetting_time_s))
+        self.information = lam * self.information + (1.0 - lam) * self.prior_information
+        self.information_vector *= lam
+        self.effective_plots *= lam
+
+    def _multi_radar(
+        self, c: NDArray[np.intp], r: NDArray[np.intp], k: int, mask: NDArray[np.bool_] | None = None
+    ) -> NDArray[np.bool_]:
+        """Plots (of ``mask``) whose cluster holds plots (of ``mask``) of at least two radars."""
+        m = np.ones(c.shape[0], bool) if mask is None else mask
+        seen = np.zeros(k * self.n_radars, bool)
+        seen[c[m] * self.n_radars + r[m]] = True
+        n_radars_in = seen.reshape(k, self.n_radars).sum(axis=1)
+        out: NDArray[np.bool_] = m & (n_radars_in[c] >= 2)
+        return out
+
+    @staticmethod
+    def _leave_one_out_d2(
+        c: NDArray[np.intp], e: NDArray[np.float64], w: NDArray[np.float64], k: int
+    ) -> NDArray[np.float64]:
+        """d_i^T (R_i + S_{-i}^-1)^-1 d_i, d_i = e_i - S_{-i}^-1 (m_c - W_i e_i): each plot against
+        the fused position of the rest of its cluster (inf for a plot alone in its cluster)."""
+        s_c = _group_sum(c, w, k)
+        we = np.einsum("nab,nb->na", w, e)
+        m_c = _group_sum(c, we, k)
+        s_rest = s_c[c] - w
+        det = s_rest[:, 0, 0] * s_rest[:, 1, 1] - s_rest[:, 0, 1] * s_rest[:, 1, 0]
+        alone = ~(det > 1e-12 * np.einsum("naa->n", s_c[c]) ** 2)
+        s_rest[alone] = np.eye(2)
+        p_rest_cov = _inv_2x2(s_rest)
+        d = e - np.einsum("nab,nb->na", p_rest_cov, m_c[c] - we)
+        d2: NDArray[np.float64] = np.einsum("na,nab,nb->n", d, _inv_2x2(_inv_2x2(w) + p_rest_cov), d)
+        d2[alone] = np.inf
+        return d2
+
+    def _normal_equations(
+        self,
+        c: NDArray[np.intp],
+        r: NDArray[np.intp],
+        z: NDArray[np.float64],
+        w: NDArray[np.float64],
+        jac: NDArray[np.float64],
+        k: int,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """sum_c I_c and sum_c y_c of the module docstring, with p_c eliminated (Schur complement).
+        ``c`` need not be compact (clusters left empty by the gate are dropped here)."""
+        m, n_state = self.n_radars, N_BIAS * self.n_radars
+        c, k = _compact(c)
+        wj = w @ jac  # W_i J_i, (n, 2, 4)
+        jt = np.swapaxes(jac, 1, 2)
+        info = np.zeros((n_state, n_state))
+        diag_blocks = _group_sum(r, jt @ wj, m)  # sum_i J_i^T W_i J_i per radar, (M, 4, 4)
+        for i in range(m):  # over radars, not plots
+            info[i * N_BIAS : (i + 1) * N_BIAS, i * N_BIAS : (i + 1) * N_BIAS] = diag_blocks[i]
+        vec = _group_sum(r, np.einsum("nba,nb->na", wj, z), m).reshape(n_state)  # sum_i J_i^T W_i z_i
+        t_blocks = _group_sum(c * m + r, wj, k * m).reshape(k, m, 2, N_BIAS)  # T_c by radar block
+        t_c = np.transpose(t_blocks, (0, 2, 1, 3)).reshape(k, 2, n_state)
+        s_c = _group_sum(c, w, k)
+        m_c = _group_sum(c, np.einsum("nab,nb->na", w, z), k)
+        chol = _chol_2x2(_inv_2x2(s_c))  # S_c^-1 = L L^T
+        lt = np.swapaxes(chol, 1, 2)
+        g = (lt @ t_c).reshape(2 * k, n_state)  # L^T T_c, stacked
+        h = np.einsum("kab,kb->ka", lt, m_c).reshape(2 * k)  # L^T m_c
+        info -= g.T @ g
+        vec -= g.T @ h
+        return 0.5 * (info + info.T), vec
+
+    def _solve(self) -> None:
+        cov = np.linalg.inv(self.information)
+        cov = 0.5 * (cov + cov.T)
+        self.bias = (cov @ self.information_vector).reshape(self.n_radars, N_BIAS)
+        self.sigma = np.sqrt(np.maximum(np.diag(cov), 0.0)).reshape(self.n_radars, N_BIAS)
+        if self.params.reference_radar_id is None and self.n_radars > 1:
+            # the common time offset is unobservable and pinned to 0 by the prior (module docs):
+            # the time offsets are relative to the radars' mean, and so is their sigma
+            t_cols = np.arange(self.n_radars) * N_BIAS + TIME_OFFSET
+            centre = np.eye(self.n_radars) - 1.0 / self.n_radars
+            cov_rel = centre @ cov[np.ix_(t_cols, t_cols)] @ centre
+            self.sigma[:, TIME_OFFSET] = np.sqrt(np.maximum(np.diag(cov_rel), 0.0))
+        if not self.params.estimate_time_offset:
+            self.bias[:, TIME_OFFSET] = 0.0
+
+    # ----------------------------------------------------------------- correct
+    def applied_mask(self) -> NDArray[np.bool_]:
+        """(M,) radars whose correction is applied: enabled and at least ``min_plots`` plots."""
+        out: NDArray[np.bool_] = np.full(self.n_radars, self.params.enabled) & (
+            self.effective_plots >= self.params.min_plots
+        )
+        return out
+
+    def correction(self) -> NDArray[np.float64]:
+        """(M, 4) biases :meth:`correct` removes now (zero rows for radars not yet applied)."""
+        out: NDArray[np.float64] = np.where(self.applied_mask()[:, None], self.bias, 0.0)
+        return out
+
+    def correct(
+        self,
+        radar_index: npt.ArrayLike,
+        range_m: npt.ArrayLike,
+        azimuth_deg: npt.ArrayLike,
+        t_s: npt.ArrayLike | None = None,
+        bias: npt.ArrayLike | None = None,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
+        """Remove the biases (``bias`` (M, 4), default :meth:`correction`) from raw plots:
+        rho = (rho_m - range_offset) / (1 + gain), theta = theta_m - azimuth_offset (in [0, 360)),
+        t = t_m - time_offset. Returns (range_m, azimuth_deg, t_s or None)."""
+        b = self.correction() if bias is None else np.asarray(bias, dtype=float).reshape(self.n_radars, N_BIAS)
+        idx = self.geometry.sites.check_index(radar_index)
+        rb = b[idx]
+        rho = (np.asarray(range_m, dtype=float) - rb[..., RANGE_OFFSET]) / (1.0 + rb[..., RANGE_GAIN] * _PPM)
+        az = np.mod(np.asarray(azimuth_deg, dtype=float) - rb[..., AZIMUTH_OFFSET], 360.0)
+        az = np.where(az >= 360.0, 0.0, az)
+        t = None if t_s is None else np.asarray(t_s, dtype=float) - rb[..., TIME_OFFSET]
+        return rho, az, t
+
+    # ----------------------------------------------------------------- report
+    def estimates(self) -> dict[str, dict[str, Any]]:
+        """Per radar id: each bias and its 1-sigma (``<name>`` and ``<name>_sigma``, time offset None
+        when not estimated; without a reference radar the time offsets and their sigmas are
+        relative to the radars' mean), the effective plot count and whether the correction is
+        applied. Plain floats and bools: ready for the health message."""
+        applied = self.applied_mask()
+        out: dict[str, dict[str, Any]] = {}
+        for i, rid in enumerate(self.ids):
+            row: dict[str, Any] = {}
+            for j, name in enumerate(BIAS_NAMES):
+                on = j != TIME_OFFSET or self.params.estimate_time_offset
+                row[name] = float(self.bias[i, j]) if on else None
+                row[_sigma_name(name)] = float(self.sigma[i, j]) if on else None
+            row["plots"] = float(self.effective_plots[i])
+            row["applied"] = bool(applied[i])
+            out[rid] = row
+        return out
+
+
+def _sigma_name(name: str) -> str:
+    """range_offset_m -> range_offset_sigma_m (the unit stays last)."""
+    stem, unit = name.rsplit("_", 1)
+    return f"{stem}_sigma_{unit}"
