@@ -17,15 +17,19 @@ import pyproj
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import integrate
 
 from radar_fusion.geo.coordinates import (
+    MAX_UNKNOWN_ALTITUDE_M,
     RadarSites,
     SystemPlane,
     altitude_m_to_flight_level,
     flight_level_to_altitude_m,
     gaussian_earth_radius_m,
     geodetic_to_polar,
+    ground_range_for_unknown_height,
     polar_to_plane,
+    polar_to_plane_unknown_height,
 )
 
 NM = 1852.0
@@ -496,3 +500,212 @@ def test_meridian_factors_match_proj_get_factors():
         f = plane.proj.get_factors(lon, lat)
         np.testing.assert_allclose(k, f.meridional_scale, rtol=2e-6)
         np.testing.assert_allclose(conv_deg, f.meridian_convergence, atol=2e-4)
+
+
+# --------------------------------------------------------------------------- plots without height
+FT = 0.3048
+FL450_M = 45_000 * FT
+TO_ECEF = pyproj.Transformer.from_crs("+proj=longlat +ellps=WGS84", "+proj=geocent +ellps=WGS84", always_xy=True)
+
+
+def ecef_truth(site_lat, site_lon, site_alt, ground_m, az_deg, h_t):
+    """A target h_t above the ellipsoid, ground_m along the geodesic at az_deg from the site:
+    its lat/lon, the true slant range (3-D ECEF distance on the ellipsoid, no sphere) and
+    the azimuth (Geod.inv), and its plane position (independent sterea transformer)."""
+    n = np.size(ground_m)
+    lon, lat, _ = GEOD.fwd(np.full(n, site_lon), np.full(n, site_lat), az_deg, ground_m)
+    p_site = np.array(TO_ECEF.transform(np.full(n, site_lon), np.full(n, site_lat), np.full(n, site_alt)))
+    p_tgt = np.array(TO_ECEF.transform(lon, lat, h_t))
+    rho = np.linalg.norm(p_tgt - p_site, axis=0)
+    az, _, _ = GEOD.inv(np.full(n, site_lon), np.full(n, site_lat), lon, lat)
+    x, y = ref_transformer().transform(lon, lat)
+    return np.asarray(lat), np.asarray(lon), rho, np.mod(az, 360.0), np.asarray(x), np.asarray(y)
+
+
+def test_true_height_recovers_position_fl0_to_fl450_2_to_200_km():
+    """Targets at FL0..FL450, 2-200 km out, true slant range from ECEF: converted at their
+    true height they land within a metre or two of where they are (sphere vs ellipsoid)."""
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    for lat0, lon0, alt0 in [(CENTER_LAT, CENTER_LON, 50.0), (51.0, 7.0, 850.0)]:
+        sites = RadarSites([lat0], [lon0], [alt0], [50.0], [0.1])
+        g, fl, az = np.meshgrid(
+            [2e3, 5e3, 10e3, 40e3, 100e3, 200e3], np.arange(0, 451, 50), np.arange(5.0, 360.0, 40.0), indexing="ij"
+        )
+        g, h, az = g.ravel(), fl.ravel() * 100 * FT, az.ravel()
+        _, _, rho, az_t, x_t, y_t = ecef_truth(lat0, lon0, alt0, g, az, h)
+        x, y, _, _, valid = polar_to_plane(plane, sites, np.zeros(g.size, int), rho, az_t, h, return_valid=True)
+        assert valid.all()
+        err = np.hypot(x - x_t, y - y_t)
+        assert np.max(err) < 2.0, np.max(err)
+
+
+def test_fl300_40km_track_height_within_metres_10000ft_off_by_hundreds():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    h_r, sigma_rho = 50.0, 50.0
+    sites = RadarSites([CENTER_LAT], [CENTER_LON], [h_r], [sigma_rho], [0.08])
+    h_true = 30_000 * FT
+    az = np.array([30.0, 150.0, 260.0])
+    _, _, rho, az_t, x_t, y_t = ecef_truth(CENTER_LAT, CENTER_LON, h_r, np.full(3, 40e3), az, np.full(3, h_true))
+    idx = np.zeros(3, int)
+    # At the (track's predicted) true height: within a few metres.
+    x, y, _, _ = polar_to_plane(plane, sites, idx, rho, az_t, np.full(3, h_true))
+    assert np.max(np.hypot(x - x_t, y - y_t)) < 3.0
+    # At the 10,000 ft assumption: the ground range is too long by what the independent
+    # arccos law of cosines says, about 900 m.
+    assumed = 10_000 * FT
+    x_a, y_a, _, _ = polar_to_plane(plane, sites, idx, rho, az_t, np.full(3, np.nan), assumed_altitude_m=assumed)
+    err_a = np.hypot(x_a - x_t, y_a - y_t)
+    expected = ref_ground_from_slant(ref_radius(CENTER_LAT), h_r, assumed, rho) - 40e3
+    np.testing.assert_allclose(err_a, expected, atol=2.0)
+    assert np.all((err_a > 500.0) & (err_a < 1500.0)), err_a
+    # With the 0-FL450 interval the truth is inside the interval and its covariance.
+    xu, yu, cov_u, _, valid = polar_to_plane_unknown_height(plane, sites, idx, rho, az_t)
+    iv = ground_range_for_unknown_height(sites.earth_radius_m[0], h_r, rho)
+    assert valid.all() and np.all((iv.ground_min_m < 40e3) & (iv.ground_max_m > 40e3))
+    d = np.stack([x_t - xu, y_t - yu], axis=1)
+    maha2 = np.einsum("ni,nij,nj->n", d, np.linalg.inv(cov_u), d)
+    assert np.all(maha2 < 4.0), maha2
+
+
+def _mc_ground_over_uniform_heights(r, h_r, rho, n, seed, h_max=FL450_M):
+    """Ground ranges of targets at heights uniform in [0, h_max] that the radar could see
+    at slant range rho (|h - h_r| <= rho: rejection), by the arccos law of cosines."""
+    rng = np.random.default_rng(seed)
+    h = rng.uniform(0.0, h_max, n)
+    h = h[np.abs(h - h_r) <= rho]
+    return ref_ground_from_slant(r, h_r, h, rho)
+
+
+@pytest.mark.filterwarnings("ignore::scipy.integrate.IntegrationWarning")
+@pytest.mark.parametrize(
+    ("h_r", "rho"),
+    [(50.0, 2e3), (50.0, 9e3), (50.0, 14e3), (850.0, 14.6e3), (50.0, 40e3), (850.0, 100e3), (50.0, 200e3)],
+)
+def test_unknown_height_moments_match_monte_carlo_and_quadrature(h_r, rho):
+    r = float(ref_radius(CENTER_LAT))
+    iv = ground_range_for_unknown_height(r, h_r, rho)
+    assert iv.valid.all()
+    n = 400_000
+    g = _mc_ground_over_uniform_heights(r, h_r, rho, n, seed=int(rho) + int(h_r))
+    mean_mc, var_mc = g.mean(), g.var()
+    se_mean = np.sqrt(var_mc / g.size)
+    se_var = np.sqrt((np.mean((g - mean_mc) ** 4) - var_mc**2) / g.size)
+    assert abs(iv.ground_mean_m[0] - mean_mc) < 4.0 * se_mean
+    assert abs(iv.ground_var_m2[0] - var_mc) < 4.0 * se_var
+    # The interval holds every sample and its ends are reached.
+    assert iv.ground_min_m[0] <= g.min() + 1e-6 and g.max() <= iv.ground_max_m[0] + 1e-6
+    span = iv.ground_max_m[0] - iv.ground_min_m[0]
+    assert g.min() - iv.ground_min_m[0] < 0.01 * span and iv.ground_max_m[0] - g.max() < 1e-3 * span
+    # Never negative; never beyond the arc under a sea-level chord rho (a, b >= R).
+    assert iv.ground_min_m[0] >= 0.0 and iv.ground_max_m[0] <= 2.0 * r * np.arcsin(rho / (2.0 * r))
+    # Adaptive quadrature of the same integrals in h (to 1e-10): the 16-node rule is exact.
+    lo, hi = max(0.0, h_r - rho), min(FL450_M, h_r + rho)
+    assert iv.altitude_low_m[0] == pytest.approx(lo) and iv.altitude_high_m[0] == pytest.approx(hi)
+    m_q = integrate.quad(lambda h: ref_ground_from_slant(r, h_r, h, rho), lo, hi, epsabs=0, epsrel=1e-10, limit=200)[
+        0
+    ] / (hi - lo)
+    v_q = integrate.quad(
+        lambda h: (np.nan_to_num(ref_ground_from_slant(r, h_r, h, rho)) - m_q) ** 2,
+        lo,
+        hi,
+        epsabs=0,
+        epsrel=1e-10,
+        limit=200,
+    )[0] / (hi - lo)
+    assert iv.ground_mean_m[0] == pytest.approx(m_q, rel=1e-9, abs=1e-6)
+    assert iv.ground_var_m2[0] == pytest.approx(v_q, rel=1e-6)
+
+
+def test_unknown_height_uniform_in_ground_range_would_be_wrong_close_in():
+    """The test above has power: near the radar g(h) ~ sqrt(rho^2 - h^2) is far from
+    linear, and the mid-point and (span)^2/12 of a uniform ground range miss the Monte
+    Carlo by hundreds of standard errors (at 14 km the mid-point is ~2.7 km short)."""
+    r = float(ref_radius(CENTER_LAT))
+    iv = ground_range_for_unknown_height(r, 50.0, 14e3)
+    g = _mc_ground_over_uniform_heights(r, 50.0, 14e3, 400_000, seed=1)
+    mid = 0.5 * (iv.ground_min_m[0] + iv.ground_max_m[0])
+    assert abs(mid - g.mean()) > 2000.0
+    assert abs((iv.ground_max_m[0] - iv.ground_min_m[0]) ** 2 / 12.0 - g.var()) > 0.2 * g.var()
+
+
+@pytest.mark.parametrize(("rho", "az"), [(40e3, 70.0), (120e3, 200.0)])
+def test_unknown_height_plane_covariance_monte_carlo(rho, az):
+    """Plane mean and covariance of the true positions behind one measured (rho, theta):
+    height uniform in the feasible interval, range and azimuth noise, each draw converted
+    by the independent reference converter; site 300 km off the plane's centre."""
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = site_300km_from_center()
+    lat0, lon0, h_r = float(sites.lat_deg[0]), float(sites.lon_deg[0]), float(sites.alt_m[0])
+    x, y, cov, _, valid = polar_to_plane_unknown_height(plane, sites, [0], [rho], [az])
+    assert valid[0]
+    rng = np.random.default_rng(int(rho))
+    n = 40_000
+    h = rng.uniform(0.0, FL450_M, n)
+    rho_t = rho - rng.normal(0.0, sites.sigma_range_m[0], n)
+    az_t = az - rng.normal(0.0, sites.sigma_azimuth_deg[0], n)
+    xs, ys, _ = ref_polar_to_xy(ref_transformer(), lat0, lon0, h_r, rho_t, az_t, h)
+    d = np.stack([xs - x[0], ys - y[0]])
+    emp = np.cov(d)
+    np.testing.assert_allclose(whitened(emp, cov[0]), np.eye(2), atol=0.05)
+    # Mean: within 4 standard errors along each axis.
+    se = np.sqrt(np.diag(cov[0]) / n)
+    assert np.all(np.abs(d.mean(axis=1)) < 4.0 * se)
+    if rho < 100e3:  # here the height interval dominates the range noise (the test has power)
+        assert np.max(np.linalg.eigvalsh(cov[0])) > 50.0 * sites.sigma_range_m[0] ** 2
+
+
+def test_unknown_height_near_radar_within_physical_bounds():
+    """A plot 2 km from the radar (slant) without height: never a negative ground range,
+    never one beyond the slant range; 10,000 ft would put it on the site."""
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    h_r = 50.0
+    sites = RadarSites([CENTER_LAT], [CENTER_LON], [h_r], [30.0], [0.08])
+    sx, sy = sites.plane_positions(plane)
+    rho = np.array([300.0, 1000.0, 2000.0, 2500.0, 3000.0])
+    az = np.array([0.0, 45.0, 100.0, 210.0, 333.0])
+    idx = np.zeros(rho.size, int)
+    x, y, cov, ground, valid = polar_to_plane_unknown_height(plane, sites, idx, rho, az)
+    iv = ground_range_for_unknown_height(sites.earth_radius_m[0], h_r, rho)
+    assert valid.all()
+    assert np.all(iv.ground_min_m >= 0.0) and np.all(iv.ground_max_m <= rho)
+    assert np.all((ground >= iv.ground_min_m) & (ground <= iv.ground_max_m))
+    dist = np.hypot(x - sx[0], y - sy[0])
+    assert np.all(dist <= rho) and np.all(dist > 0.5 * rho)
+    assert np.all(np.linalg.eigvalsh(cov) > 0.0)
+    # An aircraft on the ground 2.5 km out (truth from ECEF) is inside the interval and
+    # its covariance; converted at its track's height (0 m) it is exact to a metre.
+    _, _, rho_g, az_g, x_t, y_t = ecef_truth(CENTER_LAT, CENTER_LON, h_r, [2500.0], [120.0], [0.0])
+    xg, yg, cg, _, _ = polar_to_plane_unknown_height(plane, sites, [0], rho_g, az_g)
+    dg = np.array([x_t[0] - xg[0], y_t[0] - yg[0]])
+    assert dg @ np.linalg.solve(cg[0], dg) < 9.0
+    xk, yk, _, _ = polar_to_plane(plane, sites, [0], rho_g, az_g, [0.0])
+    assert np.hypot(xk[0] - x_t[0], yk[0] - y_t[0]) < 1.0
+    # The 10,000 ft assumption: impossible geometry up to 3 km, clamped onto the site;
+    # at 3 km slant, 10,000 ft pulls the plot to a ground range of ~350 m.
+    _, _, _, g_a, v_a = polar_to_plane(
+        plane, sites, idx, rho, az, np.full(rho.size, np.nan), assumed_altitude_m=10_000 * FT, return_valid=True
+    )
+    assert not v_a[:4].any() and np.all(g_a[:4] == 0.0) and v_a[4] and g_a[4] < 0.2 * rho[4]
+
+
+def test_unknown_height_edge_cases():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = RadarSites([CENTER_LAT], [CENTER_LON], [0.0], [30.0], [0.08])
+    rho = np.array([500.0, np.nan, -1.0, 50e3, 0.0])
+    az = np.array([10.0, 10.0, 10.0, np.nan, 10.0])
+    # Heights of 1-2 km: a 500 m slant range is impossible -> site, isotropic, invalid.
+    x, y, cov, g, valid = polar_to_plane_unknown_height(plane, sites, np.zeros(5, int), rho, az, 1000.0, 2000.0)
+    assert valid.tolist() == [False, False, False, False, False]
+    assert g[0] == 0.0 and abs(x[0]) < 1e-6 and abs(y[0]) < 1e-6
+    np.testing.assert_allclose(cov[0], (500.0**2 + 30.0**2) * np.eye(2))
+    for i in (1, 2, 3):
+        assert np.isnan(x[i]) and np.isnan(g[i]) and np.all(np.isnan(cov[i]))
+    # One height (min = max): the moments are that height's ground range, variance 0.
+    iv = ground_range_for_unknown_height(sites.earth_radius_m[0], 0.0, [40e3], 9000.0, 9000.0)
+    g_ref = ref_ground_from_slant(ref_radius(CENTER_LAT), 0.0, 9000.0, 40e3)
+    assert iv.ground_mean_m[0] == pytest.approx(g_ref, abs=1e-6) and iv.ground_var_m2[0] == pytest.approx(0, abs=1e-6)
+    assert iv.ground_min_m[0] == pytest.approx(g_ref, abs=1e-6) == iv.ground_max_m[0]
+    # Empty input.
+    out = polar_to_plane_unknown_height(plane, sites, np.array([], int), [], [])
+    assert out[0].shape == (0,) and out[2].shape == (0, 2, 2) and out[4].shape == (0,)
+    assert pytest.approx(FL450_M) == MAX_UNKNOWN_ALTITUDE_M

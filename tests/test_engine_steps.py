@@ -14,7 +14,8 @@ import pytest
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
 from radar_fusion.engine.admission import ClockCheck
-from radar_fusion.geo.coordinates import geodetic_to_polar
+from radar_fusion.engine.columns import PlotChunk
+from radar_fusion.geo.coordinates import geodetic_to_polar, polar_to_plane
 from radar_fusion.geo.units import M_PER_FL
 from radar_fusion.tracking.initiation import one_point_initiation, unknown_velocity_var_m2ps2
 from radar_fusion.tracking.manoeuvre import ManoeuvreDetector
@@ -281,3 +282,46 @@ def test_two_tracks_on_one_address_merge_into_the_older_id():
     assert cols.track_id.tolist() == [1] and cols.ended.tolist() == [2]
     assert cols.mode_s.tolist() == [0x4B1234]
     assert eng.tracks.t_state_s[0] == pytest.approx(t + 2.0)  # the newest member's state
+
+
+# ------------------------------------------------------------------ primary plots
+def test_the_gate_step_converts_a_primary_plot_at_its_tracks_altitude():
+    """Radar a (SSR, Mode C) and radar b (primary only: no Mode C, no address) see one
+    aircraft at FL300 some 50 km from b. Converted at the assumed 10,000 ft, b's plot lies
+    hundreds of metres off along b's radial (issue 15: shadow tracks); the gate step
+    converts it at the altitude of the track it belongs to."""
+    eng = Engine(settings())
+    for k in range(6):
+        t = T0 + 4.0 * k
+        eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0))
+        p = plot_of(eng, 1, k + 1, t + 3.0)
+        p.fl, p.mode_s = np.array([np.nan]), np.array([-1])
+        eng.ingest_plots(p)
+        eng.poll()
+    assert eng.counters["tracks_initiated"] == 1 and eng.counters["plots_primary_track_height"] >= 4
+    t_ref_s = T0 + 28.0
+    p = plot_of(eng, 1, 99, t_ref_s - 1.0)
+    raw = PlotChunk(
+        p.t_s,
+        p.range_m,
+        p.azimuth_deg,
+        np.array([np.nan]),
+        np.array([1]),
+        np.array([-1]),
+        np.array([-1]),
+        np.array([-1]),
+    )
+    plots = eng._gate(raw, eng._predict(t_ref_s), t_ref_s)
+    err_m = float(np.hypot(plots.x_m[0] - truth_xy(t_ref_s - 1.0)[0], plots.y_m[0] - truth_xy(t_ref_s - 1.0)[1]))
+    assert err_m < 30.0, err_m
+    # the premise: at the assumed height the same plot is far off
+    x_a, y_a, _, _ = polar_to_plane(
+        eng.plane,
+        eng.sites,
+        np.array([1]),
+        p.range_m,
+        p.azimuth_deg,
+        np.array([np.nan]),
+        assumed_altitude_m=eng.assumed_altitude_m,
+    )
+    assert float(np.hypot(x_a[0] - truth_xy(t_ref_s - 1.0)[0], y_a[0] - truth_xy(t_ref_s - 1.0)[1])) > 500.0

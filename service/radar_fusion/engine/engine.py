@@ -43,14 +43,20 @@ from typing import Any
 import numpy as np
 
 from ..config import Settings
-from ..geo.coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
-from ..geo.units import FT_PER_FL, M_PER_FT
+from ..geo.coordinates import (
+    RadarSites,
+    SystemPlane,
+    flight_level_to_altitude_m,
+    polar_to_plane,
+)
+from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
 from ..safety_nets import SafetyNets
 from ..tracking.clustering import ClusterResult, cluster_plots
 from ..tracking.fusion import fuse_clusters
 from ..tracking.initiation import one_point_initiation, two_point_initiation, unknown_velocity_var_m2ps2
 from ..tracking.live_gate import LiveOutlierGate
 from ..tracking.manoeuvre import ManoeuvreDetector
+from ..tracking.primary_height import primary_plot_altitude
 from ..tracking.singer_filter import AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
@@ -209,8 +215,8 @@ class Engine:
         with the very velocity it is meant to correct.
         """
         t0 = time.perf_counter()
-        plots = self._gate(raw)
         pred = self._predict(t_ref_s)
+        plots = self._gate(raw, pred, t_ref_s)
         changed = np.empty(0, np.int64)  # rows updated or created in this period
         self.tracks.sources = np.zeros(len(self.tracks), np.uint64)
         if len(plots):
@@ -234,10 +240,18 @@ class Engine:
         return PeriodOutput(period, t_ref_s, columns, alerts, dt, len(plots))
 
     # ------------------------------------------------------------------ gate
-    def _gate(self, raw: PlotChunk) -> ConvertedPlots:
+    def _gate(self, raw: PlotChunk, pred: Prediction, t_ref_s: float) -> ConvertedPlots:
         """The closing period's plots: the live wild-plot gate (Hu 2013, live_gate.py) in
         time order per radar track, then conversion to the system plane
-        (geo/coordinates.py) — one vectorised pass over all radars."""
+        (geo/coordinates.py) — one vectorised pass over all radars.
+
+        A plot without Mode C (a primary plot) is converted at the predicted altitude of the
+        track it may belong to (primary_height.py; issue 15: converted at a guessed height,
+        the plots of a high aircraft missed its track and started a shadow track beside it);
+        with no such track, at the configured assumed height. (Spreading such a plot's
+        covariance over every height from the ground to FL450, geo.coordinates.
+        polar_to_plane_unknown_height, was measured on the demo: 85 -> 98 m position RMS,
+        its wide radial gates letting clutter in; it is kept for track initiation, next.)"""
         if self.outlier_gate is not None and len(raw):
             keys = radar_track_keys(raw.radar, raw.track_no, raw.mode_s)
             has_key = np.flatnonzero(keys >= 0)
@@ -254,6 +268,24 @@ class Engine:
                     keep[wild] = False
                     raw = raw.select(keep)
         altitude_m = flight_level_to_altitude_m(raw.fl)
+        no_c = ~np.isfinite(altitude_m)
+        if no_c.any() and len(self.tracks):
+            pick = primary_plot_altitude(
+                self.plane,
+                self.sites,
+                raw.radar,
+                raw.range_m,
+                raw.azimuth_deg,
+                ~no_c,
+                position_m(pred.x),
+                flight_level_to_altitude_m(pred.alt_x[:, 0]),
+                cov_pos_m2(pred.P),
+                track_velocity_mps=velocity_mps(pred.x),
+                plot_dt_s=raw.t_s - t_ref_s,
+                track_altitude_var_m2=pred.alt_P[:, 0, 0] * M_PER_FL**2,
+            )
+            altitude_m = np.where(no_c, pick.altitude_m, altitude_m)
+            self.counters["plots_primary_track_height"] += int(np.isfinite(altitude_m[no_c]).sum())
         x_m, y_m, cov_m2, _ = polar_to_plane(
             self.plane,
             self.sites,
@@ -263,6 +295,7 @@ class Engine:
             altitude_m,
             assumed_altitude_m=self.assumed_altitude_m,
         )
+        # raw.fl stays NaN: the altitude filter is never updated with its own prediction
         return ConvertedPlots(raw.t_s, x_m, y_m, cov_m2, raw.radar, raw.mode_s, raw.mode3a, raw.fl)
 
     # --------------------------------------------------------------- predict

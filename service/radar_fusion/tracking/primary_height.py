@@ -1,0 +1,246 @@
+"""Height for plots without Mode C: the predicted altitude of the track a plot may belong to.
+
+A primary (PSR) plot measures slant range rho and azimuth theta but no height. Its ground
+range depends on the height it is converted at (rho^2 ~ g^2 + h^2 close in): at FL300
+40 km out, converting at a guessed 10,000 ft puts it ~1 km too far out. If a track
+predicted to the period's time is where the plot is, that track's altitude is the best
+height to convert the plot at; otherwise the plot must be converted with the whole height
+interval (geo.coordinates.polar_to_plane_unknown_height).
+
+The comparison is made where the plot was measured, in the radar's own polar
+coordinates, so it needs no height for the plot: each track's position is converted to
+what the plot's radar would measure of it (``SystemPlane.to_geodetic`` then
+``geodetic_to_polar``: slant range rho_t, azimuth theta_t, ground range g_t, all exact on
+the site's Gaussian sphere).
+
+* A track with an altitude h_t has one slant range. Its position covariance P (plane,
+  2x2) is projected on the radial u and the cross-range v directions (from the site to
+  the track in the plane): var_rho = (d rho/d g)^2 u^T P u + (d rho/d h)^2 var_h and
+  var_theta = v^T P v / g_t^2, with d rho/d g = a b sin(g/R) / (R rho) and
+  d rho/d h = (b - a cos(g/R)) / rho (a = R + h_r, b = R + h_t).
+* A track without altitude may be at any height in [MIN, MAX]_UNKNOWN_ALTITUDE_M (0 ft,
+  FL450): it spans the slant-range interval [rho_lo, rho_hi] over those heights (the
+  minimum is at b = a cos(g/R) when that is inside), and the distance to it is the
+  distance to the interval. It competes for plots like any track (a primary-only
+  aircraft's plots stay with its own track), and gives them no altitude.
+* A track moves between the period's reference time and the plot's time: with the plot's
+  offset dt (``plot_dt_s``) and the track's plane velocity, rho_t += (d rho/d g)(u . v_t) dt
+  and theta_t += (v . v_t) dt / g_t.
+
+For plot i of radar r (sigma_rho, sigma_theta its noise) and candidate track j the
+normalised distance is
+
+    d^2 = max(|rho_i - rho_j| - halfwidth_j, 0)^2 / (sigma_rho^2 + var_rho_j)
+        + wrap(theta_i - theta_j)^2 / (sigma_theta^2 + var_theta_j),
+
+and a track gates the plot if d <= ``gate_sigmas``. Among the gated tracks the plot takes
+the most likely, the smallest Gaussian negative log-likelihood
+
+    (rho_i - rho_mid_j)^2 / S_rho_j + ln S_rho_j + dtheta^2 / S_theta_j + ln S_theta_j,
+
+with S_rho_j = sigma_rho^2 + var_rho_j + halfwidth_j^2 / 3 (a track without altitude
+spreads its slant range uniformly over its interval): so a plot right on a track with
+altitude is not taken by a track without altitude whose wide interval also holds it,
+as the bare distance to the interval (zero inside) would do. Candidates are
+the ``n_candidates`` nearest tracks in the radar's slant-range plane
+rho (sin theta, cos theta) (a k-d tree per radar; |p_i - p_j|^2 = drho^2 +
+4 rho_i rho_j sin^2(dtheta / 2) ~ drho^2 + (rho dtheta)^2, and no wrap at north):
+O(M log N) for M plots and N tracks, plus one ``Geod.inv`` per (radar, track within the
+reach of its plots) pair.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from ..geo.coordinates import (
+    MAX_UNKNOWN_ALTITUDE_M,
+    MIN_UNKNOWN_ALTITUDE_M,
+    RadarSites,
+    SystemPlane,
+    geodetic_to_polar,
+    ground_to_slant_range,
+)
+
+__all__ = ["PrimaryHeight", "primary_plot_altitude"]
+
+#: ground range below which a track's azimuth rate and cross-range variance are taken at
+#: this range (a track right over the site has no defined azimuth)
+_MIN_GROUND_M = 100.0
+
+
+class PrimaryHeight(NamedTuple):
+    """Per plot (M,): the track it was matched to and the altitude to convert it at."""
+
+    track_index: NDArray[np.intp]
+    """Row of the track arrays, -1 for plots with Mode C and for plots no track gates."""
+    altitude_m: NDArray[np.float64]
+    """The matched track's predicted altitude, metres; NaN where there is no match or the
+    track has no altitude (then convert with the height interval)."""
+
+
+def primary_plot_altitude(
+    plane: SystemPlane,
+    sites: RadarSites,
+    plot_radar: Any,
+    plot_range_m: Any,
+    plot_azimuth_deg: Any,
+    plot_has_altitude: Any,
+    track_xy_m: Any,
+    track_altitude_m: Any,
+    track_cov_xy_m2: Any,
+    *,
+    track_velocity_mps: Any = None,
+    plot_dt_s: Any = None,
+    track_altitude_var_m2: Any = None,
+    gate_sigmas: float = 4.0,
+    n_candidates: int = 8,
+    min_altitude_m: float = MIN_UNKNOWN_ALTITUDE_M,
+    max_altitude_m: float = MAX_UNKNOWN_ALTITUDE_M,
+) -> PrimaryHeight:
+    """For each plot without height, the track it may belong to and its predicted altitude.
+
+    Plots (M,): ``plot_radar`` (row of ``sites``), ``plot_range_m`` (slant), ``plot_azimuth_deg``,
+    ``plot_has_altitude`` (bool: Mode C present; those plots are skipped), and optionally
+    ``plot_dt_s`` (plot time minus the tracks' prediction time, s).
+    Tracks (N,), predicted to one time: ``track_xy_m`` (N,2) plane position,
+    ``track_altitude_m`` (N,) metres or NaN, ``track_cov_xy_m2`` (N,2,2) position
+    covariance, optionally ``track_velocity_mps`` (N,2) plane velocity and
+    ``track_altitude_var_m2`` (N,) altitude variance. Tracks with a non-finite position
+    or covariance are ignored.
+
+    ``gate_sigmas``: the gate on the normalised distance d (module docstring); 4 keeps a
+    plot of the track with probability 1 - exp(-8) ~ 0.9997 when the errors are Gaussian
+    and the covariances honest. ``n_candidates``: how many nearest tracks per plot are
+    tried. ``min_altitude_m``/``max_altitude_m``: the heights a track without altitude may
+    be at.
+    """
+    radar = sites.check_index(plot_radar).reshape(-1)
+    rho_p = np.asarray(plot_range_m, dtype=float).reshape(-1)
+    theta_p = np.radians(np.asarray(plot_azimuth_deg, dtype=float).reshape(-1))
+    has_alt = np.asarray(plot_has_altitude, dtype=bool).reshape(-1)
+    m = rho_p.shape[0]
+    if not (radar.shape == theta_p.shape == has_alt.shape == (m,)):
+        raise ValueError("plot arrays must all have the same length")
+    dt_p = np.zeros(m) if plot_dt_s is None else np.broadcast_to(np.asarray(plot_dt_s, dtype=float), (m,))
+
+    xy = np.asarray(track_xy_m, dtype=float).reshape(-1, 2)
+    n = xy.shape[0]
+    alt = np.asarray(track_altitude_m, dtype=float).reshape(n)
+    cov = np.asarray(track_cov_xy_m2, dtype=float).reshape(n, 2, 2)
+    vel = np.zeros((n, 2)) if track_velocity_mps is None else np.asarray(track_velocity_mps, float).reshape(n, 2)
+    var_h = np.zeros(n) if track_altitude_var_m2 is None else np.asarray(track_altitude_var_m2, float).reshape(n)
+    var_h = np.where(np.isfinite(var_h), var_h, 0.0)
+
+    track_index = np.full(m, -1, dtype=np.intp)
+    need = ~has_alt & np.isfinite(rho_p) & (rho_p > 0.0) & np.isfinite(theta_p) & np.isfinite(dt_p)
+    usable = np.flatnonzero(
+        np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.isfinite(vel), axis=1)
+    )
+    if not need.any() or usable.size == 0:
+        return PrimaryHeight(track_index, np.full(m, np.nan))
+
+    xy_u, alt_u, cov_u, vel_u, var_h_u = xy[usable], alt[usable], cov[usable], vel[usable], var_h[usable]
+    known = np.isfinite(alt_u)
+    lat_u, lon_u = plane.to_geodetic(xy_u[:, 0], xy_u[:, 1])
+    site_x, site_y = sites.plane_positions(plane)
+    k = min(int(n_candidates), usable.size)
+
+    # Tracks a radar's plots can reach: plane distance ~ k g <= 1.01 rho (k the plane's
+    # scale factor, < 1.006 within 1,000 km), plus motion and gate. A cheap bound that keeps
+    # the Geod.inv per (radar, track) to the radar's coverage.
+    slack_m = (
+        5e3
+        + float(np.max(np.hypot(vel_u[:, 0], vel_u[:, 1]))) * float(np.max(np.abs(dt_p[need])))
+        + gate_sigmas * float(np.sqrt(np.max(cov_u[:, 0, 0] + cov_u[:, 1, 1])))
+    )
+    dist_from_site_m = np.empty(usable.size)
+
+    for r in np.unique(radar[need]):
+        plots = np.flatnonzero(need & (radar == r))
+        np.hypot(xy_u[:, 0] - site_x[r], xy_u[:, 1] - site_y[r], out=dist_from_site_m)
+        sel = np.flatnonzero(dist_from_site_m <= 1.01 * float(rho_p[plots].max()) + slack_m)
+        if sel.size == 0:
+            continue
+        xy_s, alt_s, cov_s, vel_s, var_h_s, known_s = (
+            xy_u[sel],
+            alt_u[sel],
+            cov_u[sel],
+            vel_u[sel],
+            var_h_u[sel],
+            known[sel],
+        )
+        n_s = sel.size
+        # What radar r measures of every track (for tracks without altitude: at min_altitude_m).
+        h_t = np.where(known_s, alt_s, min_altitude_m)
+        rho_t, az_t_deg, g_t = geodetic_to_polar(sites, np.full(n_s, r), lat_u[sel], lon_u[sel], h_t)
+        theta_t = np.radians(az_t_deg)
+        r_m, h_r = float(sites.earth_radius_m[r]), float(sites.alt_m[r])
+        a = r_m + h_r
+        gamma = g_t / r_m
+        # Slant-range interval of a track without altitude over [min, max] altitude; its
+        # minimum over heights is at b = a cos(gamma) when inside.
+        h_star = np.clip(a * np.cos(gamma) - r_m, min_altitude_m, max_altitude_m)
+        r_arr, h_r_arr = np.full(n_s, r_m), np.full(n_s, h_r)
+        rho_ends = [
+            ground_to_slant_range(r_arr, h_r_arr, h, g_t)
+            for h in (np.full(n_s, min_altitude_m), np.full(n_s, max_altitude_m), h_star)
+        ]
+        rho_lo = np.where(known_s, rho_t, np.minimum(np.minimum(rho_ends[0], rho_ends[1]), rho_ends[2]))
+        rho_hi = np.where(known_s, rho_t, np.maximum(rho_ends[0], rho_ends[1]))
+        rho_mid, half_m = 0.5 * (rho_lo + rho_hi), 0.5 * (rho_hi - rho_lo)
+
+        # Track uncertainty and motion in the radar's frame.
+        b = r_m + np.where(known_s, alt_s, 0.5 * (min_altitude_m + max_altitude_m))
+        rho_b = ground_to_slant_range(r_arr, h_r_arr, b - r_m, g_t)
+        drho_dg = np.where(rho_b > 0.0, a * b * np.sin(gamma) / (r_m * np.maximum(rho_b, 1e-9)), 1.0)
+        drho_dh = np.where(rho_b > 0.0, (b - a * np.cos(gamma)) / np.maximum(rho_b, 1e-9), 1.0)
+        u = np.stack([xy_s[:, 0] - site_x[r], xy_s[:, 1] - site_y[r]], axis=1)
+        u_norm = np.linalg.norm(u, axis=1, keepdims=True)
+        # u: radial unit vector; its clockwise normal v = (uy, -ux) points where azimuth grows.
+        u = np.where(u_norm > 0.0, u / np.where(u_norm > 0.0, u_norm, 1.0), np.array([0.0, 1.0]))
+        g_safe = np.maximum(g_t, _MIN_GROUND_M)
+        p_xx, p_xy, p_yy = cov_s[:, 0, 0], cov_s[:, 0, 1], cov_s[:, 1, 1]
+        ux, uy = u[:, 0], u[:, 1]  # v = (uy, -ux)
+        p_uu = ux * ux * p_xx + 2.0 * ux * uy * p_xy + uy * uy * p_yy
+        p_vv = uy * uy * p_xx - 2.0 * ux * uy * p_xy + ux * ux * p_yy
+        var_rho_t = drho_dg**2 * p_uu + np.where(known_s, drho_dh**2 * var_h_s, 0.0)
+        var_theta_t = p_vv / g_safe**2
+        rho_rate = drho_dg * (ux * vel_s[:, 0] + uy * vel_s[:, 1])
+        theta_rate = (uy * vel_s[:, 0] - ux * vel_s[:, 1]) / g_safe
+
+        k_s = min(k, n_s)
+        # Candidates: nearest tracks in the slant-range plane rho (sin theta, cos theta).
+        tree = cKDTree(np.stack([rho_mid * np.sin(theta_t), rho_mid * np.cos(theta_t)], axis=1))
+        q = np.stack([rho_p[plots] * np.sin(theta_p[plots]), rho_p[plots] * np.cos(theta_p[plots])], axis=1)
+        _, cand = tree.query(q, k=k_s)
+        cand = np.asarray(cand, dtype=np.intp).reshape(plots.size, k_s)
+
+        dt = dt_p[plots][:, None]
+        d_rho = np.maximum(np.abs(rho_p[plots][:, None] - (rho_mid[cand] + rho_rate[cand] * dt)) - half_m[cand], 0.0)
+        d_theta = np.mod(theta_p[plots][:, None] - theta_t[cand] - theta_rate[cand] * dt + np.pi, 2.0 * np.pi) - np.pi
+        s_rho = float(sites.sigma_range_m[r]) ** 2 + var_rho_t[cand]
+        s_theta = float(sites.sigma_azimuth_rad[r]) ** 2 + var_theta_t[cand]
+        with np.errstate(divide="ignore", invalid="ignore"):  # 0/0 (no noise, exact) is a distance 0
+            d2 = np.where(d_rho == 0.0, 0.0, d_rho**2 / s_rho) + np.where(d_theta == 0.0, 0.0, d_theta**2 / s_theta)
+        inside = np.isfinite(d2) & (d2 <= gate_sigmas**2)
+        # Choice among the gated: the Gaussian negative log-likelihood (a track without
+        # altitude spreads its slant range uniformly over its interval: variance hw^2/3).
+        s_rho_eff = s_rho + half_m[cand] ** 2 / 3.0
+        d_mid = rho_p[plots][:, None] - (rho_mid[cand] + rho_rate[cand] * dt)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nll = d_mid**2 / s_rho_eff + np.log(s_rho_eff) + d_theta**2 / s_theta + np.log(s_theta)
+        nll = np.where(inside, np.where(np.isnan(nll), -np.inf, nll), np.inf)
+        best = np.argmin(nll, axis=1)
+        rows = np.arange(plots.size)
+        ok = inside[rows, best]
+        track_index[plots[ok]] = usable[sel[cand[rows[ok], best[ok]]]]
+
+    matched = track_index >= 0
+    altitude_m = np.full(m, np.nan)
+    altitude_m[matched] = alt[track_index[matched]]
+    return PrimaryHeight(track_index, altitude_m)
