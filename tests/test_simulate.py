@@ -437,7 +437,9 @@ def test_demo_has_every_kind_of_flight():
     assert len(ids) == len(demo.scenario.targets)
 
 
-def test_adsb_preset_reproduces_the_table(shared_data):
+def test_adsb_preset_follows_the_table(shared_data):
+    """The truth is the smoothed ADS-B path (tools/smoothing.py): near the table's fixes,
+    not through them (they jitter along track by tens of metres)."""
     with gzip.open(shared_data / "adsb" / "switzerland_2018-08-01.json.gz", "rt") as f:
         rows = json.load(f)
     sc = sim.preset("adsb", duration_s=300.0, max_aircraft=15)
@@ -445,21 +447,21 @@ def test_adsb_preset_reproduces_the_table(shared_data):
     s = sim.simulate(sc)
     tr = s.truth
     table = {(r["icao24"], r["timestamp"] / 1000.0): r for r in rows}
-    kept = {(t.target_id, float(ts)) for t in sc.targets for ts in t.path.t_s}
-    checked = in_table = 0
+    dist_m, dalt_ft = [], []
     for k in range(len(tr)):
         r = table.get((tr.target_id[k], tr.t_s[k]))
-        if r is None:
+        if r is None or r["latitude"] is None:
             continue
-        in_table += 1
-        if (tr.target_id[k], tr.t_s[k]) not in kept:
-            continue  # a stale sample the simulator dropped
         _, _, d = GEOD.inv(r["longitude"], r["latitude"], tr.lon_deg[k], tr.lat_deg[k])
-        assert d < 1.0, (tr.target_id[k], d)
-        assert abs(tr.alt_ft[k] - r["altitude"]) < 0.5
+        dist_m.append(d)
+        dalt_ft.append(abs(tr.alt_ft[k] - r["altitude"]))
         assert tr.mode_s[k] == r["icao24"].upper()
-        checked += 1
-    assert checked > 200 and checked >= 0.97 * in_table
+    dist_m, dalt_ft = np.array(dist_m), np.array(dalt_ft)
+    assert dist_m.size > 200
+    # the fixes scatter along track by ~50 m (up to a second of timing jitter at ~230 m/s)
+    assert np.median(dist_m) < 40.0 and np.mean(dist_m < 250.0) > 0.95
+    # altitude: 25 ft quanta, smoothed
+    assert np.median(dalt_ft) < 25.0 and np.mean(dalt_ft < 100.0) > 0.95
     assert len(sc.radars) in (3, 4) and s.truth.detectable.mean() > 0.95
     assert sum(len(c) for c in s.plot_columns) > 1000
 

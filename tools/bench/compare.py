@@ -33,7 +33,7 @@ from .engine_run import (
     run_engine,
     write_engine_inputs,
 )
-from .report import compare_tables, machine_lines, write_report
+from .report import compare_tables, machine_lines, truth_lines, write_report
 
 COMPARE_SIZES = [(50, 3), (100, 3), (1000, 10), (4000, 30)]
 """50×3 first: Stone Soup finishes it within the budget, and the larger sizes are estimated from it."""
@@ -102,6 +102,14 @@ def simulate_case(case: dict[str, Any], seed: int, case_dir: str, settle_s: floa
         period_s=float(settings.system.period_s),
         sim_s=time.perf_counter() - t0,
     )
+    if case["kind"] == "adsb":
+        from radar_fusion.tools.simulate.adsb import adsb_smoothing_stats
+
+        # the truth is the smoothed ADS-B path: how far it is from the fixes, and how
+        # physically plausible it is (accelerations) compared with the raw fixes
+        info["truth_smoothing"] = adsb_smoothing_stats(
+            scenario.start_t_s, scenario.duration_s, max_aircraft=case["max_aircraft"]
+        )
     return info
 
 
@@ -588,6 +596,8 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
             f"(simulated in {sim['sim_s']:.1f} s)",
             flush=True,
         )
+        for line in truth_lines([row]):
+            print("  " + line, flush=True)
         row["engine"] = eng = in_fresh_process(run_engine, os.path.join(case_dir, "engine.pkl"), True, args.warmup_s, 0)
         print(
             f"  (a) engine: {eng['plots_per_s']:,.0f} plots/s, period p50 {eng['p50_ms']:.1f} / p99 "
@@ -659,7 +669,7 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
     print()
     print(acc_md)
     print()
-    print("\n".join(goals))
+    print("\n".join(truth_lines(rows) + goals))
     print(f"(benchmark wall time {wall:.0f} s)")
     if report_dir:
         write_report(report_dir, header, rows, args, speed_md, acc_md, goals, wall)

@@ -26,15 +26,12 @@ Targets
   clockwise) and constant vertical rate. Positions are exact closed forms (a circular
   arc per turn), so the state is sampled exactly at any time.
 * Real ADS-B flights (:func:`adsb_targets`, the table in
-  ``../shared/data/adsb/switzerland_2018-08-01.json.gz``): positions are the C2 cubic
-  spline in the system plane through the 10 s samples (evaluated as a cubic Hermite
-  with the spline's knot velocities), so the truth passes exactly through the table's
-  positions; altitude is a cubic Hermite through the reported altitudes with the
-  reported vertical rates as slopes. Stale samples (a repeated position, chord speed
-  more than 35 % off the reported groundspeed on both sides) are dropped first. Note
-  that the table's positions jitter along track by ~50 m (chord speeds scatter by
-  ~10 % around the groundspeed), so an interpolating truth has acceleration spikes of
-  1-2 g between samples; evaluate trackers on these flights with that in mind.
+  ``../shared/data/adsb/switzerland_2018-08-01.json.gz``): the fixes jitter along track by
+  ~50 m and repeat stale positions, so an interpolating truth would have acceleration
+  spikes of 1-2 g between samples (DESIGN.md §4). Each flight is smoothed first
+  (tools/smoothing.py: stale repeats dropped, a robust smoothing spline in a local plane,
+  residual ~30 m for the inliers); the path is that spline sampled every second, with the
+  velocity from its derivative, and the radars are simulated from it.
 
 Scenario TOML format (``--scenario path/to/file.toml``)
 ------------------------------------------------------

@@ -113,8 +113,9 @@ class FlightPlan:
 class SampledPath:
     """Recorded kinematics (e.g. ADS-B): samples of position, altitude and velocity.
 
-    The truth passes through every sample: positions by the C2 cubic spline in the
-    system plane, altitude by a cubic Hermite with ``vrate_fpm`` as slopes.
+    The truth passes through every sample (for ADS-B flights the samples are already the
+    smoothed path, tools/smoothing.py): positions by the C2 cubic spline in the system
+    plane, altitude by a cubic Hermite with ``vrate_fpm`` as slopes.
     ``groundspeed_kt``/``track_deg`` are the reported velocity (kept for reference and
     used to drop stale samples when the table is read)."""
 
