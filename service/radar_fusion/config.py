@@ -6,6 +6,7 @@
     [tracking] the filter: Singer model, fusion, manoeuvre detection (all defaulted)
     [clustering] association gates and new-target clustering (tracking/clustering.py)
     [life_cycle] track confirmation, coasting and deletion (tracking/track_management.py)
+    [registration] online radar bias estimation (tracking/registration.py)
     [outliers] the live wild-plot gate (tracking/live_gate.py LiveGateParams, all defaulted)
     [safety_nets] STCA / APW / MSAW parameters (all defaulted)
     [metrics]  listen = "127.0.0.1:9108": Prometheus endpoint (off when absent)
@@ -27,6 +28,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from .safety_nets.config import SafetyNetsConfig
 from .tracking.clustering import ClusteringParams
 from .tracking.live_gate import LiveGateParams
+from .tracking.registration import RegistrationParams
 from .tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2
 from .tracking.track_management import LifeCycle
 
@@ -176,6 +178,7 @@ class Settings(BaseSettings):
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
     clustering: ClusteringParams = Field(default_factory=ClusteringParams)
     life_cycle: LifeCycle = Field(default_factory=LifeCycle)
+    registration: RegistrationParams = Field(default_factory=RegistrationParams)
     outliers: LiveGateParams = Field(default_factory=LiveGateParams)
     metrics: MetricsConfig = Field(default_factory=MetricsConfig)
     safety_nets: SafetyNetsConfig = Field(default_factory=SafetyNetsConfig)

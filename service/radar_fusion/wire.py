@@ -158,6 +158,11 @@ class RadarHealth(BaseModel):
         None, description="estimated clock offset against the other radars (event time), seconds; None: too few data"
     )
     clock_suspect: bool = Field(False, description="|clock_offset_s| is above the daemon's limit")
+    registration: dict[str, float | bool | None] | None = Field(
+        None,
+        description="the radar's estimated biases (online registration): range_offset_m, range_gain_ppm, "
+        "azimuth_offset_deg, time_offset_s, each with its <name>_sigma, plots, applied",
+    )
 
 
 class Health(_Message):

@@ -299,6 +299,11 @@ class ConvertedPlots:
     mode_s: np.ndarray
     mode3a: np.ndarray
     fl: np.ndarray
+    # as converted: slant range and azimuth after the registration's correction, the
+    # altitude used (Mode C, or the picked track's; NaN for the assumed height)
+    range_m: np.ndarray
+    azimuth_deg: np.ndarray
+    altitude_m: np.ndarray
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])

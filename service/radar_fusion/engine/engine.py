@@ -57,6 +57,7 @@ from ..tracking.initiation import one_point_initiation, two_point_initiation, un
 from ..tracking.live_gate import LiveOutlierGate
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
+from ..tracking.registration import RadarRegistration
 from ..tracking.singer_filter import AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
@@ -151,6 +152,9 @@ class Engine:
             rejected=self.rejected,
         )
         self.radars = self.admission.radars
+        self.registration = RadarRegistration(settings.registration, self.plane, self.sites)
+        self._reg_applied = self.registration.correction()
+        self._reg_next_t_s = -math.inf
         self.clock = ClockCheck(len(self.radar_ids))
         self.tracks = TrackTable()
         self.track_t_s: float | None = None  # reference time of the newest closed period
@@ -220,7 +224,7 @@ class Engine:
         changed = np.empty(0, np.int64)  # rows updated or created in this period
         self.tracks.sources = np.zeros(len(self.tracks), np.uint64)
         if len(plots):
-            clusters = self._fuse(plots, self._associate(plots, pred, t_ref_s), pred)
+            clusters = self._fuse(plots, self._associate(plots, pred, t_ref_s), pred, t_ref_s)
             changed = np.concatenate([self._update(clusters, t_ref_s), self._initiate(clusters, t_ref_s)])
         self.track_t_s = t_ref_s
         out = self._predict_changed(pred, changed, t_ref_s)
@@ -267,6 +271,14 @@ class Engine:
                     keep = np.ones(len(raw), bool)
                     keep[wild] = False
                     raw = raw.select(keep)
+        # registration (registration.py): each radar's estimated biases removed first
+        self._reg_applied = self.registration.correction()
+        range_m, azimuth_deg, t_s = self.registration.correct(
+            raw.radar, raw.range_m, raw.azimuth_deg, raw.t_s, bias=self._reg_applied
+        )
+        assert t_s is not None
+        # a corrected time stays in its period: tracks are never predicted backwards
+        t_s = np.clip(t_s, t_ref_s - self.settings.system.period_s, t_ref_s)
         altitude_m = flight_level_to_altitude_m(raw.fl)
         no_c = ~np.isfinite(altitude_m)
         if no_c.any() and len(self.tracks):
@@ -274,14 +286,14 @@ class Engine:
                 self.plane,
                 self.sites,
                 raw.radar,
-                raw.range_m,
-                raw.azimuth_deg,
+                range_m,
+                azimuth_deg,
                 ~no_c,
                 position_m(pred.x),
                 flight_level_to_altitude_m(pred.alt_x[:, 0]),
                 cov_pos_m2(pred.P),
                 track_velocity_mps=velocity_mps(pred.x),
-                plot_dt_s=raw.t_s - t_ref_s,
+                plot_dt_s=t_s - t_ref_s,
                 track_altitude_var_m2=pred.alt_P[:, 0, 0] * M_PER_FL**2,
             )
             altitude_m = np.where(no_c, pick.altitude_m, altitude_m)
@@ -290,13 +302,15 @@ class Engine:
             self.plane,
             self.sites,
             raw.radar,
-            raw.range_m,
-            raw.azimuth_deg,
+            range_m,
+            azimuth_deg,
             altitude_m,
             assumed_altitude_m=self.assumed_altitude_m,
         )
         # raw.fl stays NaN: the altitude filter is never updated with its own prediction
-        return ConvertedPlots(raw.t_s, x_m, y_m, cov_m2, raw.radar, raw.mode_s, raw.mode3a, raw.fl)
+        return ConvertedPlots(
+            t_s, x_m, y_m, cov_m2, raw.radar, raw.mode_s, raw.mode3a, raw.fl, range_m, azimuth_deg, altitude_m
+        )
 
     # --------------------------------------------------------------- predict
     def _predict_rows(self, rows: Any, dt_s: np.ndarray) -> Prediction:
@@ -354,7 +368,7 @@ class Engine:
         return res
 
     # ------------------------------------------------------------------ fuse
-    def _fuse(self, plots: ConvertedPlots, res: ClusterResult, pred: Prediction) -> ClusterMeasurements:
+    def _fuse(self, plots: ConvertedPlots, res: ClusterResult, pred: Prediction, t_ref_s: float) -> ClusterMeasurements:
         """One measurement per cluster, at the mean time of its plots (Shu eq. 5-6).
 
         Plots are aligned to that time (a one-plot cluster needs no alignment at all) with
@@ -377,6 +391,7 @@ class Engine:
         # as if it lay on the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
         # plot moves the track no more than a plot at the gate's edge would, while a genuine
         # manoeuvre pulls it scan after scan, and its NIS switches manoeuvre noise on.
+        self._register(plots, res, used, lab, row_of_plot, z_plot, R_plot, v, t_ref_s)
         beyond = np.fmax(res.plot_d2[used] / self.clustering.gate_chi2, 1.0)
         R_plot = R_plot * beyond[:, None, None]
         z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
@@ -402,6 +417,42 @@ class Engine:
             mode3a=mode3a,
             revisit_s=revisit_s,
             sources=sources,
+        )
+
+    def _register(
+        self,
+        plots: ConvertedPlots,
+        res: ClusterResult,
+        used: np.ndarray,
+        lab: np.ndarray,
+        row_of_plot: np.ndarray,
+        z_plot: np.ndarray,
+        R_plot: np.ndarray,
+        v_mps: np.ndarray,
+        t_ref_s: float,
+    ) -> None:
+        """Feed the registration (registration.py) with the period's aligned plots of
+        established tracks, every ``update_interval_s``: only plots that joined their track
+        inside the χ² gate, so that a wild plot or an identity join is no bias evidence."""
+        reg = self.registration
+        if not reg.params.enabled or t_ref_s < self._reg_next_t_s:
+            return
+        self._reg_next_t_s = t_ref_s + reg.params.update_interval_s
+        status = np.concatenate([self.tracks.status, [TENTATIVE]])  # row -1: a new target
+        established = status[row_of_plot] != TENTATIVE
+        inside = res.plot_d2[used] <= self.clustering.gate_chi2
+        reg.update(
+            t_ref_s,
+            plots.radar[used],
+            plots.range_m[used],
+            plots.azimuth_deg[used],
+            plots.altitude_m[used],
+            z_plot,
+            R_plot,
+            np.where(established & inside, lab, -1),
+            velocity_mps=v_mps,
+            applied=self._reg_applied,
+            assumed_altitude_m=self.assumed_altitude_m,
         )
 
     # ---------------------------------------------------------------- update
@@ -563,6 +614,7 @@ class Engine:
         """Counters and per-radar state for the health message (wire.Health fields)."""
         live = self.buffer.live_mask()
         offsets_s = self.clock_offsets_s()
+        registration = self.registration.estimates()
         limit_s = self.settings.system.clock_offset_limit_s
         radars = {}
         for i, rid in enumerate(self.radar_ids):
@@ -579,6 +631,7 @@ class Engine:
                 "wild": r.wild,
                 "clock_offset_s": offsets_s[i],
                 "clock_suspect": (offset_s := offsets_s[i]) is not None and abs(offset_s) > limit_s,
+                "registration": registration[rid],
             }
         proc = np.array(self.processing_s) * 1e3
         counters = dict(self.counters)

@@ -116,6 +116,14 @@ class RegistrationParams(BaseModel):
         "hours (temperature, maintenance), and 30 min of traffic averages the noise down to a few metres; it does not "
         "slow the start (information accumulates from the first period)",
     )
+    update_interval_s: float = Field(
+        0.0,
+        ge=0,
+        description="the engine feeds the estimator at most one period in this interval (0: every period). "
+        "Default every period: on the demo (3 radars, 540 s) one period in 20 s left the range offsets 20-30 % "
+        "off and the tracks at 83.9 m RMS, every period gave 73.0 m; the update is capped at "
+        "max_clusters_per_update clusters, a few ms a period",
+    )
     min_plots: float = Field(
         300.0,
         ge=0,
