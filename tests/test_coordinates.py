@@ -20,15 +20,17 @@ from hypothesis import strategies as st
 from scipy import integrate
 
 from radar_fusion.geo.coordinates import (
-    MAX_UNKNOWN_ALTITUDE_M,
     RadarSites,
     SystemPlane,
     altitude_m_to_flight_level,
     flight_level_to_altitude_m,
     gaussian_earth_radius_m,
     geodetic_to_polar,
-    ground_range_for_unknown_height,
     polar_to_plane,
+)
+from radar_fusion.geo.unknown_height import (
+    MAX_UNKNOWN_ALTITUDE_M,
+    ground_range_for_unknown_height,
     polar_to_plane_unknown_height,
 )
 

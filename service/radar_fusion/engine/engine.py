@@ -253,7 +253,7 @@ class Engine:
         track it may belong to (primary_height.py; issue 15: converted at a guessed height,
         the plots of a high aircraft missed its track and started a shadow track beside it);
         with no such track, at the configured assumed height. (Spreading such a plot's
-        covariance over every height from the ground to FL450, geo.coordinates.
+        covariance over every height from the ground to FL450, geo.unknown_height.
         polar_to_plane_unknown_height, was measured on the demo: 85 -> 98 m position RMS,
         its wide radial gates letting clutter in; it is kept for track initiation, next.)"""
         if self.outlier_gate is not None and len(raw):

@@ -5,7 +5,7 @@ range depends on the height it is converted at (rho^2 ~ g^2 + h^2 close in): at 
 40 km out, converting at a guessed 10,000 ft puts it ~1 km too far out. If a track
 predicted to the period's time is where the plot is, that track's altitude is the best
 height to convert the plot at; otherwise the plot must be converted with the whole height
-interval (geo.coordinates.polar_to_plane_unknown_height).
+interval (geo.unknown_height.polar_to_plane_unknown_height).
 
 The comparison is made where the plot was measured, in the radar's own polar
 coordinates, so it needs no height for the plot: each track's position is converted to
@@ -58,13 +58,12 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from ..geo.coordinates import (
-    MAX_UNKNOWN_ALTITUDE_M,
-    MIN_UNKNOWN_ALTITUDE_M,
     RadarSites,
     SystemPlane,
     geodetic_to_polar,
     ground_to_slant_range,
 )
+from ..geo.unknown_height import MAX_UNKNOWN_ALTITUDE_M, MIN_UNKNOWN_ALTITUDE_M
 
 __all__ = ["PrimaryHeight", "primary_plot_altitude"]
 
