@@ -44,3 +44,11 @@ def zenoh_sessions_only_in_bus_tests(request: pytest.FixtureRequest, monkeypatch
         raise AssertionError(f"{request.node.nodeid} opens a Zenoh session: mark it @pytest.mark.bus")
 
     monkeypatch.setattr(zenoh, "open", refuse)
+
+
+def pytest_configure(config):
+    """One BLAS thread for the whole test session, as every radar-fusion entry point sets
+    (cli.one_blas_thread): the engine's tiny matrices only contend on OpenBLAS threads."""
+    from radar_fusion.cli import one_blas_thread
+
+    one_blas_thread()

@@ -197,7 +197,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 def one_blas_thread() -> None:
     """Process-wide: one BLAS thread. The engine's linear algebra is thousands of tiny
     matrices, for which OpenBLAS's worker threads only contend (measured on 2 cores: a
-    (6×30)·(30×4,000) product takes 0.19 ms on one thread, 2.4 ms on two)."""
+    (6×30)·(30×4,000) product takes 0.19 ms on one thread, 2.4 ms on two). numpy is
+    imported first: threadpoolctl limits only the libraries already loaded."""
+    import numpy  # noqa: F401  # loads OpenBLAS, so that the limit below applies to it
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(limits=1, user_api="blas")
