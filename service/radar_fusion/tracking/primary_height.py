@@ -51,6 +51,7 @@ reach of its plots) pair.
 
 from __future__ import annotations
 
+import itertools
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -62,6 +63,7 @@ from ..geo.coordinates import (
     SystemPlane,
     geodetic_to_polar,
     ground_to_slant_range,
+    slant_to_ground_range,
 )
 from ..geo.unknown_height import MAX_UNKNOWN_ALTITUDE_M, MIN_UNKNOWN_ALTITUDE_M
 
@@ -163,6 +165,25 @@ def primary_plot_altitude(
         plots = np.flatnonzero(need & (radar == r))
         np.hypot(xy_u[:, 0] - site_x[r], xy_u[:, 1] - site_y[r], out=dist_from_site_m)
         sel = np.flatnonzero(dist_from_site_m <= 1.01 * float(rho_p[plots].max()) + slack_m)
+        # ... and of those only the tracks near the plots (the Geod.inv below is the cost):
+        # a plot lies in the plane within its ground-range interval along its azimuth; from
+        # the interval's middle, half its width, 6 % of the range (the grid convergence,
+        # < 3.5 deg within 500 km of the plane's origin, and the plane's scale, < 0.6 %) and
+        # the slack bound where a track that gates with it can be.
+        if sel.size > plots.size:
+            rp, tp = rho_p[plots], theta_p[plots]
+            r_arr = np.full(plots.size, float(sites.earth_radius_m[r]))
+            h_arr = np.full(plots.size, float(sites.alt_m[r]))
+            h_top = np.minimum(max_altitude_m, h_arr + 0.999 * rp)
+            g_low = slant_to_ground_range(r_arr, h_arr, np.full(plots.size, min_altitude_m), rp)[0]
+            g_top = slant_to_ground_range(r_arr, h_arr, h_top, rp)[0]
+            g_mid = np.nan_to_num(0.5 * (g_low + g_top), nan=rp)
+            reach_m = np.nan_to_num(0.5 * np.abs(g_low - g_top), nan=rp) + 0.06 * rp + slack_m
+            where = np.stack([site_x[r] + g_mid * np.sin(tp), site_y[r] + g_mid * np.cos(tp)], axis=1)
+            hits = cKDTree(xy_u[sel]).query_ball_point(where, reach_m, return_sorted=False)
+            lens = np.fromiter(map(len, hits), dtype=np.intp, count=len(hits))
+            flat = np.fromiter(itertools.chain.from_iterable(hits), dtype=np.intp, count=int(lens.sum()))
+            sel = sel[np.unique(flat)]
         if sel.size == 0:
             continue
         xy_s, alt_s, cov_s, vel_s, var_h_s, known_s = (
