@@ -360,7 +360,8 @@ class Engine:
             again = self._predict_rows(changed, t_ref_s - self.tracks.t_state_s[changed])
             for a, b in zip(out, (again.x, again.P, again.alt_x, again.alt_P)):
                 a[changed] = b
-        return Prediction(*out)
+        x, P, alt_x, alt_P = out
+        return Prediction(x, P, alt_x, alt_P)
 
     # ------------------------------------------------------------- associate
     def _associate(self, plots: ConvertedPlots, pred: Prediction, t_ref_s: float) -> ClusterResult:

@@ -27,6 +27,8 @@ Life cycle
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
@@ -173,7 +175,7 @@ class TrackTable:
         self.n = 0
         self.next_id = 1
         self.n_models = n_models
-        self._fields = dict(_FIELDS)
+        self._fields: dict[str, tuple[tuple[int, ...], Any, Any]] = dict(_FIELDS)
         for name, (shape, dtype, fill) in _MODEL_FIELDS.items():
             self._fields[name] = ((n_models,) + shape, dtype, fill)
         for name, (shape, dtype, fill) in self._fields.items():
