@@ -27,6 +27,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from .safety_nets.config import SafetyNetsConfig
 from .tracking.clustering import ClusteringParams
+from .tracking.imm import IMMParams
 from .tracking.live_gate import LiveGateParams
 from .tracking.registration import RegistrationParams
 from .tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2
@@ -127,6 +128,18 @@ class TrackingConfig(_Section):
         gt=0,
         description="Singer acceleration standard deviation σ_m (Shu §4's Q). Default ≈ 2.5 m/s², from Singer's "
         "formula with a 25° bank turn as the maximum (singer_filter.py)",
+    )
+    filter: Literal["singer", "imm"] = Field(
+        "singer",
+        description="singer: one Singer model (σ_m above) with NIS manoeuvre detection raising its noise "
+        "(manoeuvre.py), the seeds' filter and the baseline; imm: an interacting multiple model filter of a "
+        "quiet and a manoeuvre Singer model ([tracking.imm], tracking/imm.py), which follows turns without "
+        "the straight-flight noise of a single high-σ_m model, and publishes each track's manoeuvre "
+        "probability (issue 15 item 3). Default singer until the IMM's figures are judged",
+    )
+    imm: IMMParams = Field(
+        default_factory=IMMParams,
+        description="the IMM's models and mode dwell times (tracking/imm.py IMMParams); used with filter = imm",
     )
     fusion_method: Literal["scalar", "matrix"] = Field(
         "matrix",

@@ -113,6 +113,13 @@ class Track(BaseModel):
     vrate_fpm: float | None = Field(None, description="vertical rate, feet per minute")
     ax_mps2: float | None = None
     ay_mps2: float | None = None
+    manoeuvre_prob: float | None = Field(
+        None,
+        ge=0,
+        le=1,
+        description="probability that the track manoeuvres (the IMM's manoeuvre model); absent with the "
+        "single-model Singer filter",
+    )
 
 
 class TrackBatch(_Message):

@@ -89,6 +89,8 @@ class TrackColumns:
     # None means every track that is not tentative (see safety_nets.prediction.eligible).
     selected_fl: np.ndarray | None = None
     safety_eligible: np.ndarray | None = None
+    # the IMM's manoeuvre-model probability per track (tracking.filter = "imm"), else None
+    manoeuvre_prob: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.track_id.shape[0])
@@ -162,6 +164,7 @@ class TrackColumns:
             [None if v != v else v for v in self.vrate_fpm.tolist()],
             x[:, 2].tolist(),
             x[:, 5].tolist(),
+            repeat(None, n) if self.manoeuvre_prob is None else np.round(self.manoeuvre_prob, 4).tolist(),
         )
         tracks = [dict(zip(TRACK_KEYS, row)) for row in zip(*cols)]
         return {"v": 1, "t": self.t_s, "period": self.period, "tracks": tracks, "ended": self.ended.tolist()}
@@ -229,6 +232,7 @@ class TrackColumns:
             ended=np.asarray(batch.get("ended", []) if batch is not None else [], dtype=np.int64),
             names=RadarNames(ids, plane),
             safety_eligible=np.fromiter((s == "confirmed" for s in status_names), bool, n),
+            manoeuvre_prob=col("manoeuvre_prob") if any(get(t, "manoeuvre_prob") is not None for t in tracks) else None,
         )
         # positions on the earth as the sender computed them (the cached_property's slot)
         columns.__dict__["geodetic"] = (col("lat_deg"), col("lon_deg"))
@@ -256,6 +260,7 @@ TRACK_KEYS = (
     "vrate_fpm",
     "ax_mps2",
     "ay_mps2",
+    "manoeuvre_prob",
 )
 
 _STATUS_NAMES = np.array(STATUS_NAMES, dtype=object)

@@ -10,12 +10,14 @@ step each (``_process_period`` reads as this list):
     gate      live wild-plot gate per radar track, in time order (Hu 2013, live_gate.py),
               then conversion to the system plane (geo/coordinates.py)
     predict   every track to the period's reference time (Shu eq. 8, 11, singer_filter.py;
-              raised noise while manoeuvring, manoeuvre.py)
+              raised noise while manoeuvring, manoeuvre.py), or with ``tracking.filter =
+              "imm"`` the IMM's mixing and per-model prediction (imm.py)
     associate time alignment + k-means clustering seeded by the tracks (Shu §2, clustering.py;
               the gates and track clusters in association.py)
     fuse      inverse-variance fusion of each cluster at its own time (Shu eq. 5-6, fusion.py)
     update    Kalman update of the tracks that got a cluster (Shu eq. 7, 9, 10), or their
-              two-point initiation (Shu §4, initiation.py); manoeuvre detection
+              two-point initiation (Shu §4, initiation.py); manoeuvre detection (or the
+              IMM's per-model update and mode probabilities)
     initiate  new tentative tracks from the clusters no track claims (Shu §2 cases 1, 3)
     merge     tracks with one Mode S address become one, with the oldest id
     manage    the track life cycle: confirm, coast, end (track_management.py)
@@ -53,6 +55,7 @@ from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
 from ..safety_nets import SafetyNets
 from ..tracking.clustering import ClusterResult, cluster_plots
 from ..tracking.fusion import fuse_clusters
+from ..tracking.imm import MANOEUVRE, IMMFilter, IMMState
 from ..tracking.initiation import one_point_initiation, two_point_initiation, unknown_velocity_var_m2ps2
 from ..tracking.live_gate import LiveOutlierGate
 from ..tracking.manoeuvre import ManoeuvreDetector
@@ -105,6 +108,7 @@ class Prediction:
     P: np.ndarray  # (N, 6, 6)
     alt_x: np.ndarray  # (N, 2) [FL, FL/s]
     alt_P: np.ndarray  # (N, 2, 2)
+    imm: IMMState | None = None  # the IMM's per-model prediction (x, P: its combination), filter = "imm"
 
 
 class Engine:
@@ -122,6 +126,9 @@ class Engine:
         self.rotation_s = np.array([r.rotation_period_s for r in settings.radars])
         self.filter = SingerFilter(alpha_per_s=trk.alpha_per_s, sigma_m_mps2=trk.sigma_m_mps2)
         self.alt_filter = AltitudeFilter()
+        # filter = "imm": the IMM (imm.py) replaces the Singer filter's manoeuvre detector;
+        # tr.x, tr.P then hold its combined estimate (eq. 7-8), the models their own columns
+        self.imm = IMMFilter(trk.imm) if trk.filter == "imm" else None
         self.manoeuvres = ManoeuvreDetector(
             sigma_factor=trk.manoeuvre_sigma_factor,
             nis_on=trk.manoeuvre_nis_on,
@@ -156,7 +163,7 @@ class Engine:
         self._reg_applied = self.registration.correction()
         self._reg_next_t_s = -math.inf
         self.clock = ClockCheck(len(self.radar_ids))
-        self.tracks = TrackTable()
+        self.tracks = TrackTable(self.imm.n_models if self.imm is not None else 0)
         self.track_t_s: float | None = None  # reference time of the newest closed period
         self.safety_nets = safety_nets
         self.periods_closed = 0
@@ -315,11 +322,27 @@ class Engine:
     # --------------------------------------------------------------- predict
     def _predict_rows(self, rows: Any, dt_s: np.ndarray) -> Prediction:
         """Singer and altitude prediction of the tracks ``rows`` over per-track ``dt_s``
-        (Shu eq. 8, 11), with raised process noise for the manoeuvring ones."""
+        (Shu eq. 8, 11), with raised process noise for the manoeuvring ones; with the IMM,
+        its mixing and per-model prediction (imm.py eq. 1-4), x and P their combination."""
         tr = self.tracks
-        x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
+        imm = None
+        if self.imm is not None:
+            imm = self.imm.predict(IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows]), dt_s)
+            x, P = self.imm.combine(imm)
+        else:
+            x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
         alt_x, alt_P = self.alt_filter.predict(tr.alt_x[rows], tr.alt_P[rows], dt_s)
-        return Prediction(x, P, alt_x, alt_P)
+        return Prediction(x, P, alt_x, alt_P, imm)
+
+    def _imm_initiate(self, rows: Any, x: np.ndarray, P: np.ndarray) -> None:
+        """With the IMM, new (or two-point initiated) states x, P in every model, prior μ."""
+        if self.imm is not None:
+            st = self.imm.initiate(x, P)
+            self.tracks.x_models[rows], self.tracks.P_models[rows], self.tracks.mu[rows] = (
+                st.x_models,
+                st.P_models,
+                st.mu,
+            )
 
     def _predict(self, t_ref_s: float) -> Prediction:
         """Every track predicted to the reference time, for association."""
@@ -337,7 +360,8 @@ class Engine:
             again = self._predict_rows(changed, t_ref_s - self.tracks.t_state_s[changed])
             for a, b in zip(out, (again.x, again.P, again.alt_x, again.alt_P)):
                 a[changed] = b
-        return Prediction(*out)
+        x, P, alt_x, alt_P = out
+        return Prediction(x, P, alt_x, alt_P)
 
     # ------------------------------------------------------------- associate
     def _associate(self, plots: ConvertedPlots, pred: Prediction, t_ref_s: float) -> ClusterResult:
@@ -470,10 +494,15 @@ class Engine:
         z_m, R_m2 = cl.z_m[matched], cl.R_m2[matched]
         init = tr.initiated[rows]
         if init.any():
-            x, P, nu, S = self.filter.update(x_c[init], P_c[init], z_m[init], R_m2[init])
-            x_c[init], P_c[init] = x, P
             r = rows[init]
-            tr.nis_avg[r], tr.manoeuvre[r] = self.manoeuvres.detect(tr.nis_avg[r], tr.manoeuvre[r], nu, S)
+            if self.imm is not None and at_cluster.imm is not None:
+                st = self.imm.update(at_cluster.imm.select(init), z_m[init], R_m2[init])
+                tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
+                x_c[init], P_c[init] = self.imm.combine(st)
+            else:
+                x, P, nu, S = self.filter.update(x_c[init], P_c[init], z_m[init], R_m2[init])
+                x_c[init], P_c[init] = x, P
+                tr.nis_avg[r], tr.manoeuvre[r] = self.manoeuvres.detect(tr.nis_avg[r], tr.manoeuvre[r], nu, S)
         two = ~init
         if two.any():
             x, P = two_point_initiation(
@@ -486,6 +515,7 @@ class Engine:
             )
             x_c[two], P_c[two] = x, P
             tr.initiated[rows[two]] = True
+            self._imm_initiate(rows[two], x, P)
         tr.x[rows], tr.P[rows] = x_c, P_c
         tr.alt_x[rows], tr.alt_P[rows] = self.alt_filter.update(at_cluster.alt_x, at_cluster.alt_P, cl.fl[matched])
         tr.t_state_s[rows] = cl.t_s[matched]
@@ -512,6 +542,7 @@ class Engine:
         tr.x[new], tr.P[new] = one_point_initiation(
             cl.z_m[new_cl], cl.R_m2[new_cl], self.one_plot_vel_var_m2ps2, self.filter.sigma_m_mps2
         )
+        self._imm_initiate(new, tr.x[new], tr.P[new])
         tr.t_state_s[new] = cl.t_s[new_cl]
         tr.z1_m[new], tr.R1_m2[new] = cl.z_m[new_cl], cl.R_m2[new_cl]
         tr.alt_x[new], tr.alt_P[new] = self.alt_filter.initiate(cl.fl[new_cl])
@@ -568,6 +599,9 @@ class Engine:
                     "revisit_s",
                     "nis_avg",
                     "manoeuvre",
+                    "x_models",
+                    "P_models",
+                    "mu",
                 ):
                     getattr(tr, name)[oldest] = getattr(tr, name)[newest]
                 for column in (out.x, out.P, out.alt_x, out.alt_P):
@@ -591,6 +625,10 @@ class Engine:
     def _output(self, period: int, t_ref_s: float, ended: np.ndarray, out: Prediction) -> TrackColumns:
         tr = self.tracks
         P = out.P
+        manoeuvre_prob = None
+        if self.imm is not None:  # μ of the latest update predicted to t_ref (imm.py eq. 1), like x
+            pi = self.imm.transition_matrix(t_ref_s - tr.t_state_s)
+            manoeuvre_prob = np.einsum("ni,nij->nj", tr.mu, pi)[:, MANOEUVRE]
         return TrackColumns(
             period=period,
             t_s=t_ref_s,
@@ -607,6 +645,7 @@ class Engine:
             age_s=t_ref_s - tr.first_t_s,
             ended=ended,
             names=self._names,
+            manoeuvre_prob=manoeuvre_prob,
         )
 
     # ================================================================= health

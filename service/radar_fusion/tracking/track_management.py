@@ -27,6 +27,8 @@ Life cycle
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
@@ -127,11 +129,21 @@ _FIELDS = {
     "manoeuvre": ((), bool, False),  # manoeuvre detected: process noise raised
 }
 
+# The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
+# track axis: (N, M, 6), (N, M, 6, 6), (N, M). A table for the single-model Singer filter
+# has M = 0, so they cost nothing there; with the IMM (M = 2) x and P hold the combined
+# estimate (imm.py eq. 7-8) that association, fusion, output and the safety nets read.
+_MODEL_FIELDS = {
+    "x_models": ((6,), float, 0.0),
+    "P_models": ((6, 6), float, 0.0),
+    "mu": ((), float, np.nan),
+}
+
 
 class TrackTable:
     """Column store of all live tracks. Row order is arbitrary; ``track_id`` is stable.
 
-    One array per column of ``_FIELDS`` (its shape, dtype and fill for new rows), declared
+    One array per column of ``_FIELDS`` and ``_MODEL_FIELDS`` (its shape, dtype and fill for new rows), declared
     below so that readers and type checkers see every column.
     """
 
@@ -154,11 +166,19 @@ class TrackTable:
     revisit_s: NDArray[np.float64]  # shortest rotation among the radars of the latest update
     nis_avg: NDArray[np.float64]  # fading average of the normalised innovation squared (2 dof)
     manoeuvre: NDArray[np.bool_]  # manoeuvre detected: process noise raised
+    x_models: NDArray[np.float64]  # (N, M, 6) each IMM model's state at t_state_s
+    P_models: NDArray[np.float64]  # (N, M, 6, 6)
+    mu: NDArray[np.float64]  # (N, M) IMM mode probabilities
 
-    def __init__(self) -> None:
+    def __init__(self, n_models: int = 0) -> None:
+        """``n_models``: the IMM's model count M for the per-model columns (0: no IMM)."""
         self.n = 0
         self.next_id = 1
-        for name, (shape, dtype, fill) in _FIELDS.items():
+        self.n_models = n_models
+        self._fields: dict[str, tuple[tuple[int, ...], Any, Any]] = dict(_FIELDS)
+        for name, (shape, dtype, fill) in _MODEL_FIELDS.items():
+            self._fields[name] = ((n_models,) + shape, dtype, fill)
+        for name, (shape, dtype, fill) in self._fields.items():
             setattr(self, name, np.full((0,) + shape, fill, dtype=dtype))
 
     def __len__(self) -> int:
@@ -166,7 +186,7 @@ class TrackTable:
 
     def append(self, count: int) -> slice:
         """Add ``count`` rows with fresh ids (default-filled); returns their slice."""
-        for name, (shape, dtype, fill) in _FIELDS.items():
+        for name, (shape, dtype, fill) in self._fields.items():
             old = getattr(self, name)
             new = np.full((count,) + shape, fill, dtype=dtype)
             setattr(self, name, np.concatenate([old, new]))
@@ -177,7 +197,7 @@ class TrackTable:
         return rows
 
     def keep(self, mask: np.ndarray) -> None:
-        for name in _FIELDS:
+        for name in self._fields:
             setattr(self, name, getattr(self, name)[mask])
         self.n = int(mask.sum())
 

@@ -1,0 +1,167 @@
+"""The IMM in the engine (``tracking.filter = "imm"``, issue 15 item 3) against the Singer
+filter on the same plots, and its manoeuvre probability on the output.
+
+Two radars see one aircraft that flies straight, turns rate one (3°/s) through 180° and
+flies straight again; its plots come from the exact inverse of the coordinate conversion
+(geodetic_to_polar), noise-free (the error is then the filter's own lag, deterministic) or
+with seeded range/azimuth noise of the radars' configured σ; the error of each output track
+is measured against the analytic flight path."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radar_fusion.config import settings_from_dict
+from radar_fusion.engine import Engine
+from radar_fusion.geo.coordinates import geodetic_to_polar
+from radar_fusion.geo.units import M_PER_FL
+from radar_fusion.tracking.imm import IMMParams
+from radar_fusion.wire import DecodedPlots, TrackBatch
+
+T0_S = 1_533_110_400.0  # a multiple of the 4 s period
+PERIOD_S = 4.0
+FL = 300.0
+SPEED_MPS = 200.0
+TURN_RATE_RADPS = np.radians(3.0)  # rate one: centripetal acceleration 10.5 m/s² at 200 m/s
+TURN_START_S = 80.0  # seconds after T0
+TURN_END_S = TURN_START_S + np.pi / TURN_RATE_RADPS  # 180° later (60 s)
+SIGMA_RANGE_M = 40.0
+SIGMA_AZIMUTH_DEG = 0.05
+START_XY_M = np.array([-16_000.0, -4_000.0])
+
+
+def settings(filter_name: str):
+    radar = {"sigma_range_m": SIGMA_RANGE_M, "sigma_azimuth_deg": SIGMA_AZIMUTH_DEG, "rotation_period_s": 4.0}
+    return settings_from_dict(
+        {
+            "system": {"center_lat": 46.0, "center_lon": 8.0, "period_s": PERIOD_S, "allowed_lateness_s": 1.0},
+            "radars": [{"id": "a", "lat": 46.3, "lon": 7.6, **radar}, {"id": "b", "lat": 45.7, "lon": 8.5, **radar}],
+            "outliers": {"enabled": False},
+            "tracking": {"filter": filter_name},
+        }
+    )
+
+
+def turning_xy_m(t_s: np.ndarray) -> np.ndarray:
+    """East at SPEED_MPS, a left turn at TURN_RATE_RADPS through 180°, then west: (n, 2)."""
+    tau = np.atleast_1d(np.asarray(t_s, float)) - T0_S
+    radius_m = SPEED_MPS / TURN_RATE_RADPS
+    before = np.clip(tau, None, TURN_START_S)
+    turn = np.clip(tau - TURN_START_S, 0.0, TURN_END_S - TURN_START_S)
+    after = np.clip(tau - TURN_END_S, 0.0, None)
+    entry = START_XY_M + np.stack([SPEED_MPS * before, np.zeros_like(before)], axis=1)
+    heading = TURN_RATE_RADPS * turn  # from east, counter-clockwise
+    in_turn = np.stack([radius_m * np.sin(heading), radius_m * (1.0 - np.cos(heading))], axis=1)
+    return entry + in_turn + np.stack([-SPEED_MPS * after, np.zeros_like(after)], axis=1)
+
+
+def straight_xy_m(t_s: np.ndarray) -> np.ndarray:
+    tau = np.atleast_1d(np.asarray(t_s, float)) - T0_S
+    return START_XY_M + np.stack([SPEED_MPS * tau, 0.6 * SPEED_MPS * tau], axis=1) * 0.8
+
+
+def plot_of(engine, radar, seq, t_s, truth, rng, noise):
+    xy = truth(np.array([t_s]))
+    lat, lon = engine.plane.to_geodetic(xy[:, 0], xy[:, 1])
+    r_m, az_deg, _ = geodetic_to_polar(engine.sites, radar, lat, lon, np.array([FL * M_PER_FL]))
+    r_m = r_m + noise * rng.normal(0.0, SIGMA_RANGE_M, 1)
+    az_deg = az_deg + noise * rng.normal(0.0, SIGMA_AZIMUTH_DEG, 1)
+    return DecodedPlots(
+        engine.radar_ids[radar],
+        seq,
+        np.array([t_s]),
+        r_m,
+        az_deg,
+        np.array([FL]),
+        np.array([-1]),
+        np.array([0x4B1234]),
+        np.array([-1]),
+        np.zeros(1, np.int8),
+    )
+
+
+def run(filter_name, truth, periods, seed=7, noise=1.0):
+    """Radar a at 1.0 s and radar b at 3.0 s into each period; the same noise for either filter
+    (``noise`` scales it, 0: exact plots). Returns the engine and its period outputs."""
+    eng = Engine(settings(filter_name))
+    rng = np.random.default_rng(seed)
+    outputs = []
+    for k in range(periods + 1):  # the last period's plots only move the watermarks past the one before
+        t = T0_S + PERIOD_S * k
+        eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0, truth, rng, noise))
+        eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0, truth, rng, noise))
+        outputs += eng.poll()
+    return eng, outputs
+
+
+def track_series(outputs, truth):
+    """Per output period with one track: time after T0 (s), position error (m), track id,
+    manoeuvre probability (NaN if None), from the wire message."""
+    rows = []
+    for out in outputs:
+        batch = TrackBatch.model_validate(out.track_batch)
+        assert len(batch.tracks) <= 1
+        if batch.tracks:
+            tr = batch.tracks[0]
+            err_m = float(np.hypot(*(np.array([tr.x_m, tr.y_m]) - truth(np.array([out.t_s]))[0])))
+            prob = np.nan if tr.manoeuvre_prob is None else tr.manoeuvre_prob
+            rows.append((out.t_s - T0_S, err_m, tr.track_id, prob))
+    return np.array(rows)
+
+
+def turn_rms_m(series):
+    """Position RMS (m) over the turn: from its second period to two periods after it."""
+    in_turn = (series[:, 0] > TURN_START_S + 4.0) & (series[:, 0] <= TURN_END_S + 8.0)
+    assert in_turn.sum() >= 15
+    return float(np.sqrt(np.mean(series[in_turn, 1] ** 2)))
+
+
+def test_imm_follows_a_rate_one_turn_closer_than_the_singer_filter_with_one_track():
+    """Exact plots: the error is each filter's own lag in the turn (measured: Singer with
+    its NIS manoeuvre detection 72 m, IMM 59 m)."""
+    periods = int((TURN_END_S + 60.0) / PERIOD_S)
+    series = {
+        name: track_series(run(name, turning_xy_m, periods, noise=0.0)[1], turning_xy_m) for name in ("singer", "imm")
+    }
+    for s in series.values():
+        assert len(np.unique(s[:, 2])) == 1 and s.shape[0] == periods  # one track id throughout
+    rms_m = {name: turn_rms_m(s) for name, s in series.items()}
+    assert rms_m["imm"] < 0.85 * rms_m["singer"], rms_m
+    assert np.isnan(series["singer"][:, 3]).all()  # no manoeuvre probability with the Singer filter
+    imm = series["imm"]
+    straight_before = (imm[:, 0] > 40.0) & (imm[:, 0] <= TURN_START_S)
+    in_turn = (imm[:, 0] > TURN_START_S + 8.0) & (imm[:, 0] <= TURN_END_S)
+    assert imm[straight_before, 3].max() < 0.05
+    assert imm[in_turn, 3].max() > 0.8  # the turn is detected ...
+    assert imm[in_turn, 3].min() > 3.0 * imm[straight_before, 3].max()  # ... and stays above straight flight
+
+
+def test_imm_is_closer_in_the_turn_on_noisy_plots_too():
+    """The same noise for both filters, four seeds (measured over eight: Singer 85 m, IMM 75 m)."""
+    periods = int((TURN_END_S + 12.0) / PERIOD_S)
+    rms_m = {
+        name: np.array(
+            [turn_rms_m(track_series(run(name, turning_xy_m, periods, seed)[1], turning_xy_m)) for seed in range(4)]
+        )
+        for name in ("singer", "imm")
+    }
+    assert (rms_m["imm"] < rms_m["singer"]).all(), rms_m
+    assert rms_m["imm"].mean() < 0.92 * rms_m["singer"].mean(), rms_m
+
+
+def test_imm_straight_flight_keeps_the_manoeuvre_probability_low():
+    eng, outputs = run("imm", straight_xy_m, 40)
+    s = track_series(outputs, straight_xy_m)
+    assert len(np.unique(s[:, 2])) == 1
+    settled = s[:, 0] > 40.0
+    # below the prior 0.1 (about the Markov chain's share of manoeuvring time) once settled
+    assert s[settled, 3].max() < IMMParams().prior_manoeuvre_prob
+    # the table's combined state is the μ-weighted mixture of its models (imm.py eq. 7)
+    tr = eng.tracks
+    assert np.allclose(tr.x, np.einsum("nm,nmd->nd", tr.mu, tr.x_models))
+    assert np.allclose(tr.mu.sum(axis=1), 1.0)
+
+
+def test_singer_filter_table_has_no_model_columns():
+    eng, _ = run("singer", straight_xy_m, 5)
+    assert eng.tracks.n_models == 0 and eng.tracks.P_models.shape == (len(eng.tracks), 0, 6, 6)
