@@ -179,8 +179,8 @@ def primary_plot_altitude(
             g_top = slant_to_ground_range(r_arr, h_arr, h_top, rp)[0]
             g_mid = 0.5 * (g_low + g_top)
             g_mid = np.where(np.isfinite(g_mid), g_mid, rp)
-            half_m = 0.5 * np.abs(g_low - g_top)
-            reach_m = np.where(np.isfinite(half_m), half_m, rp) + 0.06 * rp + slack_m
+            g_half_m = 0.5 * np.abs(g_low - g_top)
+            reach_m = np.where(np.isfinite(g_half_m), g_half_m, rp) + 0.06 * rp + slack_m
             where = np.stack([site_x[r] + g_mid * np.sin(tp), site_y[r] + g_mid * np.cos(tp)], axis=1)
             hits = cKDTree(xy_u[sel]).query_ball_point(where, reach_m, return_sorted=False)
             lens = np.fromiter(map(len, hits), dtype=np.intp, count=len(hits))
