@@ -60,6 +60,7 @@ __all__ = [
     "gaussian_earth_radius_m",
     "geodetic_to_polar",
     "ground_to_slant_range",
+    "mark_unconverted",
     "polar_to_plane",
     "radial_to_plane",
     "slant_to_ground_range",
@@ -358,6 +359,31 @@ def radial_to_plane(
     return x_m, y_m, cov
 
 
+def mark_unconverted(
+    x_m: np.ndarray,
+    y_m: np.ndarray,
+    cov: np.ndarray,
+    ground_m: np.ndarray,
+    rho: np.ndarray,
+    sigma_rho: np.ndarray,
+    finite_in: np.ndarray,
+    valid: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The conversions' common end for plots that did not convert: an impossible geometry
+    (``finite_in & ~valid``) stays at the site with an isotropic covariance of its whole
+    slant range; a non-finite input (``~finite_in``) becomes NaN throughout."""
+    clamped = finite_in & ~valid
+    if np.any(clamped):
+        cov[clamped] = (rho[clamped] ** 2 + sigma_rho[clamped] ** 2)[:, None, None] * np.eye(2)
+    if not np.all(finite_in):
+        bad = ~finite_in
+        x_m = np.where(bad, np.nan, x_m)
+        y_m = np.where(bad, np.nan, y_m)
+        ground_m = np.where(bad, np.nan, ground_m)
+        cov[bad] = np.nan
+    return x_m, y_m, cov, ground_m
+
+
 def polar_to_plane(
     plane: SystemPlane,
     sites: RadarSites,
@@ -451,18 +477,7 @@ def polar_to_plane(
     var_c = (r_m * np.sin(ground_m / r_m) * sigma_theta) ** 2
     x_m, y_m, cov = radial_to_plane(plane, sites, idx, theta_safe, ground_m, var_r, var_c)
 
-    clamped = finite_in & ~valid
-    if np.any(clamped):
-        iso = rho[clamped] ** 2 + sigma_rho[clamped] ** 2
-        cov[clamped] = iso[:, None, None] * np.eye(2)
-
-    if not np.all(finite_in):
-        bad = ~finite_in
-        x_m = np.where(bad, np.nan, x_m)
-        y_m = np.where(bad, np.nan, y_m)
-        ground_m = np.where(bad, np.nan, ground_m)
-        cov[bad] = np.nan
-
+    x_m, y_m, cov, ground_m = mark_unconverted(x_m, y_m, cov, ground_m, rho, sigma_rho, finite_in, valid)
     if return_valid:
         return x_m, y_m, cov, ground_m, valid
     return x_m, y_m, cov, ground_m

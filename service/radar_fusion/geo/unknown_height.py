@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .coordinates import RadarSites, SystemPlane, radial_to_plane, slant_to_ground_range
+from .coordinates import RadarSites, SystemPlane, mark_unconverted, radial_to_plane, slant_to_ground_range
 from .units import M_PER_FL
 
 __all__ = [
@@ -202,13 +202,5 @@ def polar_to_plane_unknown_height(
     var_c = ((r_m * np.sin(ground_m / r_m)) ** 2 + var_g) * sigma_theta**2
     x_m, y_m, cov = radial_to_plane(plane, sites, idx, theta_safe, ground_m, var_r, var_c)
 
-    clamped = finite_in & ~valid
-    if np.any(clamped):
-        cov[clamped] = (rho[clamped] ** 2 + sigma_rho[clamped] ** 2)[:, None, None] * np.eye(2)
-    if not np.all(finite_in):
-        bad = ~finite_in
-        x_m = np.where(bad, np.nan, x_m)
-        y_m = np.where(bad, np.nan, y_m)
-        ground_m = np.where(bad, np.nan, ground_m)
-        cov[bad] = np.nan
+    x_m, y_m, cov, ground_m = mark_unconverted(x_m, y_m, cov, ground_m, rho, sigma_rho, finite_in, valid)
     return x_m, y_m, cov, ground_m, valid
