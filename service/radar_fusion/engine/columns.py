@@ -5,7 +5,9 @@
 * :class:`ClusterMeasurements`: one fused measurement per cluster of the period;
 * :class:`TrackColumns`: every track at a period's reference time, the engine's output
   (the TrackBatch message is built from it, the safety nets read it; ``from_message``
-  rebuilds it from a received TrackBatch).
+  rebuilds it from a received TrackBatch);
+* :class:`Prediction` and :class:`PeriodOutput`: the period's tracks predicted to its
+  reference time, and what a closed period returns.
 
 The filter's own mutable track store is :class:`radar_fusion.tracking.track_management.TrackTable`.
 """
@@ -14,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from itertools import repeat
 from typing import Any
@@ -22,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..geo.coordinates import SystemPlane
+from ..tracking.imm import IMMState
 from ..tracking.track_management import STATUS_NAMES, TENTATIVE
 from ..wire import mode_s_to_str
 
@@ -337,3 +340,36 @@ class ClusterMeasurements:
     mode3a: np.ndarray  # int64, -1 none
     revisit_s: np.ndarray  # shortest rotation period among the cluster's radars
     sources: np.ndarray  # uint64 bit mask of the cluster's radars
+
+
+@dataclass
+class PeriodOutput:
+    """What one closed period produced: every track as columns, and alerts.
+
+    ``track_batch`` is the TrackBatch message (a wire-contract dict), built from the
+    columns on first use: that is the I/O side's work (the daemon builds and encodes it
+    on its worker thread right after the period), not the engine's, and ``processing_s``
+    does not include it. ``radar-fusion bench`` reports both figures.
+    """
+
+    period: int
+    t_s: float
+    track_columns: TrackColumns
+    alerts: list[dict[str, Any]] = field(default_factory=list)
+    processing_s: float = 0.0
+    n_plots: int = 0
+
+    @cached_property
+    def track_batch(self) -> dict[str, Any]:
+        return self.track_columns.to_message()
+
+
+@dataclass
+class Prediction:
+    """Every track's state predicted to the period's reference time (step ``predict``)."""
+
+    x: np.ndarray  # (N, 6) Singer state
+    P: np.ndarray  # (N, 6, 6)
+    alt_x: np.ndarray  # (N, 2) [FL, FL/s]
+    alt_P: np.ndarray  # (N, 2, 2)
+    imm: IMMState | None = None  # the IMM's per-model prediction (x, P: its combination), filter = "imm"

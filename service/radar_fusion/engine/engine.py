@@ -38,8 +38,6 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, deque
-from dataclasses import dataclass, field
-from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -57,7 +55,7 @@ from ..tracking.clustering import ClusterResult, cluster_plots
 from ..tracking.fusion import fuse_clusters
 from ..tracking.imm import MANOEUVRE, IMMFilter, IMMState
 from ..tracking.initiation import one_point_initiation, two_point_initiation, unknown_velocity_var_m2ps2
-from ..tracking.live_gate import LiveOutlierGate
+from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
 from ..tracking.registration import RadarRegistration
@@ -69,46 +67,14 @@ from ..tracking.track_management import (
     apply_life_cycle,
     cov_pos_m2,
     cov_vel,
+    merge_same_address,
     position_m,
     velocity_mps,
 )
 from ..wire import DecodedPlots, RadarStatus
 from .admission import Admission, ClockCheck
-from .columns import ClusterMeasurements, ConvertedPlots, PlotChunk, RadarNames, TrackColumns
+from .columns import ClusterMeasurements, ConvertedPlots, PeriodOutput, PlotChunk, Prediction, RadarNames, TrackColumns
 from .period_buffer import PeriodBuffer
-
-
-@dataclass
-class PeriodOutput:
-    """What one closed period produced: every track as columns, and alerts.
-
-    ``track_batch`` is the TrackBatch message (a wire-contract dict), built from the
-    columns on first use: that is the I/O side's work (the daemon builds and encodes it
-    on its worker thread right after the period), not the engine's, and ``processing_s``
-    does not include it. ``radar-fusion bench`` reports both figures.
-    """
-
-    period: int
-    t_s: float
-    track_columns: TrackColumns
-    alerts: list[dict[str, Any]] = field(default_factory=list)
-    processing_s: float = 0.0
-    n_plots: int = 0
-
-    @cached_property
-    def track_batch(self) -> dict[str, Any]:
-        return self.track_columns.to_message()
-
-
-@dataclass
-class Prediction:
-    """Every track's state predicted to the period's reference time (step ``predict``)."""
-
-    x: np.ndarray  # (N, 6) Singer state
-    P: np.ndarray  # (N, 6, 6)
-    alt_x: np.ndarray  # (N, 2) [FL, FL/s]
-    alt_P: np.ndarray  # (N, 2, 2)
-    imm: IMMState | None = None  # the IMM's per-model prediction (x, P: its combination), filter = "imm"
 
 
 class Engine:
@@ -556,61 +522,14 @@ class Engine:
 
     # ----------------------------------------------------------------- merge
     def _merge_identities(self, out: Prediction) -> tuple[Prediction, np.ndarray]:
-        """Two tracks never carry one Mode S address at once: they are one aircraft.
-
-        Each group of tracks with the same address becomes one track with the oldest id
-        (its first time, its update count); it takes the state of the most recently updated
-        member that is itself established (``confirm_updates`` updates: the one that
-        followed the aircraft), never a young one-point state that would throw away the
-        old track's velocity; the other ids end in this period.
-        Association already sends a live track's address to that track
-        (association.identity_pairs), so this is rare: two new tracks started on one
-        address in the same period, or a track that acquired its address late.
-        Returns ``out`` without the merged-away rows, and their ids.
-        """
-        tr = self.tracks
-        rows = np.flatnonzero(tr.mode_s >= 0)
-        order = rows[np.lexsort((tr.track_id[rows], tr.mode_s[rows]))]  # by address, then oldest id first
-        same = tr.mode_s[order][1:] == tr.mode_s[order][:-1]
-        if not same.any():
-            return out, np.empty(0, np.int64)
-        keep = np.ones(len(tr), bool)
-        group_start = np.flatnonzero(np.r_[True, ~same])
-        for a, b in zip(group_start, np.r_[group_start[1:], order.size]):
-            members = order[a:b]
-            if members.size < 2:
-                continue
-            oldest = members[0]
-            established = members[(tr.updates[members] >= self.rules.confirm_updates) | (members == oldest)]
-            newest = established[np.argmax(tr.t_state_s[established])]
-            if newest != oldest:
-                for name in (
-                    "x",
-                    "P",
-                    "t_state_s",
-                    "alt_x",
-                    "alt_P",
-                    "initiated",
-                    "last_update_t_s",
-                    "z1_m",
-                    "R1_m2",
-                    "mode3a",
-                    "sources",
-                    "revisit_s",
-                    "nis_avg",
-                    "manoeuvre",
-                    "x_models",
-                    "P_models",
-                    "mu",
-                ):
-                    getattr(tr, name)[oldest] = getattr(tr, name)[newest]
-                for column in (out.x, out.P, out.alt_x, out.alt_P):
-                    column[oldest] = column[newest]
-            tr.updates[oldest] = tr.updates[members].max()
-            tr.status[oldest] = CONFIRMED if (tr.status[members] != TENTATIVE).any() else TENTATIVE
-            keep[members[1:]] = False
-        merged = tr.track_id[~keep].copy()
-        tr.keep(keep)
+        """Two tracks never carry one Mode S address at once: they become one, with the
+        oldest id (track_management.merge_same_address). Association already sends a live
+        track's address to that track (association.identity_pairs), so this is rare: two
+        new tracks started on one address in the same period, or a track that acquired its
+        address late. Returns ``out`` without the merged-away rows, and their ids."""
+        keep, merged = merge_same_address(self.tracks, self.rules.confirm_updates, (out.x, out.P, out.alt_x, out.alt_P))
+        if not merged.size:
+            return out, merged
         self.counters["tracks_merged"] += int(merged.size)
         return Prediction(out.x[keep], out.P[keep], out.alt_x[keep], out.alt_P[keep]), merged
 
@@ -688,9 +607,3 @@ class Engine:
             "processing_ms_p99": float(np.percentile(proc, 99)) if proc.size else None,
             "newest_period_t": self.track_t_s,
         }
-
-
-def radar_track_keys(radar: np.ndarray, track_no: np.ndarray, mode_s: np.ndarray) -> np.ndarray:
-    """Key of a radar track for the wild-plot gate: radar × (track number, else Mode S)."""
-    key = np.where(track_no >= 0, track_no, np.where(mode_s >= 0, mode_s + (1 << 33), -1))
-    return np.where(key >= 0, (radar.astype(np.int64) << np.int64(40)) + key, -1)

@@ -393,3 +393,9 @@ class LiveOutlierGate:
         held = np.flatnonzero(self._row_key >= 0)
         self._evict_rows(held)
         self.evicted -= int(held.size)
+
+
+def radar_track_keys(radar: np.ndarray, track_no: np.ndarray, mode_s: np.ndarray) -> np.ndarray:
+    """Key of a radar track for the wild-plot gate: radar × (track number, else Mode S)."""
+    key = np.where(track_no >= 0, track_no, np.where(mode_s >= 0, mode_s + (1 << 33), -1))
+    return np.where(key >= 0, (radar.astype(np.int64) << np.int64(40)) + key, -1)

@@ -259,3 +259,65 @@ def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndar
     if end.any():
         table.keep(~end)
     return ended
+
+
+#: what a merged track takes from the member that followed the aircraft: its whole state
+_STATE_COLUMNS = (
+    "x",
+    "P",
+    "t_state_s",
+    "alt_x",
+    "alt_P",
+    "initiated",
+    "last_update_t_s",
+    "z1_m",
+    "R1_m2",
+    "mode3a",
+    "sources",
+    "revisit_s",
+    "nis_avg",
+    "manoeuvre",
+    "x_models",
+    "P_models",
+    "mu",
+)
+
+
+def merge_same_address(
+    table: TrackTable, confirm_updates: int, outputs: tuple[np.ndarray, ...] = ()
+) -> tuple[np.ndarray, np.ndarray]:
+    """Make each group of tracks with one Mode S address one track (issue 15 item 2).
+
+    The survivor keeps the oldest id (its first time, the largest update count) and takes
+    the state of the most recently updated member that is itself established
+    (``confirm_updates`` updates: the one that followed the aircraft), never a young
+    one-point state that would throw away the old track's velocity; it is confirmed when
+    any member was. The other rows are removed. Rows of ``outputs`` (arrays row-aligned
+    with the table) are copied the same way but not removed: the caller drops them with
+    the returned mask. Returns (keep mask over the table's former rows, merged-away ids).
+    """
+    rows = np.flatnonzero(table.mode_s >= 0)
+    order = rows[np.lexsort((table.track_id[rows], table.mode_s[rows]))]  # by address, then oldest id first
+    same = table.mode_s[order][1:] == table.mode_s[order][:-1]
+    keep = np.ones(len(table), bool)
+    if not same.any():
+        return keep, np.empty(0, np.int64)
+    group_start = np.flatnonzero(np.r_[True, ~same])
+    for a, b in zip(group_start, np.r_[group_start[1:], order.size]):  # over duplicated addresses only
+        members = order[a:b]
+        if members.size < 2:
+            continue
+        oldest = members[0]
+        established = members[(table.updates[members] >= confirm_updates) | (members == oldest)]
+        newest = established[np.argmax(table.t_state_s[established])]
+        if newest != oldest:
+            for name in _STATE_COLUMNS:
+                getattr(table, name)[oldest] = getattr(table, name)[newest]
+            for column in outputs:
+                column[oldest] = column[newest]
+        table.updates[oldest] = table.updates[members].max()
+        table.status[oldest] = CONFIRMED if (table.status[members] != TENTATIVE).any() else TENTATIVE
+        keep[members[1:]] = False
+    merged: np.ndarray = table.track_id[~keep].copy()
+    table.keep(keep)
+    return keep, merged
