@@ -130,12 +130,15 @@ class TrackingConfig(_Section):
         "formula with a 25° bank turn as the maximum (singer_filter.py)",
     )
     filter: Literal["singer", "imm"] = Field(
-        "singer",
+        "imm",
         description="singer: one Singer model (σ_m above) with NIS manoeuvre detection raising its noise "
         "(manoeuvre.py), the seeds' filter and the baseline; imm: an interacting multiple model filter of a "
         "quiet and a manoeuvre Singer model ([tracking.imm], tracking/imm.py), which follows turns without "
         "the straight-flight noise of a single high-σ_m model, and publishes each track's manoeuvre "
-        "probability (issue 15 item 3). Default singer until the IMM's figures are judged",
+        "probability (issue 15 item 3). Default imm: side by side on the same plots it was more accurate in every "
+        "case measured (demo 73.0 -> 62.6 m, ADS-B 94 -> 87 m, 50x3 GOSPA 878 -> 830 m), with the same track ids "
+        "and safety-eval still 21/21 without nuisance (median warning 105 s, min 92 s, against 104 / 88 s); it "
+        "costs 0.7-0.8x of the engine's throughput",
     )
     imm: IMMParams = Field(
         default_factory=IMMParams,
