@@ -152,7 +152,7 @@ class FusionDaemon:
         self.outbox: queue.Queue = queue.Queue(maxsize=outbox_size)
         self.outputs_dropped = 0
         self.publish_errors = 0
-        self.clock_offsets_s: list[float | None] = [None] * len(self.engine.radar_ids)
+        self._clock_suspect: dict[str, bool] = {}  # per radar, as last logged
         self._health_pending = False  # a periodic health snapshot waits in the outbox
         self._last_processed = time.monotonic()
         self._log_rejection = RateLimitedLog()
@@ -287,17 +287,19 @@ class FusionDaemon:
                 processed_at_flush = self.messages_processed
             now = time.monotonic()
             if now - last_health >= self.settings.bus.health_period_s:
-                self._check_clocks()
+                health = self.health_message()
+                self._check_clocks(health)
                 if not self._health_pending:  # one at a time while the publisher is held up
                     self._health_pending = True
-                    self._emit(("health", self.health_message()))
+                    self._emit(("health", health))
                 last_health = now
             if stopping and self.queue.empty():
                 break
         self._count_overload()
         self._publish(self.engine.flush())
-        self._check_clocks()
-        self._emit(("health", self.health_message()))  # the final health, after the last batches
+        health = self.health_message()
+        self._check_clocks(health)
+        self._emit(("health", health))  # the final health, after the last batches
 
     def _count_overload(self) -> None:
         """Hand the overload refusals of Zenoh's threads to the engine's counters (the
@@ -318,18 +320,23 @@ class FusionDaemon:
         if arrived_s is not None:  # monotonic time the Zenoh callback queued it
             self.metrics.observe_ingest(self._last_processed - arrived_s)
 
-    def _check_clocks(self) -> None:
-        """Log each radar whose clock became suspect, or good again (the engine estimates)."""
+    def _check_clocks(self, health: dict[str, Any]) -> None:
+        """Log each radar whose clock became suspect, or good again (the engine's estimates,
+        as the health snapshot carries them)."""
         limit_s = self.settings.system.clock_offset_limit_s
-        offsets = self.engine.clock_offsets_s()
-        for rid, old, new in zip(self.engine.radar_ids, self.clock_offsets_s, offsets):
-            was = old is not None and abs(old) > limit_s
-            now = new is not None and abs(new) > limit_s
+        for rid in self.engine.radar_ids:
+            radar = health["radars"][rid]
+            was, now = self._clock_suspect.get(rid, False), bool(radar["clock_suspect"])
             if now and not was:
-                log.warning("radar %s: clock offset %.1f s against the other radars (limit %.1f s)", rid, new, limit_s)
+                log.warning(
+                    "radar %s: clock offset %.1f s against the other radars (limit %.1f s)",
+                    rid,
+                    radar["clock_offset_s"],
+                    limit_s,
+                )
             elif was and not now:
                 log.info("radar %s: clock back within %.1f s of the other radars", rid, limit_s)
-        self.clock_offsets_s = offsets
+            self._clock_suspect[rid] = now
 
     # ------------------------------------------------------------- publishing
     def _publish(self, outputs: list[PeriodOutput]) -> None:

@@ -237,10 +237,10 @@ class Settings(BaseSettings):
         return min(r.rotation_period_s for r in self.radars)
 
 
-def _config_error(exc: ValidationError, source: str, section: str = "") -> ConfigError:
+def _config_error(exc: ValidationError, source: str) -> ConfigError:
     lines = []
     for e in exc.errors():
-        loc = ".".join(str(x) for x in (section,) * bool(section) + tuple(e["loc"])) or "(top level)"
+        loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
         lines.append(f"{source}: {loc}: {e['msg']}")
     return ConfigError("\n".join(lines))
 

@@ -155,10 +155,6 @@ class Engine:
             self.clock.observe(i, float(batch.t_s.max()), self.buffer.watermark_s)
         return self.admission.admit_plots(batch)
 
-    def clock_offsets_s(self) -> list[float | None]:
-        """Each radar's estimated clock offset against the others (ClockCheck), s."""
-        return self.clock.offsets_s()
-
     # ================================================================= output
     def poll(self) -> list[PeriodOutput]:
         """Close every period the watermarks allow; returns their outputs in order."""
@@ -571,7 +567,7 @@ class Engine:
     def health(self) -> dict[str, Any]:
         """Counters and per-radar state for the health message (wire.Health fields)."""
         live = self.buffer.live_mask()
-        offsets_s = self.clock_offsets_s()
+        offsets_s = self.clock.offsets_s()
         registration = self.registration.estimates()
         limit_s = self.settings.system.clock_offset_limit_s
         radars = {}
