@@ -419,3 +419,20 @@ def test_end_to_end_recording_run_and_png(tmp_path, capsys):
     assert summary["targets"][0]["mode_s"] == "4CA123"
     table = ev.format_table(direct)
     assert "duplicate tracks" in table and "id swaps" in table
+
+
+def test_truth_turn_rate_is_the_analytic_rate_of_a_circle_across_north():
+    """A circle flown at a known rate (right turn, through north, where the heading wraps
+    from 359 to 0 degrees) and a straight leg: the rate the scorer splits RMS by is the
+    analytic omega = v / r, and 0 on the straight leg."""
+    rate_deg_s, speed_mps = 3.0, 200.0
+    times = np.arange(0.0, 200.0, 4.0)
+    psi = np.radians(300.0 + rate_deg_s * times)  # heading from north, clockwise: crosses 360 at t = 20 s
+    vx, vy = speed_mps * np.sin(psi), speed_mps * np.cos(psi)
+    straight_vx, straight_vy = np.full_like(times, 150.0), np.full_like(times, -80.0)
+    got = ev.truth_turn_rate_deg_s(np.vstack([vx, straight_vx]), np.vstack([vy, straight_vy]), times)
+    np.testing.assert_allclose(got[0], rate_deg_s, atol=1e-9)
+    np.testing.assert_allclose(got[1], 0.0, atol=1e-9)
+    # too slow for a heading: no rate
+    slow = ev.truth_turn_rate_deg_s(np.full((1, 5), 1.0), np.full((1, 5), 1.0), np.arange(5.0))
+    assert np.isnan(slow).all()

@@ -143,6 +143,8 @@ class EvalParams:
     truth_max_gap_s: float = 10.0
     rms_statuses: tuple[str, ...] = ("confirmed",)
     keep_previous: bool = True
+    turning_above_deg_s: float = 1.5
+    straight_below_deg_s: float = 0.3
 
 
 @dataclass
@@ -181,6 +183,10 @@ class Scores:
     pos_p95_settled_m: float
     vel_rms_settled_mps: float
     vel_p95_settled_mps: float
+    pos_rms_straight_m: float
+    pos_rms_turning_m: float
+    n_pairs_straight: int
+    n_pairs_turning: int
     gospa_mean_m: float
     gospa_localisation_mean: float
     gospa_missed_mean: float
@@ -214,6 +220,29 @@ class Scores:
                 continue
             out[k] = v
         return json.loads(json.dumps(out, default=float, allow_nan=True))
+
+
+def truth_turn_rate_deg_s(vx_mps: np.ndarray, vy_mps: np.ndarray, times_s: np.ndarray) -> np.ndarray:
+    """Turn rate of each truth target at each batch time, deg/s (positive = right turn),
+    from the truth velocities already interpolated to the batch times: the heading
+    psi = atan2(vx, vy) unwrapped along time, differentiated by central differences
+    (one-sided at the ends). (K, T) arrays; NaN where the target does not exist at a time
+    or a neighbour, or moves slower than 5 m/s (no heading)."""
+    out = np.full(vx_mps.shape, np.nan)
+    if times_s.shape[0] < 2:
+        return out
+    speed = np.hypot(vx_mps, vy_mps)
+    psi = np.arctan2(vx_mps, vy_mps)
+    psi = np.where(speed > 5.0, psi, np.nan)
+    # unwrap ignores NaN poorly: unwrap the steps instead
+    step = np.diff(psi, axis=1)
+    step = (step + np.pi) % (2 * np.pi) - np.pi
+    dt = np.diff(times_s)
+    rate = step / dt  # rad/s between consecutive times
+    out[:, 1:-1] = 0.5 * (rate[:, 1:] + rate[:, :-1])
+    out[:, 0] = rate[:, 0]
+    out[:, -1] = rate[:, -1]
+    return np.degrees(out)
 
 
 def _rms(e: np.ndarray) -> float:
@@ -277,6 +306,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     times = np.array([float(b["t"]) for b in batches])
     tat = interpolate_truth(truth, times, params.truth_max_gap_s)
     n_targets, n_times = truth.n_targets, times.shape[0]
+    turn_deg_s = truth_turn_rate_deg_s(tat.vx_mps, tat.vy_mps, times)
     c, p = params.gospa_c_m, params.gospa_p
     rms_statuses = set(params.rms_statuses)
 
@@ -284,6 +314,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     previous: dict[int, int] = {}  # track id -> target index, associations of the previous batch
     # Per-pair records (concatenated at the end).
     pair_batch, pair_target, pair_track, pair_epos, pair_evel, pair_settled, pair_rms = [], [], [], [], [], [], []
+    pair_turn = []
     # Per displayed track and batch: its id and its classification.
     cls_ids, cls_kind = [], []
     g_dist = np.zeros(n_times)
@@ -334,6 +365,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         pair_track.append(ids[a_trk])
         pair_epos.append(e_pos)
         pair_evel.append(e_vel)
+        pair_turn.append(np.abs(turn_deg_s[a_tgt, b]))
         pair_settled.append(age >= params.settle_s)
         pair_rms.append(np.isin(status[a_trk], list(rms_statuses)) if a_trk.size else np.zeros(0, bool))
 
@@ -354,6 +386,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     pb, pt, pk = cat(pair_batch, np.int64), cat(pair_target, np.int64), cat(pair_track, np.int64)
     epos, evel = cat(pair_epos, float), cat(pair_evel, float)
     settled, in_rms = cat(pair_settled, bool), cat(pair_rms, bool)
+    turn = cat(pair_turn, float)
 
     # ID swaps (track side): consecutive associations of a track id with different targets.
     order = np.lexsort((pb, pk))
@@ -408,6 +441,8 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     seen = [ts for ts in targets if ts.detectable_batches > 0]
     mean = lambda a: float(np.mean(a)) if len(a) else math.nan
     sel, sel_s = in_rms, in_rms & settled
+    sel_straight = sel_s & (turn < params.straight_below_deg_s)  # NaN (no rate) is in neither
+    sel_turning = sel_s & (turn > params.turning_above_deg_s)
 
     return Scores(
         params=params,
@@ -425,6 +460,10 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         pos_p95_settled_m=_p95(epos[sel_s]),
         vel_rms_settled_mps=_rms(evel[sel_s]),
         vel_p95_settled_mps=_p95(evel[sel_s]),
+        pos_rms_straight_m=_rms(epos[sel_straight]),
+        pos_rms_turning_m=_rms(epos[sel_turning]),
+        n_pairs_straight=int(np.count_nonzero(sel_straight)),
+        n_pairs_turning=int(np.count_nonzero(sel_turning)),
         gospa_mean_m=mean(g_dist),
         gospa_localisation_mean=mean(g_loc),
         gospa_missed_mean=mean(g_mis),
@@ -481,6 +520,11 @@ def format_table(scores: Scores) -> str:
         (
             f"after {pr.settle_s:.0f} s settling: velocity RMS / p95",
             f"{f(s.vel_rms_settled_mps)} m/s / {f(s.vel_p95_settled_mps)} m/s",
+        ),
+        (
+            f"settled position RMS straight (< {pr.straight_below_deg_s:g} deg/s) / "
+            f"turning (> {pr.turning_above_deg_s:g} deg/s); pairs",
+            f"{f(s.pos_rms_straight_m)} m / {f(s.pos_rms_turning_m)} m; {s.n_pairs_straight} / {s.n_pairs_turning}",
         ),
         (
             f"GOSPA mean (c = {pr.gospa_c_m:.0f} m, p = {pr.gospa_p:g}, alpha = 2; "

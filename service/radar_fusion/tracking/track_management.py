@@ -291,8 +291,10 @@ def merge_same_address(
     The survivor keeps the oldest id (its first time, the largest update count) and takes
     the state of the most recently updated member that is itself established
     (``confirm_updates`` updates: the one that followed the aircraft), never a young
-    one-point state that would throw away the old track's velocity; it is confirmed when
-    any member was. The other rows are removed. Rows of ``outputs`` (arrays row-aligned
+    one-point state that would throw away the old track's velocity; when no member is
+    established, the most recently updated one (a first plot far from the address's later
+    plots, e.g. a wild one, is not kept: those plots could not reach it and started the
+    younger tracks). It is confirmed when any member was. The other rows are removed. Rows of ``outputs`` (arrays row-aligned
     with the table) are copied the same way but not removed: the caller drops them with
     the returned mask. Returns (keep mask over the table's former rows, merged-away ids).
     """
@@ -308,7 +310,9 @@ def merge_same_address(
         if members.size < 2:
             continue
         oldest = members[0]
-        established = members[(table.updates[members] >= confirm_updates) | (members == oldest)]
+        established = members[table.updates[members] >= confirm_updates]
+        if not established.size:  # all young: the latest measurement (the oldest may be a wild first plot)
+            established = members
         newest = established[np.argmax(table.t_state_s[established])]
         if newest != oldest:
             for name in _STATE_COLUMNS:
