@@ -325,3 +325,106 @@ def test_the_gate_step_converts_a_primary_plot_at_its_tracks_altitude():
         assumed_altitude_m=eng.assumed_altitude_m,
     )
     assert float(np.hypot(x_a[0] - truth_xy(t_ref_s - 1.0)[0], y_a[0] - truth_xy(t_ref_s - 1.0)[1])) > 500.0
+
+
+# ------------------------------------------------------------------ identity outliers
+def _track_error_m(out):
+    cols = out.track_columns
+    assert len(cols.track_id) == 1
+    return float(np.hypot(*(np.array([cols.x_m[0], cols.y_m[0]]) - truth_xy(out.t_s))))
+
+
+def test_a_wild_run_of_one_radar_is_outvoted_by_the_other():
+    """Radar b reports the aircraft (its own Mode S address) 800 m off across its radial for
+    four scans in a row, a wild run (issue 15 item 7; seen on the ADS-B flights, where such a
+    run pulled a track 900 m off). Its address takes those plots to the track past the χ²
+    gate, but radar a's plot of the same period sits inside it and contradicts them
+    (fusion.consensus_outliers): they are dropped and counted, and the track stays on the
+    aircraft."""
+    eng = Engine(settings())
+    errors = {}
+    for k in range(24):
+        t = T0 + 4.0 * k
+        eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0))
+        p = plot_of(eng, 1, k + 1, t + 3.0)
+        if 12 <= k < 16:
+            p.azimuth_deg = p.azimuth_deg + np.degrees(800.0 / p.range_m)
+        eng.ingest_plots(p)
+        for out in eng.poll():
+            errors[round((out.t_s - T0) / 4.0)] = _track_error_m(out)
+    assert eng.counters["plots_identity_outliers"] == 4
+    assert eng.counters["tracks_initiated"] == 1
+    assert max(errors[k] for k in range(12, 20)) < 30.0, errors  # noise-free plots: the wild ones moved nothing
+
+
+def test_consensus_outliers_against_a_hand_fusion():
+    """Cluster 0: two in-gate plots and one beyond the gate 1 km off (an outlier); cluster 1:
+    one in-gate plot and one beyond the gate that agrees with it (a manoeuvre: kept);
+    cluster 2: beyond the gate only (kept: nothing contradicts it)."""
+    from radar_fusion.tracking.fusion import consensus_outliers
+
+    R = np.array(
+        [[[100.0**2, 0.0], [0.0, 50.0**2]], [[60.0**2, 10.0], [10.0, 80.0**2]], [[70.0**2, 0.0], [0.0, 70.0**2]]]
+    )
+    z = np.array([[0.0, 0.0], [30.0, -20.0], [1_000.0, 0.0], [5_000.0, 0.0], [5_080.0, 60.0], [9_000.0, 0.0]])
+    Rk = R[[0, 1, 2, 0, 1, 2]]
+    labels = np.array([0, 0, 0, 1, 1, 2])
+    beyond = np.array([False, False, True, False, True, True])
+    got = consensus_outliers(labels, z, Rk, beyond, 3, 13.8155)
+    # by hand: cluster 0's in-gate fusion and the outlier's distance to it
+    W0, W1 = np.linalg.inv(Rk[0]), np.linalg.inv(Rk[1])
+    R_in = np.linalg.inv(W0 + W1)
+    z_in = R_in @ (W0 @ z[0] + W1 @ z[1])
+    y = z[2] - z_in
+    assert y @ np.linalg.inv(Rk[2] + R_in) @ y > 13.8155
+    y1 = z[4] - z[3]
+    assert y1 @ np.linalg.inv(Rk[4] + Rk[3]) @ y1 < 13.8155
+    assert got.tolist() == [False, False, True, False, False, False]
+
+
+def test_a_track_without_velocity_takes_only_plots_an_aircraft_could_reach():
+    """A one-update track has the wide velocity prior, so its χ² gate reaches ~3 km after a
+    4 s period: two clutter plots of two radars 2.5 km and 4 s apart (625 m/s) would make one
+    track, confirmed by 'two radars'. The sanity gate from max_speed_mps (350 m/s) refuses
+    the pair; the plots of a real aircraft (170 m/s) still join."""
+    for offset_m, tracks in ((0.0, 1), (2_500.0, 2)):
+        eng = Engine(settings())
+        p0 = plot_of(eng, 0, 1, T0 + 1.0)
+        p1 = plot_of(eng, 1, 1, T0 + 5.0)
+        for p in (p0, p1):
+            p.mode_s = np.array([-1])
+        p1.range_m = p1.range_m + offset_m
+        eng.ingest_plots(p0)
+        eng.ingest_plots(p1)
+        eng.ingest_plots(plot_of(eng, 0, 2, T0 + 9.5))  # close both periods
+        eng.ingest_plots(plot_of(eng, 1, 2, T0 + 9.6))
+        eng.poll()
+        assert eng.counters["tracks_initiated"] - 0 >= tracks
+        # the first two periods: the identity-less plots made `tracks` tracks
+        first_two = [r for r in range(len(eng.tracks)) if eng.tracks.mode_s[r] < 0]
+        assert len(first_two) == tracks, (offset_m, eng.tracks.updates.tolist())
+
+
+def test_a_wild_first_plot_does_not_hold_its_address_hostage():
+    """The first plot of an address lies 5 km off (a wild plot); the aircraft's later plots
+    cannot reach it at 350 m/s, start a track of their own and are merged into the older
+    id. No member has a velocity yet, so the merged track takes the latest measurement, not
+    the wild first point (seen on the ADS-B flights: the address's plots were merged into a
+    4.5 km-off one-point track every period for 16 s)."""
+    eng = Engine(settings())
+    first = plot_of(eng, 0, 1, T0 + 1.0)
+    first.range_m = first.range_m + 5_000.0
+    eng.ingest_plots(first)
+    errors = []
+    for k in range(1, 5):
+        t = T0 + 4.0 * k
+        eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0))
+        eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0))
+        for out in eng.poll():
+            if len(out.track_columns.track_id):
+                assert out.track_columns.track_id.tolist() == [1]
+                errors.append(_track_error_m(out))
+    assert eng.counters["tracks_merged"] >= 1
+    assert errors[0] > 4_000.0  # the first period: only the wild plot
+    assert errors[1] < 400.0, errors  # a one-point state: no velocity yet, the aircraft moved on (~340 m)
+    assert max(errors[2:]) < 50.0, errors

@@ -52,7 +52,7 @@ from ..geo.coordinates import (
 from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
 from ..safety_nets import SafetyNets
 from ..tracking.clustering import ClusterResult, cluster_plots
-from ..tracking.fusion import fuse_clusters
+from ..tracking.fusion import consensus_outliers, fuse_clusters
 from ..tracking.imm import MANOEUVRE, IMMFilter, IMMState
 from ..tracking.initiation import one_point_initiation, two_point_initiation, unknown_velocity_var_m2ps2
 from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
@@ -348,6 +348,7 @@ class Engine:
             track_last_xy_m=position_m(tr.x),
             track_last_cov_m2=cov_pos_m2(tr.P),
             track_last_t_s=tr.t_state_s,
+            track_velocity_known=tr.updates >= 2,
         )
         self.counters["plots_redundant"] += int(res.redundant.sum())
         self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())
@@ -373,6 +374,18 @@ class Engine:
         v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
         z_plot = plots.xy_m[used] + v * dt_p[:, None]
         R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
+        # A plot that joined by its Mode S address from outside the gate and that the
+        # cluster's in-gate radars contradict is a wild plot, not a manoeuvre: dropped and
+        # counted (fusion.consensus_outliers).
+        outlier = consensus_outliers(
+            lab, z_plot, R_plot, res.plot_d2[used] > self.clustering.gate_chi2, n_clusters, self.clustering.gate_chi2
+        )
+        if outlier.any():
+            self.counters["plots_identity_outliers"] += int(outlier.sum())
+            keep = ~outlier
+            used[np.flatnonzero(used)[outlier]] = False
+            lab, row_of_plot, v, z_plot, R_plot = lab[keep], row_of_plot[keep], v[keep], z_plot[keep], R_plot[keep]
+            n_in = np.bincount(lab, minlength=n_clusters)
         # A plot that joined its track by its Mode S address from outside the χ² gate counts
         # as if it lay on the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
         # plot moves the track no more than a plot at the gate's edge would, while a genuine

@@ -154,11 +154,28 @@ def identity_pairs(
     at = np.minimum(np.searchsorted(keys, plot_ms[has]), keys.size - 1)
     hit = keys[at] == plot_ms[has]
     p, t = has[hit], order[at[hit]]
-    margin_m = 3.0 * np.sqrt(lambda_max_2x2(plot_cov[p]) + lambda_max_2x2(last_cov[t]))
-    reach_m = max_speed_mps * np.abs(plot_t[p] - last_t[t]) + margin_m
-    d = plot_xy[p] - last_xy[t]
-    ok = np.hypot(d[:, 0], d[:, 1]) <= reach_m
+    ok = within_reach(plot_xy[p], plot_cov[p], plot_t[p], last_xy[t], last_cov[t], last_t[t], max_speed_mps)
     return p[ok].astype(np.intp), t[ok].astype(np.intp)
+
+
+def within_reach(
+    plot_xy: np.ndarray,
+    plot_cov: np.ndarray,
+    plot_t: np.ndarray,
+    last_xy: np.ndarray,
+    last_cov: np.ndarray,
+    last_t: np.ndarray,
+    max_speed_mps: float,
+) -> np.ndarray:
+    """Could the aircraft have flown from its track's last measured position to the plot?
+
+    Pairwise (K,) over aligned rows: |plot − last| ≤ max_speed · |t_plot − t_last|
+    + 3·sqrt(λ_max(R_plot) + λ_max(P_last)), the sanity gate of :func:`identity_pairs`.
+    """
+    margin_m = 3.0 * np.sqrt(lambda_max_2x2(plot_cov) + lambda_max_2x2(last_cov))
+    reach_m = max_speed_mps * np.abs(plot_t - last_t) + margin_m
+    d = plot_xy - last_xy
+    return np.asarray(np.hypot(d[:, 0], d[:, 1]) <= reach_m)
 
 
 def first_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
@@ -410,6 +427,7 @@ def gated_pairs(
     t_ref: float,
     params: ClusteringParams,
     last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    velocity_known: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Steps 1-3 of clustering.py: candidate (plot, track) pairs, each plot aligned to
     t_ref with the track's velocity, kept when inside the Mahalanobis gate (and the
@@ -421,6 +439,12 @@ def gated_pairs(
     (and ``params.identity_association``), a plot with a live track's address joins that
     track inside the sanity gate of :func:`identity_pairs` even outside the statistical
     gate, and is offered to no other track.
+
+    ``velocity_known`` (N,) bool, with ``last``: a track whose velocity is not known yet
+    (one update: its velocity is the wide prior, so its χ² gate reaches kilometres) takes
+    a plot only where the aircraft could have flown from its one measured position
+    (:func:`within_reach`): two clutter plots of two radars must not confirm a track by
+    falling within each other's prior, nor make it fly at Mach 5.
     """
     pair_plot, pair_track = candidate_pairs(
         plot_xy, plot_cov, dt_s, plot_ok, track_xy, track_v, track_cp, track_cv, track_ok, params
@@ -445,6 +469,14 @@ def gated_pairs(
         track_3a[pair_track],
         params.use_mode3a,
     )
+    if last is not None and velocity_known is not None:
+        young = ~np.asarray(velocity_known, bool)[pair_track]
+        if young.any():
+            lx, lc, lt = last
+            pp, pt = pair_plot[young], pair_track[young]
+            gated[young] &= within_reach(
+                plot_xy[pp], plot_cov[pp], plot_t[pp], lx[pt], lc[pt], lt[pt], params.max_speed_mps
+            )
     pair_plot = pair_plot[gated]
     pair_track = pair_track[gated]
     pair_xy = pair_xy[gated]

@@ -457,6 +457,7 @@ def cluster_plots(
     track_last_xy_m: np.ndarray | None = None,
     track_last_cov_m2: np.ndarray | None = None,
     track_last_t_s: np.ndarray | None = None,
+    track_velocity_known: np.ndarray | None = None,
 ) -> ClusterResult:
     """Align one period's plots to ``t_ref_s`` and cluster them (see the module docstring).
 
@@ -468,6 +469,8 @@ def cluster_plots(
     ``track_last_*``: each track's last measured position (N, 2), its covariance (N, 2, 2) and
     time (N,); given, a plot with a track's Mode S address joins it inside a sanity gate
     from the maximum speed (association.identity_pairs), not only inside the χ² gate.
+    ``track_velocity_known`` (N,) bool, with ``track_last_*``: a track without a velocity yet
+    takes only plots inside that sanity gate too (association.gated_pairs).
     """
     params = ClusteringParams() if params is None else params
     plot_xy = np.asarray(plot_xy_m, dtype=float).reshape(-1, 2)
@@ -524,6 +527,7 @@ def cluster_plots(
         t_ref,
         params,
         last,
+        None if track_velocity_known is None else np.asarray(track_velocity_known, bool).reshape(n_tracks),
     )
     pair_radar = radar[pair_plot]
 

@@ -112,3 +112,51 @@ def fuse_clusters(
     z_fused[empty] = np.nan
     R_fused[empty] = np.nan
     return z_fused, R_fused, n_plots
+
+
+def consensus_outliers(
+    labels: NDArray[np.intp],
+    z_m: NDArray[np.float64],
+    R_m2: NDArray[np.float64],
+    beyond_gate: NDArray[np.bool_],
+    n_clusters: int,
+    gate_chi2: float,
+) -> NDArray[np.bool_]:
+    """Plots that the other radars of their cluster contradict (issue 15 items 2 and 7).
+
+    A plot that joined its track by its Mode S address from outside the χ² gate
+    (``beyond_gate``) is either a manoeuvre the prediction did not foresee or a wild plot
+    (a run of wild plots from one radar looks consistent to that radar's own gate). The
+    other radars tell which: the plots of the cluster inside the gate, all aligned to the
+    cluster's time, are fused by inverse variance (Shu eq. 5-6), z_in with covariance
+    R_in, and a plot beyond the gate is an outlier when
+
+        (z − z_in)ᵀ (R + R_in)⁻¹ (z − z_in) > gate_chi2,
+
+    i.e. when it disagrees with the radars that agree with the track. In a turn every
+    radar sees the aircraft where it is, so plots beyond the gate agree with the in-gate
+    ones of the same period and are kept; a cluster with no plot inside the gate keeps
+    all its plots. ``labels`` (K,) cluster of each plot, ``z_m`` (K, 2), ``R_m2`` (K, 2, 2).
+    Returns (K,) bool.
+    """
+    out = np.zeros(labels.shape[0], dtype=bool)
+    inside = ~beyond_gate
+    if not beyond_gate.any() or not inside.any():
+        return out
+    W = inv_2x2(R_m2[inside])
+    info = np.zeros((n_clusters, 2, 2))
+    np.add.at(info, labels[inside], W)
+    info_z = np.zeros((n_clusters, 2))
+    np.add.at(info_z, labels[inside], np.einsum("kij,kj->ki", W, z_m[inside]))
+    has = np.bincount(labels[inside], minlength=n_clusters) > 0
+    cand = np.flatnonzero(beyond_gate & has[labels])
+    if not cand.size:
+        return out
+    c = labels[cand]
+    R_in = inv_2x2(info[c])
+    z_in = np.einsum("kij,kj->ki", R_in, info_z[c])
+    y = z_m[cand] - z_in
+    S_inv = inv_2x2(R_m2[cand] + R_in)
+    d2 = np.einsum("ki,kij,kj->k", y, S_inv, y)
+    out[cand] = d2 > gate_chi2
+    return out
