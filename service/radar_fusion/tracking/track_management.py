@@ -296,7 +296,8 @@ def merge_same_address(
     plots, e.g. a wild one, is not kept: those plots could not reach it and started the
     younger tracks). It is confirmed when any member was. The other rows are removed.
     Rows of ``outputs`` (arrays row-aligned with the table) are copied the same way but not
-    removed: the caller drops them with the returned mask. Returns (keep mask over the table's former rows, merged-away ids).
+    removed: the caller drops them with the returned mask. Returns (keep mask over the
+    table's former rows, merged-away ids).
     """
     rows = np.flatnonzero(table.mode_s >= 0)
     order = rows[np.lexsort((table.track_id[rows], table.mode_s[rows]))]  # by address, then oldest id first
