@@ -428,3 +428,47 @@ def test_a_wild_first_plot_does_not_hold_its_address_hostage():
     assert errors[0] > 4_000.0  # the first period: only the wild plot
     assert errors[1] < 400.0, errors  # a one-point state: no velocity yet, the aircraft moved on (~340 m)
     assert max(errors[2:]) < 50.0, errors
+
+
+# ------------------------------------------------------------------ re-acquisition
+def _ids_by_period(gap_periods, offset_m=0.0, reacquire_s=None):
+    """The aircraft is seen for 6 periods, unseen for ``gap_periods`` (heartbeats only),
+    then seen again, its plots moved ``offset_m`` along radar a's range. Returns the
+    track ids shown per period and the engine."""
+    s = settings()
+    if reacquire_s is not None:
+        s = s.model_copy(update={"life_cycle": s.life_cycle.model_copy(update={"reacquire_within_s": reacquire_s})})
+    eng = Engine(s)
+    shown = {}
+    for k in range(6 + gap_periods + 6):
+        t = T0 + 4.0 * k
+        if 6 <= k < 6 + gap_periods:
+            for radar in ("a", "b"):
+                eng.ingest_status(RadarStatus(radar_id=radar, t=t + 3.5, kind="heartbeat"))
+        else:
+            for radar, dt in ((0, 1.0), (1, 3.0)):
+                p = plot_of(eng, radar, k + 1, t + dt)
+                if k >= 6:
+                    p.range_m = p.range_m + offset_m
+                eng.ingest_plots(p)
+        for out in eng.poll():
+            shown[round((out.t_s - T0) / 4.0)] = out.track_columns.track_id.tolist()
+    return shown, eng
+
+
+def test_an_address_seen_again_soon_gets_its_track_id_back():
+    """Unseen for 40 s (ten 4 s scans: longer than delete_after_scans, so the track ends and
+    disappears as usual), the aircraft's address comes back where it could have flown: the
+    new track takes the old id (LifeCycle.reacquire_within_s, 60 s). Out of reach (30 km in
+    44 s, 680 m/s), or with re-acquisition off, it is a new id; after a gap longer than
+    reacquire_within_s too."""
+    shown, eng = _ids_by_period(10)
+    assert any(v == [] for v in shown.values())  # the track ended during the gap: no ghost
+    assert {tuple(v) for v in shown.values() if v} == {(1,)}
+    assert eng.counters["tracks_reacquired"] == 1 and eng.counters["tracks_ended"] == 1
+    for kwargs in ({"offset_m": 30_000.0}, {"reacquire_s": 0.0}):
+        shown, eng = _ids_by_period(10, **kwargs)
+        assert {tuple(v) for v in shown.values() if v} == {(1,), (2,)}, kwargs
+        assert eng.counters["tracks_reacquired"] == 0
+    shown, eng = _ids_by_period(20)  # 80 s unseen: longer than 60 s
+    assert {tuple(v) for v in shown.values() if v} == {(1,), (2,)}

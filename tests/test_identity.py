@@ -1,8 +1,7 @@
 """Mode S identity figures (tools/identity.py): the metric on hand-made batches, and the
-first ten minutes of the real Barcelona hour through the engine.
-
-The real-data test records today's figures; it does not assert issue 15's goal
-(<= 1.03 ids per segment, no duplicate address), which the tracker does not meet yet.
+first twenty minutes of the real Barcelona hour through the engine, against issue 15's
+goal: <= 1.03 track ids per Mode S track segment, never two tracks on one address, no
+rejection.
 """
 
 from __future__ import annotations
@@ -140,20 +139,23 @@ def test_a_segment_no_counted_track_showed():
 
 
 @pytest.mark.slow
-def test_barcelona_first_ten_minutes_through_the_engine(shared_data, capsys):
+def test_barcelona_first_twenty_minutes_through_the_engine(shared_data, capsys):
     path = shared_data / "asterix" / "barcelona_cat048_1h.ast"
     if not path.is_file():
         pytest.skip(f"{BARCELONA_FILE} is not present")
-    f = run_identity(path, minutes=10)
+    f = run_identity(path, minutes=20)
     with capsys.disabled():
         print("\n" + format_table(f))
     assert f["rejected_total"] == 0, f["rejected"]
-    assert f["span_s"] == pytest.approx(600, abs=5)
-    assert f["plots_ingested"] == f["bridge"]["plots_kept"] > 5000
-    assert f["batches"] == pytest.approx(150, abs=3)  # one TrackBatch per 4 s period
+    assert f["span_s"] == pytest.approx(1200, abs=5)
+    assert f["plots_ingested"] == f["bridge"]["plots_kept"] > 10000
+    assert f["batches"] == pytest.approx(300, abs=3)  # one TrackBatch per 4 s period
     assert f["segments"] >= f["addresses"] > 40
     assert f["segments_without_track"] == 0  # every segment got at least one track id
     for key in ("ids_per_segment_mean", "duplicate_track_time_share"):
         assert math.isfinite(f[key])
     assert 1.0 <= f["ids_per_segment_mean"] <= f["ids_per_segment_max"]
-    assert 0.0 <= f["duplicate_track_time_share"] < 1.0
+    # issue 15's goal (measured: 1.000 on these 20 minutes and on the whole hour; 1.062 on the
+    # hour without re-acquisition, 1.220 before identity association)
+    assert f["ids_per_segment_mean"] <= 1.03, f["worst_addresses"]
+    assert f["duplicate_batches"] == 0 and f["duplicate_track_time_share"] == 0.0

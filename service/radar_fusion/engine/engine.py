@@ -63,6 +63,7 @@ from ..tracking.singer_filter import AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
     TENTATIVE,
+    AddressMemory,
     TrackTable,
     apply_life_cycle,
     cov_pos_m2,
@@ -103,6 +104,7 @@ class Engine:
         )
         self.clustering = settings.clustering
         self.rules = settings.life_cycle
+        self.address_memory = AddressMemory()
         self.assumed_altitude_m = trk.assumed_altitude_ft * M_PER_FT
         self.one_plot_vel_var_m2ps2 = unknown_velocity_var_m2ps2(self.clustering.max_speed_mps)
         self.outlier_gate = LiveOutlierGate.from_params(settings.outliers) if settings.outliers.enabled else None
@@ -527,6 +529,20 @@ class Engine:
         tr.mode3a[new] = cl.mode3a[new_cl]
         tr.revisit_s[new] = cl.revisit_s[new_cl]
         tr.sources[new] = cl.sources[new_cl]
+        if len(self.address_memory):  # an address seen again soon after its track ended: its id back
+            old_id = self.address_memory.recall(
+                cl.mode_s[new_cl],
+                cl.z_m[new_cl],
+                cl.R_m2[new_cl],
+                cl.t_s[new_cl],
+                self.clustering.max_speed_mps,
+                self.rules.reacquire_within_s,
+            )
+            back = old_id >= 0
+            if back.any():
+                rows = np.arange(new.start, new.stop)[back]
+                tr.track_id[rows] = old_id[back]  # a new track otherwise: its age and M-of-N window start now
+                self.counters["tracks_reacquired"] += int(back.sum())
         return np.arange(new.start, new.stop, dtype=np.int64)
 
     # ----------------------------------------------------------------- merge
@@ -545,8 +561,22 @@ class Engine:
     # ---------------------------------------------------------------- manage
     def _manage(self, t_ref_s: float) -> np.ndarray:
         """Track life cycle (track_management.py): confirm, coast, end. Returns ended ids."""
-        ended = apply_life_cycle(self.tracks, t_ref_s, self.rules)
+        tr = self.tracks
+        if self.rules.reacquire_within_s > 0:
+            snap = (
+                tr.track_id.copy(),
+                tr.mode_s.copy(),
+                position_m(tr.x),
+                cov_pos_m2(tr.P),
+                tr.t_state_s.copy(),
+            )
+        ended = apply_life_cycle(tr, t_ref_s, self.rules)
         self.counters["tracks_ended"] += int(ended.size)
+        if self.rules.reacquire_within_s > 0:
+            if ended.size:
+                gone = np.isin(snap[0], ended)
+                self.address_memory.remember(*(a[gone] for a in snap))
+            self.address_memory.forget_older_than(t_ref_s - self.rules.reacquire_within_s)
         return ended
 
     # ---------------------------------------------------------------- output

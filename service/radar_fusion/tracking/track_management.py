@@ -104,6 +104,16 @@ class LifeCycle(BaseModel):
     delete_after_s: float | None = Field(
         None, gt=0, description="A fixed time, s, instead of scans, that ends a confirmed or coasting track."
     )
+    reacquire_within_s: float = Field(
+        60.0,
+        ge=0,
+        description="A track that ended with a Mode S address keeps its id for the address for this long: a new "
+        "track on the address, where the aircraft could have flown since its last plot (max_speed_mps), takes the "
+        "old id back (counted as tracks_reacquired). Default 60 s, the gap over which issue 15 splits an address's "
+        "plots into separate track segments: on the Barcelona hour every extra id left came from an aircraft on "
+        "the airport or a low helicopter unseen for 28-52 s (longer than delete_after_scans), and the controller's "
+        "label should come back with the aircraft. The display is not held: the track ends as usual. 0: off",
+    )
 
 
 _FIELDS = {
@@ -326,3 +336,77 @@ def merge_same_address(
     merged: np.ndarray = table.track_id[~keep].copy()
     table.keep(keep)
     return keep, merged
+
+
+class AddressMemory:
+    """The ids of recently ended tracks by Mode S address (``LifeCycle.reacquire_within_s``).
+
+    An ended track's address is remembered with its id, last measured position (plane, m),
+    its covariance and time. :meth:`recall` gives a new track on a remembered
+    address its old id back when the aircraft could have flown from there
+    (association.within_reach at ``max_speed_mps``), and forgets the entry.
+    """
+
+    def __init__(self) -> None:
+        self._by_address: dict[int, tuple[int, np.ndarray, np.ndarray, float]] = {}
+
+    def __len__(self) -> int:
+        return len(self._by_address)
+
+    def remember(
+        self,
+        ids: np.ndarray,
+        mode_s: np.ndarray,
+        xy_m: np.ndarray,
+        cov_m2: np.ndarray,
+        t_s: np.ndarray,
+    ) -> None:
+        """Ended tracks (row-aligned arrays); those without an address are ignored."""
+        for k in np.flatnonzero(np.asarray(mode_s) >= 0):
+            self._by_address[int(mode_s[k])] = (
+                int(ids[k]),
+                xy_m[k].copy(),
+                cov_m2[k].copy(),
+                float(t_s[k]),
+            )
+
+    def forget_older_than(self, t_s: float) -> None:
+        """Drop the entries whose last plot is before ``t_s``."""
+        for a in [a for a, e in self._by_address.items() if e[3] < t_s]:
+            del self._by_address[a]
+
+    def recall(
+        self,
+        mode_s: np.ndarray,
+        xy_m: np.ndarray,
+        cov_m2: np.ndarray,
+        t_s: np.ndarray,
+        max_speed_mps: float,
+        within_s: float,
+    ) -> np.ndarray:
+        """For new tracks (row-aligned arrays): the old id of each, or −1. An entry is
+        recalled only when its last plot is at most ``within_s`` before the new track's."""
+        from .association import within_reach
+
+        n = np.asarray(mode_s).shape[0]
+        ids = np.full(n, -1, np.int64)
+        for k in np.flatnonzero(np.asarray(mode_s) >= 0):
+            entry = self._by_address.get(int(mode_s[k]))
+            if entry is None:
+                continue
+            old_id, last_xy, last_cov, last_t = entry
+            if t_s[k] - last_t > within_s:
+                continue
+            ok = within_reach(
+                xy_m[k : k + 1],
+                cov_m2[k : k + 1],
+                t_s[k : k + 1],
+                last_xy[None],
+                last_cov[None],
+                np.array([last_t]),
+                max_speed_mps,
+            )
+            if ok[0]:
+                ids[k] = old_id
+                del self._by_address[int(mode_s[k])]
+        return ids
