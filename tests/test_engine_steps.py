@@ -472,3 +472,36 @@ def test_an_address_seen_again_soon_gets_its_track_id_back():
         assert eng.counters["tracks_reacquired"] == 0
     shown, eng = _ids_by_period(20)  # 80 s unseen: longer than 60 s
     assert {tuple(v) for v in shown.values() if v} == {(1,), (2,)}
+
+
+# ------------------------------------------------------------------ track end by coverage and Pd
+def _periods_until_ended(**life_cycle):
+    """Seen by both radars for 6 periods, then nothing (heartbeats only): how many seconds
+    after its last plot the track ends."""
+    s = settings()
+    s = s.model_copy(update={"life_cycle": s.life_cycle.model_copy(update=life_cycle)})
+    eng = Engine(s)
+    for k in range(30):
+        t = T0 + 4.0 * k
+        if k < 6:
+            eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0))
+            eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0))
+        else:
+            for radar in ("a", "b"):
+                eng.ingest_status(RadarStatus(radar_id=radar, t=t + 3.9, kind="heartbeat"))
+        for out in eng.poll():
+            if out.track_columns.ended.size:
+                return out.t_s - (T0 + 4.0 * 6)
+    return None
+
+
+def test_a_track_both_radars_keep_missing_ends_sooner():
+    """Issue 15 item 5: both radars (4 s, Pd 0.9 by default) have seen the aircraft and cover
+    it; when it vanishes (landed), three missed scans of each make the chance it is still
+    there (0.1^6) far below 1e-3, so it ends after end_min_scans (3 scans, 12 s) instead of
+    delete_after_scans (6.5 scans, 26 s), which still bounds it with the rule off."""
+    soon = _periods_until_ended()
+    late = _periods_until_ended(end_miss_probability=0.0)
+    assert soon is not None and late is not None
+    assert soon == pytest.approx(16.0)  # the first period end more than 12 s after its last update
+    assert late == pytest.approx(28.0)  # more than 26 s

@@ -274,3 +274,23 @@ def test_ended_ids_are_a_copy_and_later_tracks_get_new_ids():
     table.track_id[:] = 2
     new = table.append(2)
     assert table.track_id[new].tolist() == [4, 5]
+
+
+def test_log_miss_probability_by_hand():
+    """ln P(all radars that should see a track missed it): radar 0 (4 s, Pd 0.9) and radar
+    1 (12 s, Pd 0.7), 100 km apart, each covering 150 km."""
+    from radar_fusion.tracking.track_management import log_miss_probability
+
+    site_xy = np.array([[0.0, 0.0], [100_000.0, 0.0]])
+    max_range = np.array([150_000.0, 150_000.0])
+    rotation = np.array([4.0, 12.0])
+    pd = np.array([0.9, 0.7])
+    seen = np.array([0b11, 0b01, 0b01, 0b10], dtype=np.uint64)
+    xy = np.array([[50_000.0, 0.0], [50_000.0, 0.0], [-200_000.0, 0.0], [300_000.0, 0.0]])
+    tau = np.array([12.0, 12.0, 12.0, 12.0])
+    got = log_miss_probability(seen, xy, tau, site_xy, max_range, rotation, pd)
+    # both radars: 3 scans of radar 0 and 1 scan of radar 1 all missed
+    assert got[0] == pytest.approx(3 * math.log(0.1) + 1 * math.log(0.3))
+    assert got[1] == pytest.approx(3 * math.log(0.1))  # radar 1 never saw it: not counted
+    assert got[2] == -math.inf  # out of its only radar's range: nothing can see it
+    assert got[3] == -math.inf  # 200 km from radar 1, beyond its 150 km: likewise

@@ -96,6 +96,14 @@ class RadarConfig(_Section):
     sigma_azimuth_deg: float = Field(gt=0, le=5)
     rotation_period_s: float = Field(gt=0, le=60)
     max_range_m: float = Field(500_000.0, gt=0, description="instrumented range; plots beyond are refused")
+    pd: float = Field(
+        0.9,
+        gt=0,
+        le=1,
+        description="probability of detecting an aircraft in coverage per scan; the life cycle ends a track "
+        "its radars all keep missing (life_cycle.end_miss_probability). Default 0.9, the ICAO/EUROCONTROL "
+        "minimum for an SSR (ESASSP: >= 97 % for Mode S, >= 90 % PSR)",
+    )
     sac: int | None = Field(None, ge=0, le=255, description="ASTERIX system area code")
     sic: int | None = Field(None, ge=0, le=255, description="ASTERIX system identification code")
 

@@ -69,6 +69,8 @@ def config_toml(scenario: Scenario) -> str:
             ("sigma_azimuth_deg", float(spec.sigma_azimuth_deg)),
             ("rotation_period_s", float(spec.rotation_period_s)),
             ("max_range_m", float(spec.max_range_m)),
+            # what the daemon is told of the radar's detection (the simulated rates)
+            ("pd", float((spec.rates or scenario.rates).pd if spec.ssr else (spec.rates or scenario.rates).pd_psr)),
         ]
         if spec.sac is not None and spec.sic is not None:
             items += [("sac", spec.sac), ("sic", spec.sic)]

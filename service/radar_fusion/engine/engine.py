@@ -68,6 +68,7 @@ from ..tracking.track_management import (
     apply_life_cycle,
     cov_pos_m2,
     cov_vel,
+    log_miss_probability,
     merge_same_address,
     position_m,
     velocity_mps,
@@ -90,7 +91,10 @@ class Engine:
         self.radar_index = {rid: i for i, rid in enumerate(self.radar_ids)}
         self.plane = SystemPlane(sysc.center_lat, sysc.center_lon)
         self.sites = RadarSites.from_configs(settings.radars)
+        self.site_xy_m = np.column_stack(self.sites.plane_positions(self.plane))
         self.rotation_s = np.array([r.rotation_period_s for r in settings.radars])
+        self.max_range_m = np.array([r.max_range_m for r in settings.radars])
+        self.pd = np.array([r.pd for r in settings.radars])
         self.filter = SingerFilter(alpha_per_s=trk.alpha_per_s, sigma_m_mps2=trk.sigma_m_mps2)
         self.alt_filter = AltitudeFilter()
         # filter = "imm": the IMM (imm.py) replaces the Singer filter's manoeuvre detector;
@@ -501,6 +505,7 @@ class Engine:
         tr.mode_s[rows] = np.where(cl.mode_s[matched] >= 0, cl.mode_s[matched], tr.mode_s[rows])
         tr.mode3a[rows] = np.where(cl.mode3a[matched] >= 0, cl.mode3a[matched], tr.mode3a[rows])
         tr.sources[rows] = cl.sources[matched]
+        tr.seen_by[rows] |= cl.sources[matched]
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
 
@@ -528,7 +533,7 @@ class Engine:
         tr.mode_s[new] = cl.mode_s[new_cl]
         tr.mode3a[new] = cl.mode3a[new_cl]
         tr.revisit_s[new] = cl.revisit_s[new_cl]
-        tr.sources[new] = cl.sources[new_cl]
+        tr.sources[new] = tr.seen_by[new] = cl.sources[new_cl]
         if len(self.address_memory):  # an address seen again soon after its track ended: its id back
             old_id = self.address_memory.recall(
                 cl.mode_s[new_cl],
@@ -570,7 +575,14 @@ class Engine:
                 cov_pos_m2(tr.P),
                 tr.t_state_s.copy(),
             )
-        ended = apply_life_cycle(tr, t_ref_s, self.rules)
+        log_miss = None
+        if self.rules.end_miss_probability > 0 and len(tr):
+            since_s = t_ref_s - tr.last_update_t_s
+            xy_m = position_m(tr.x) + velocity_mps(tr.x) * (t_ref_s - tr.t_state_s)[:, None]
+            log_miss = log_miss_probability(
+                tr.seen_by, xy_m, since_s, self.site_xy_m, self.max_range_m, self.rotation_s, self.pd
+            )
+        ended = apply_life_cycle(tr, t_ref_s, self.rules, log_miss)
         self.counters["tracks_ended"] += int(ended.size)
         if self.rules.reacquire_within_s > 0:
             if ended.size:

@@ -27,6 +27,7 @@ Life cycle
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -104,6 +105,23 @@ class LifeCycle(BaseModel):
     delete_after_s: float | None = Field(
         None, gt=0, description="A fixed time, s, instead of scans, that ends a confirmed or coasting track."
     )
+    end_miss_probability: float = Field(
+        1e-3,
+        ge=0,
+        lt=1,
+        description="A confirmed or coasting track ends sooner than delete_after_scans once the chance that the "
+        "radars which should see it all missed it is below this (issue 15 item 5). The radars that should see it "
+        "are those that have seen it and whose max_range_m covers its predicted position; each missed it over "
+        "the time since the last update tau with probability (1 - pd)^(tau / rotation_period_s). Default 1e-3: "
+        "three missed scans of one radar of pd 0.9, or one scan each of three such radars. A track none of its "
+        "radars covers any more (it left) ends too. 0: off (only delete_after_scans)",
+    )
+    end_min_scans: float = Field(
+        3.0,
+        gt=0,
+        description="... but never before this many scans of its fastest recent radar (revisit_s). Default 3: "
+        "a turn, a short fade or a run of two rejected wild plots must not end a track",
+    )
     reacquire_within_s: float = Field(
         60.0,
         ge=0,
@@ -134,6 +152,7 @@ _FIELDS = {
     "mode_s": ((), np.int64, -1),
     "mode3a": ((), np.int64, -1),
     "sources": ((), np.uint64, 0),  # radars that contributed in the latest period (bit mask)
+    "seen_by": ((), np.uint64, 0),  # radars that ever contributed (bit mask): the ones that should see it
     "revisit_s": ((), float, np.nan),  # shortest rotation among the radars of the latest update
     "nis_avg": ((), float, 2.0),  # fading average of the normalised innovation squared (2 dof)
     "manoeuvre": ((), bool, False),  # manoeuvre detected: process noise raised
@@ -173,6 +192,7 @@ class TrackTable:
     mode_s: NDArray[np.int64]  # 24-bit address, -1 unknown
     mode3a: NDArray[np.int64]  # -1 unknown
     sources: NDArray[np.uint64]  # radars that contributed in the latest period (bit mask)
+    seen_by: NDArray[np.uint64]  # radars that ever contributed (bit mask)
     revisit_s: NDArray[np.float64]  # shortest rotation among the radars of the latest update
     nis_avg: NDArray[np.float64]  # fading average of the normalised innovation squared (2 dof)
     manoeuvre: NDArray[np.bool_]  # manoeuvre detected: process noise raised
@@ -235,8 +255,15 @@ def radar_count(sources: np.ndarray) -> np.ndarray:
     return np.asarray(bits.sum(axis=1), dtype=np.int64)
 
 
-def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndarray:
-    """Confirm, coast and end tracks at time ``t_s``; returns the ids of ended tracks."""
+def apply_life_cycle(
+    table: TrackTable, t_s: float, rules: LifeCycle, log_miss_probability: np.ndarray | None = None
+) -> np.ndarray:
+    """Confirm, coast and end tracks at time ``t_s``; returns the ids of ended tracks.
+
+    ``log_miss_probability`` (N,): ln of the probability that the radars which should see
+    each track all missed it since its last update (:func:`log_miss_probability`); with
+    it, a confirmed or coasting track also ends when that is below
+    ``ln(rules.end_miss_probability)`` and ``rules.end_min_scans`` have passed."""
     since_update = t_s - table.last_update_t_s
     age = t_s - table.first_t_s
     status = table.status
@@ -265,10 +292,50 @@ def apply_life_cycle(table: TrackTable, t_s: float, rules: LifeCycle) -> np.ndar
             | (age > rules.confirm_window_s)
         )
     ) | ((status != TENTATIVE) & (since_update > limit(rules.delete_after_s, rules.delete_after_scans)))
+    if log_miss_probability is not None and rules.end_miss_probability > 0:
+        unseen = log_miss_probability <= math.log(rules.end_miss_probability)
+        end |= (status != TENTATIVE) & unseen & (since_update > rules.end_min_scans * revisit)
     ended: np.ndarray = table.track_id[end].copy()
     if end.any():
         table.keep(~end)
     return ended
+
+
+def log_miss_probability(
+    seen_by: np.ndarray,
+    xy_m: np.ndarray,
+    since_update_s: np.ndarray,
+    site_xy_m: np.ndarray,
+    max_range_m: np.ndarray,
+    rotation_s: np.ndarray,
+    pd: np.ndarray,
+) -> np.ndarray:
+    """ln P(every radar that should see a track missed it since its last update).
+
+    The radars that should see track i are those in its ``seen_by`` mask (they have
+    detected it: a secondary radar does not see an aircraft without transponder, nor a
+    radar the aircraft is hidden from) whose instrumented range covers its predicted
+    position ``xy_m`` (plane, m; the distance in the plane from the site, an approximation
+    of the ground range good to a fraction of a percent inside a few hundred km). Over
+    tau = ``since_update_s`` a radar of rotation T and detection probability Pd has made
+    tau/T scans, each missing independently with probability 1 − Pd, so
+
+        ln P = Σ_r (tau / T_r) · ln(1 − Pd_r)
+
+    over those radars; −inf when none covers it (the aircraft left their coverage),
+    0 for tau = 0. Arrays: seen_by (N,) uint64, xy_m (N, 2), since_update_s (N,);
+    per radar site_xy_m (R, 2), max_range_m, rotation_s, pd (R,).
+    """
+    n, n_radars = seen_by.shape[0], site_xy_m.shape[0]
+    bits = (seen_by[:, None] >> np.arange(n_radars, dtype=np.uint64)[None, :]) & np.uint64(1)
+    d = xy_m[:, None, :] - site_xy_m[None, :, :]
+    covered = np.hypot(d[..., 0], d[..., 1]) <= max_range_m[None, :]
+    should = (bits == 1) & covered
+    with np.errstate(divide="ignore"):
+        per_s = np.log1p(-np.asarray(pd, dtype=float)) / rotation_s  # ln(1 − Pd) / T < 0; −inf for Pd = 1
+    out = np.where(should, per_s[None, :], 0.0).sum(axis=1) * since_update_s
+    out = np.where(should.any(axis=1), out, -np.inf)
+    return np.asarray(out if n else np.zeros(0))
 
 
 #: what a merged track takes from the member that followed the aircraft: its whole state
@@ -331,6 +398,7 @@ def merge_same_address(
             for column in outputs:
                 column[oldest] = column[newest]
         table.updates[oldest] = table.updates[members].max()
+        table.seen_by[oldest] = np.bitwise_or.reduce(table.seen_by[members])
         table.status[oldest] = CONFIRMED if (table.status[members] != TENTATIVE).any() else TENTATIVE
         keep[members[1:]] = False
     merged: np.ndarray = table.track_id[~keep].copy()
