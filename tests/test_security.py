@@ -366,3 +366,32 @@ def test_two_sites_linked_over_tls_each_router_enforcing_its_site(pki, scenario,
     assert health["rejected"] == {}
     assert all(r["seq_gaps"] == 0 for r in health["radars"].values())
     assert len(spy) >= daemon.batches_published and b"not from the daemon" not in spy
+
+
+def test_a_tools_connect_keeps_the_daemons_tls_configuration(pki, free_port, tmp_path):
+    """``replay``/``record --config FILE --connect ENDPOINT``: the endpoint replaces the
+    daemon's, its zenoh_config_file (TLS certificates) still applies, so the tool joins a
+    TLS router (issue 13: it was dropped, and the tool could not connect)."""
+    from radar_fusion.bus import tool_client_config
+
+    endpoint = f"tls/127.0.0.1:{free_port}"
+    cfg = zenoh.Config.from_file(str(deploy_config("router-site-a.json5", pki, tmp_path)))
+    cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    cfg.insert_json5("connect/endpoints", "[]")
+    router = open_session(cfg)
+    daemon_toml = tmp_path / "daemon.toml"
+    zenoh_file = deploy_config("daemon-client.json5", pki, tmp_path)
+    daemon_toml.write_text(
+        "[system]\ncenter_lat = 46.8\ncenter_lon = 8.2\nperiod_s = 4.0\n"
+        f'[bus]\nmode = "client"\nlisten = []\nconnect = ["tls/127.0.0.1:1"]\nzenoh_config_file = "{zenoh_file}"\n'
+        '[[radars]]\nid = "north"\nlat = 47.0\nlon = 8.0\nsigma_range_m = 50.0\nsigma_azimuth_deg = 0.08\n'
+        "rotation_period_s = 4.0\n"
+    )
+    tool_cfg, prefix = tool_client_config(str(daemon_toml), [endpoint], None)
+    assert prefix == "atc"
+    session = open_session(tool_cfg)
+    try:
+        assert wait_until(lambda: len(list(session.info.routers_zid())) == 1, 10)
+    finally:
+        session.close()
+        router.close()

@@ -82,7 +82,13 @@ def tool_client_config(config_path: str | None, connect: list[str] | None, prefi
 
     if config_path:
         settings = load_settings(config_path)
-        cfg = client_config_for(settings.bus) if not connect else zenoh_config("client", connect=connect)
+        # --connect replaces the endpoints only: TLS, ACL identities and the rest of the
+        # daemon's zenoh_config_file still apply (issue 13: replay/record could not join a TLS bus)
+        cfg = (
+            client_config_for(settings.bus)
+            if not connect
+            else zenoh_config("client", connect=connect, config_file=settings.bus.zenoh_config_file)
+        )
         return cfg, prefix or settings.bus.prefix
     return zenoh_config("client", connect=connect or ["tcp/127.0.0.1:7447"]), prefix or "atc"
 
