@@ -466,8 +466,75 @@ def test_asterix_out_writer_appends_cat062(tmp_path):
     writer = asterix_bridge.Cat062Writer(Cat062Encoder(0, 1), blocks.append)
     writer.payload(encode({"v": 1, "t": 1.7e9, "period": 1, "tracks": [track()], "ended": []}))
     writer.payload(b"\xc1 not msgpack")
-    assert writer.counts == {"batches": 1, "blocks": 1, "rejected": 1, "send_errors": 0}
+    writer.health_payload(encode(health_message()))  # no CAT063 encoder given: ignored
+    assert writer.counts == {
+        "batches": 1,
+        "blocks": 1,
+        "rejected": 1,
+        "send_errors": 0,
+        "health": 0,
+        "cat063_blocks": 0,
+    }
     assert decode_cat062_block(blocks[0])[0].mode_s == "4249B9"
+
+
+def health_message(t_s: float = 1_533_110_400.0 + 3_723.25) -> dict:
+    """A Health message with two radars: "north" live with registration estimates, "west"
+    not live and without data yet; "south" has no SAC/SIC in the encoder's table."""
+    reg = {
+        "range_offset_m": 50.0,
+        "range_offset_sigma_m": 4.0,
+        "range_gain_ppm": 120.0,
+        "range_gain_sigma_ppm": 30.0,
+        "azimuth_offset_deg": 0.05,
+        "azimuth_offset_sigma_deg": 0.004,
+        "time_offset_s": -0.012,
+        "time_offset_sigma_s": 0.003,
+        "plots": 300.0,
+        "applied": True,
+    }
+    empty = {k: (0.0 if isinstance(v, float) else v) for k, v in reg.items()} | {"plots": 0.0, "applied": False}
+    return {
+        "v": 1,
+        "t": t_s,
+        "uptime_s": 10.0,
+        "counters": {},
+        "rejected": {},
+        "periods_closed": 3,
+        "tracks": 0,
+        "radars": {
+            "north": {"live": True, "registration": reg},
+            "west": {"live": False, "registration": empty},
+            "south": {"live": True},
+        },
+    }
+
+
+def test_cat063_carries_each_radars_registration_to_the_item_resolution():
+    """Issue 15 item 4: the registration estimates of Health as CAT063 sensor status, read
+    back by libasterix; each value within half an LSB of the item (I080 SRB 1/128 NM, SRG
+    1e-5, I081 / I091 360/2^16 deg, I070 1 ms), CON 0 for a live radar, 3 for one that is
+    not, no biases before the registration has data, no record for a radar without SAC/SIC."""
+    from radar_fusion.asterix import Cat063Encoder, decode_cat063_block
+    from radar_fusion.geo.units import M_PER_NM
+    from radar_fusion.wire import Health
+
+    health = Health.model_validate(health_message())
+    [block] = Cat063Encoder(7, 9, {"north": (2, 10), "west": (2, 11)}, service_id=4).encode(health)
+    north, west = decode_cat063_block(block)
+    assert (north.sac, north.sic, north.service_id, north.sensor_sac, north.sensor_sic) == (7, 9, 4, 2, 10)
+    assert north.tod_s == pytest.approx(health.t % 86_400.0, abs=1 / 128)
+    assert north.con == 0 and west.con == 3
+    half_srb_m = 0.5 * M_PER_NM / 128
+    for rng_m in (north.range_offset_m, north.psr_range_offset_m):
+        assert rng_m == pytest.approx(50.0, abs=half_srb_m)
+    for gain_ppm in (north.range_gain_ppm, north.psr_range_gain_ppm):
+        assert gain_ppm == pytest.approx(120.0, abs=5.0)
+    for az_deg in (north.azimuth_offset_deg, north.psr_azimuth_offset_deg):
+        assert az_deg == pytest.approx(0.05, abs=0.5 * 360 / 2**16)
+    assert north.time_offset_s == pytest.approx(-0.012, abs=0.0005)
+    assert west.range_offset_m is None and west.azimuth_offset_deg is None and west.time_offset_s is None
+    assert (west.sensor_sac, west.sensor_sic) == (2, 11)
 
 
 # ============================================================================ through the engine
@@ -601,14 +668,23 @@ def test_bridges_over_zenoh(tmp_path):
         t = threading.Thread(target=lambda: result.append(asterix_bridge.run_out(args)))
         t.start()
         pub = router.declare_publisher("atc/fusion/tracks")
+        health_pub = router.declare_publisher("atc/fusion/health")
         payload = encode({"v": 1, "t": 1.7e9, "period": 1, "tracks": [track()], "ended": []})
+        health = health_message()
+        health["radars"] = {"jahorina": health["radars"]["north"]}  # the example's radar, SAC 23 SIC 2
         while t.is_alive() and not (out.exists() and out.stat().st_size > 0):
             pub.put(payload)
+            health_pub.put(encode(health))
             time.sleep(0.2)
         t.join()
         assert result == [0]
-        recs = [r for b in split_datablocks(out.read_bytes(), DecodeCounters()) for r in decode_cat062_block(b)]
+        blocks = split_datablocks(out.read_bytes(), DecodeCounters())
+        recs = [r for b in blocks if b[0] == 62 for r in decode_cat062_block(b)]
         assert recs and all((r.sac, r.sic, r.mode_s) == (7, 9, "4249B9") for r in recs)
+        from radar_fusion.asterix import decode_cat063_block
+
+        sensors = [r for b in blocks if b[0] == 63 for r in decode_cat063_block(b)]
+        assert sensors and all((r.sac, r.sic, r.sensor_sac, r.sensor_sic, r.con) == (7, 9, 23, 2, 0) for r in sensors)
     finally:
         sub.undeclare()
         router.close()

@@ -12,7 +12,9 @@ asterix-in
 asterix-out
     Subscribes to ``<prefix>/fusion/tracks`` and writes each TrackBatch as CAT062
     system-track records to a UDP destination (unicast or multicast) or appends them to
-    a file of raw concatenated blocks.
+    a file of raw concatenated blocks; and, from ``<prefix>/fusion/health``, each radar's
+    status and registration estimates as CAT063 sensor status records (``--no-cat063``:
+    not).
 
 The conversion itself lives in :mod:`radar_fusion.asterix` (sans-I/O: ``bridge.py`` turns
 ASTERIX into wire messages, ``cat062.py`` tracks into CAT062); this module is the I/O
@@ -39,10 +41,18 @@ from datetime import date
 from pathlib import Path
 from typing import Any
 
-from radar_fusion.asterix import AsterixToWire, Cat062Encoder, DecodeCounters, WireMessage, iter_file, sort_by_time
+from radar_fusion.asterix import (
+    AsterixToWire,
+    Cat062Encoder,
+    Cat063Encoder,
+    DecodeCounters,
+    WireMessage,
+    iter_file,
+    sort_by_time,
+)
 from radar_fusion.config import ConfigError, Settings, load_settings
 from radar_fusion.recording import RecordingWriter
-from radar_fusion.wire import Rejection, TrackBatch, decode_message
+from radar_fusion.wire import Health, Rejection, TrackBatch, decode_message
 
 log = logging.getLogger("radar_fusion.asterix_bridge")
 
@@ -345,16 +355,47 @@ def add_arguments_out(parser: argparse.ArgumentParser) -> None:
         "--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint(s), overriding the config"
     )
     parser.add_argument("--duration-s", type=float, metavar="S", help="stop after this many seconds")
+    parser.add_argument(
+        "--no-cat063",
+        action="store_true",
+        help="do not send CAT063 sensor status (each radar's registration estimates, at every health message)",
+    )
     parser.add_argument("--quiet", action="store_true", help="do not print the counters at the end")
 
 
 class Cat062Writer:
-    """Turns TrackBatch payloads into CAT062 blocks and sends or appends them."""
+    """Turns TrackBatch payloads into CAT062 blocks, and Health payloads into CAT063 sensor
+    status blocks (the radars' registration estimates, with ``cat063``), and sends or
+    appends them."""
 
-    def __init__(self, encoder: Cat062Encoder, send: Callable[[bytes], object]):  # what send returns is unused
+    def __init__(
+        self,
+        encoder: Cat062Encoder,
+        send: Callable[[bytes], object],  # what send returns is unused
+        cat063: Cat063Encoder | None = None,
+    ):
         self.encoder = encoder
+        self.cat063 = cat063
         self.send = send
-        self.counts = {"batches": 0, "blocks": 0, "rejected": 0, "send_errors": 0}
+        self.counts = {"batches": 0, "blocks": 0, "rejected": 0, "send_errors": 0, "health": 0, "cat063_blocks": 0}
+
+    def health_payload(self, payload: bytes) -> None:
+        if self.cat063 is None:
+            return
+        health = decode_message(payload, Health)
+        if isinstance(health, Rejection):
+            self.counts["rejected"] += 1
+            log.warning("health message refused: %s %s", health.reason, health.detail)
+            return
+        assert isinstance(health, Health)
+        self.counts["health"] += 1
+        for block in self.cat063.encode(health):
+            try:
+                self.send(block)
+                self.counts["cat063_blocks"] += 1
+            except OSError as exc:
+                self.counts["send_errors"] += 1
+                log.warning("CAT063 send failed: %s", exc)
 
     def payload(self, payload: bytes) -> None:
         batch = decode_message(payload, TrackBatch)
@@ -404,7 +445,9 @@ def run_out(args: argparse.Namespace) -> int:
         closer = f.close
     # Zenoh calls back on its own threads: hand payloads to this thread through a queue.
     inbox: queue.Queue = queue.Queue(maxsize=1000)
-    writer = Cat062Writer(encoder, send)
+    sensors = {r.id: (r.sac, r.sic) for r in settings.radars if r.sac is not None and r.sic is not None}
+    cat063 = None if args.no_cat063 else Cat063Encoder(args.sac, args.sic, sensors, args.service_id)
+    writer = Cat062Writer(encoder, send, cat063)
     from radar_fusion.bus import client_config_for, open_session, zenoh_config
 
     bus = settings.bus
@@ -419,17 +462,25 @@ def run_out(args: argparse.Namespace) -> int:
         print(f"cannot join the bus: {exc}", file=sys.stderr)
         closer()
         return 2
-    sub = session.declare_subscriber(f"{bus.prefix}/fusion/tracks", lambda s: inbox.put(s.payload.to_bytes()))
+    sub = session.declare_subscriber(f"{bus.prefix}/fusion/tracks", lambda s: inbox.put((0, s.payload.to_bytes())))
+    health_sub = session.declare_subscriber(
+        f"{bus.prefix}/fusion/health", lambda s: inbox.put((1, s.payload.to_bytes()))
+    )
+
+    def handle(item: tuple[int, bytes]) -> None:
+        (writer.health_payload if item[0] else writer.payload)(item[1])
+
     deadline = None if args.duration_s is None else time.monotonic() + args.duration_s
     try:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             try:
-                writer.payload(inbox.get(timeout=0.2))
+                handle(inbox.get(timeout=0.2))
             except queue.Empty:
                 continue
         while not inbox.empty():
-            writer.payload(inbox.get_nowait())
+            handle(inbox.get_nowait())
     finally:
+        health_sub.undeclare()
         sub.undeclare()
         session.close()
         closer()

@@ -20,6 +20,7 @@ One module per step, in the order the bytes flow:
 * :mod:`.files`: raw, ``.rply`` and pcap recordings; putting a recording in time order.
 * :mod:`.bridge`: CAT048 / CAT034 -> PlotBatch / RadarStatus (:class:`AsterixToWire`).
 * :mod:`.cat062`: TrackBatch -> CAT062 (:class:`Cat062Encoder`).
+* :mod:`.cat063`: Health -> CAT063 sensor status, the radars' registration (:class:`Cat063Encoder`).
 
 Callers import from this package; the modules import from each other.
 """
@@ -29,6 +30,7 @@ from __future__ import annotations
 from .bds import decode_bds50, decode_bds60
 from .bridge import AsterixToWire, WireMessage, bds50_reference
 from .cat062 import Cat062Encoder
+from .cat063 import CAT063, Cat063Encoder, SensorStatusRecord, decode_cat063_block
 from .decode import (
     CAT034,
     CAT048,
@@ -47,12 +49,15 @@ __all__ = [
     "CAT034",
     "CAT048",
     "CAT062",
+    "CAT063",
     "SKIP_REASONS",
     "AsterixToWire",
     "Cat062Encoder",
+    "Cat063Encoder",
     "DecodeCounters",
     "FileFormat",
     "SectorMessage",
+    "SensorStatusRecord",
     "SystemTrackRecord",
     "TargetReport",
     "TimeOfDayResolver",
@@ -61,6 +66,7 @@ __all__ = [
     "decode_bds50",
     "decode_bds60",
     "decode_cat062_block",
+    "decode_cat063_block",
     "decode_datablock",
     "guess_format",
     "iter_file",
