@@ -8,7 +8,8 @@ real Zenoh router on 127.0.0.1.
   malformed messages on the bus, and a screenshot holds the symbols' and the STCA
   line's colours;
 * a click on a track shows its details;
-* the page's own measured draw time at 4,000 tracks (slow);
+* the page draws all of 4,000 tracks per update, and its own measured draw time (slow;
+  reported, not asserted: `pytest -m slow -k frame_time -s` prints it);
 * ``radar-fusion demo --display`` serves the picture and stops on Ctrl-C (slow).
 
 Without /usr/bin/chromium these tests are skipped, except in CI (``CI`` set), where
@@ -250,7 +251,7 @@ def synthetic_batch(period: int, n: int, base: dict) -> bytes:
 
 
 @pytest.mark.slow
-def test_frame_time_at_4000_tracks(browser, tmp_path, free_port):
+def test_frame_time_at_4000_tracks(browser, tmp_path, free_port, record_property):
     """4,000 tracks, one TrackBatch per update, all on screen with labels, trails and
     vectors: the page's own draw time (performance.now() around the draw) per update."""
     n_tracks, updates = 4000, 8
@@ -297,7 +298,11 @@ def test_frame_time_at_4000_tracks(browser, tmp_path, free_port):
             f"JSON.parse + ingest {statistics.median(ingest_ms):.1f} ms median"
         )
         assert errors == []
-        assert median_ms <= 100.0, frame_ms  # the issue's goal, per update
+        # Measured and reported, not asserted (README: speed is never asserted in a test, the
+        # machine is shared); the issue's goal is <= 100 ms per update, the README states the figure.
+        assert all(ms > 0.0 for ms in frame_ms), frame_ms  # the page did time its draws
+        record_property("frame_ms_median_4000_tracks", median_ms)
+        record_property("frame_ms_max_4000_tracks", max_ms)
     finally:
         if page is not None:
             page.close()

@@ -594,7 +594,7 @@
       ["periods closed", String(h.periods_closed)],
       ["tracks", String(h.tracks)],
       ["period p50 / p99", `${fmt(h.processing_ms_p50, 1)} / ${fmt(h.processing_ms_p99, 1)} ms`],
-      ["lag", fmt(h.lag_s, 1, " s")],
+      ["lag (wall − event)", fmt(h.lag_s, 1, " s")],
       ["plots accepted", fmt(c.plots_accepted)],
       ["plots wild", fmt(c.plots_wild)],
       ["rejected", String(total), total ? "warn" : ""],
