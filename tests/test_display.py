@@ -309,3 +309,17 @@ def test_demo_loops_shift_event_times_and_continue_sequence_numbers():
     assert moved["seq"] == 14 and moved["plots"][0]["t"] == 1300.0 and moved["plots"][0]["range_m"] == 1e4
     assert msgpack.unpackb(p1)["t"] == 1301.0
     assert msgpack.unpackb(shifted("radar/app/status", status, 5.0, 0))["t"] == 106.0
+
+
+def test_display_command_refuses_bad_arguments_without_starting(tmp_path, capsys):
+    from radar_fusion.cli import main
+
+    config = tmp_path / "config.toml"
+    config.write_text(
+        '[system]\ncenter_lat = 47.0\ncenter_lon = 8.0\n[[radars]]\nid = "r1"\nlat = 47.0\nlon = 8.0\n'
+        "sigma_range_m = 50\nsigma_azimuth_deg = 0.07\nrotation_period_s = 4\n"
+    )
+    assert main(["display", "--config", str(config), "--listen", "localhost"]) == 2
+    assert "HOST:PORT" in capsys.readouterr().err
+    assert main(["display", "--config", str(tmp_path / "missing.toml")]) == 2
+    assert "file not found" in capsys.readouterr().err

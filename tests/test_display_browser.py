@@ -292,6 +292,7 @@ def test_frame_time_at_4000_tracks(browser, tmp_path, free_port, record_property
                 frame_ms.append(float(d["frameMs"]))
                 ingest_ms.append(float(d["ingestMs"]))
         pub.undeclare()
+        (tmp_path / "4000-tracks.png").write_bytes(page.screenshot())  # to look at, when in doubt
         median_ms, max_ms = statistics.median(frame_ms), max(frame_ms)
         print(
             f"\n4,000 tracks: draw {median_ms:.1f} ms median, {max_ms:.1f} ms max over {len(frame_ms)} updates; "
@@ -346,3 +347,37 @@ def test_demo_display_serves_the_picture_and_stops_on_ctrl_c(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
+
+
+def test_display_command_serves_the_configured_scene_and_stops_on_sigint(tmp_path, free_port):
+    """`radar-fusion display --config FILE --listen 127.0.0.1:0` as a process, beside a router."""
+    config = tmp_path / "config.toml"
+    config.write_text(
+        "[system]\ncenter_lat = 47.0\ncenter_lon = 8.0\n"
+        f'[bus]\nmode = "router"\nlisten = ["tcp/127.0.0.1:{free_port}"]\n'
+        '[[radars]]\nid = "r1"\nlat = 47.0\nlon = 8.0\nsigma_range_m = 50\nsigma_azimuth_deg = 0.07\n'
+        "rotation_period_s = 4\n"
+    )
+    router = open_session(zenoh_config("router", listen=[f"tcp/127.0.0.1:{free_port}"]))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "radar_fusion.cli", "display", "--config", str(config), "--listen", "127.0.0.1:0"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        lines: list[str] = []
+        while len(lines) < 20 and not (lines and lines[-1].startswith("situation display: ")):
+            lines.append(proc.stdout.readline())  # log lines, then the URL for the user
+            if not lines[-1]:
+                break
+        assert lines[-1].startswith("situation display: http://127.0.0.1:"), lines
+        url = lines[-1].split()[2]
+        scene = json.loads(urllib.request.urlopen(url + "api/scene", timeout=5).read())
+        assert [r["id"] for r in scene["radars"]] == ["r1"] and scene["center_lat_deg"] == 47.0
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=20)
+        assert proc.returncode == 0, out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        router.close()

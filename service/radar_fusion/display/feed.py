@@ -228,6 +228,9 @@ class Feed:
 
     # ------------------------------------------------------ Zenoh's threads
     def _on_tracks(self, sample: Any) -> None:
+        if len(sample.payload) > self.max_payload_bytes:  # refused before any copy: bounded memory
+            self._count(self.rejected, "oversize")
+            return
         payload = sample.payload.to_bytes()
         with self._cond:
             self.received["tracks"] += 1
@@ -237,6 +240,9 @@ class Feed:
             self._cond.notify()
 
     def _on_other(self, sample: Any) -> None:
+        if len(sample.payload) > self.max_payload_bytes:
+            self._count(self.rejected, "oversize")
+            return
         item = (str(sample.key_expr), sample.payload.to_bytes())
         with self._cond:
             if len(self._inbox) >= INBOX_LIMIT:
