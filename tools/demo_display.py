@@ -156,7 +156,7 @@ def run_display(args: argparse.Namespace) -> int:
     display = DisplayServer(settings, host, http_port, zenoh_config("client", connect=[endpoint]), base_dir=out)
     try:
         display.start()
-    except OSError as exc:
+    except (OSError, zenoh.ZError) as exc:
         print(f"cannot start the display on {args.listen}: {exc} (try --listen 127.0.0.1:0)", file=sys.stderr)
         daemon.stop()
         return 3

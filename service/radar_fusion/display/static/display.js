@@ -250,7 +250,7 @@
     const cs = f.callsign[i];
     if (cs) return cs;
     const a = f.mode3a[i];
-    if (a !== null && a !== undefined) return "A" + a.toString(8).padStart(4, "0");
+    if (a != null) return "A" + a.toString(8).padStart(4, "0");
     return "#" + f.id[i];
   }
 
@@ -258,8 +258,8 @@
     const fl = f.fl[i];
     const vr = f.vrate_fpm[i];
     const level = state.scene ? state.scene.level_vrate_fpm : 400;
-    const arrow = vr === null ? " " : vr > level ? "↑" : vr < -level ? "↓" : " ";
-    const flText = fl === null ? "---" : String(Math.round(fl)).padStart(3, "0");
+    const arrow = vr == null ? " " : vr > level ? "↑" : vr < -level ? "↓" : " ";
+    const flText = fl == null ? "---" : String(Math.round(fl)).padStart(3, "0");
     const gs = Math.round(Math.hypot(f.vx_mps[i], f.vy_mps[i]) * KT_PER_MPS);
     return `${flText}${arrow} ${gs}`;
   }
@@ -364,7 +364,7 @@
         c.arc(px[j], py[j], 9, 0, 2 * Math.PI);
         c.strokeStyle = COLOURS.stca;
         c.stroke();
-        const ttc = a.time_to_cpa_s === null || a.time_to_cpa_s === undefined ? "" : ` ${Math.round(a.time_to_cpa_s)}s`;
+        const ttc = a.time_to_cpa_s == null ? "" : ` ${Math.round(a.time_to_cpa_s)}s`;
         c.fillStyle = COLOURS.stca;
         c.fillText(`STCA${ttc}`, (px[i] + px[j]) / 2 + 6, (py[i] + py[j]) / 2 - 6);
         stcaLines++;
@@ -427,12 +427,12 @@
   }
 
   function alertTag(a) {
-    if (a.kind === "stca") return `STCA ${a.time_to_cpa_s === null ? "" : Math.round(a.time_to_cpa_s) + "s"}`;
+    if (a.kind === "stca") return `STCA ${a.time_to_cpa_s == null ? "" : Math.round(a.time_to_cpa_s) + "s"}`;
     if (a.kind === "apw") {
-      const t = a.time_to_entry_s === null ? "" : ` ${Math.round(a.time_to_entry_s)}s`;
+      const t = a.time_to_entry_s == null ? "" : ` ${Math.round(a.time_to_entry_s)}s`;
       return `APW ${a.area_id || ""}${t}`;
     }
-    const t = a.time_to_violation_s === null ? "" : ` ${Math.round(a.time_to_violation_s)}s`;
+    const t = a.time_to_violation_s == null ? "" : ` ${Math.round(a.time_to_violation_s)}s`;
     return `MSAW${t}`;
   }
 
@@ -504,7 +504,7 @@
     }
   }
 
-  const fmt = (v, digits = 0, unit = "") => (v === null || v === undefined ? "–" : `${Number(v).toFixed(digits)}${unit}`);
+  const fmt = (v, digits = 0, unit = "") => (v == null ? "–" : `${Number(v).toFixed(digits)}${unit}`);
 
   function updateDetails() {
     const id = state.selectedId;
@@ -533,7 +533,7 @@
       ["radars", f.sources[i] || "none (coasting)"],
       ["updates", String(f.updates[i])],
       ["age", fmt(f.age_s[i], 0, " s")],
-      ["manoeuvre", f.manoeuvre_prob[i] === null ? "–" : `${Math.round(100 * f.manoeuvre_prob[i])} %`],
+      ["manoeuvre", f.manoeuvre_prob[i] == null ? "–" : `${Math.round(100 * f.manoeuvre_prob[i])} %`],
     ]);
     const alerts = state.alertByTrack.get(id) || [];
     const box = [dl];
@@ -562,7 +562,7 @@
     const items = state.alerts.map((a) => {
       let extra = "";
       if (a.kind === "stca") {
-        extra = ` sep ${fmt(a.min_sep_m / M_PER_NM, 1, " NM")} / ${fmt(a.min_vsep_ft, 0, " ft")}`;
+        extra = ` sep ${fmt(a.min_sep_m == null ? null : a.min_sep_m / M_PER_NM, 1, " NM")} / ${fmt(a.min_vsep_ft, 0, " ft")}`;
       } else if (a.kind === "msaw") {
         extra = ` MSA ${fmt(a.min_alt_ft, 0, " ft")}`;
       }
