@@ -152,6 +152,9 @@ def test_page_draws_every_track_of_the_batch_it_shows(browser, scenario, free_po
             assert wait_until(lambda k=k: sum(display.stats()["rejected"].values()) > k, 10)
         collector = TrackCollector(session, settings.bus.prefix)  # what the bus carried, independently
         time.sleep(0.3)
+        # the control: the scope before any traffic has neither colour (map, rings and live radars only)
+        empty = page.locator("#scope").screenshot()
+        assert colour_pixels(empty, CONFIRMED_RGB) == 0 and colour_pixels(empty, STCA_RGB) == 0
         replay = threading.Thread(
             target=replay_records,
             args=(session, read_recording(scenario / "plots.rec"), settings.bus.prefix, 25.0),
@@ -166,7 +169,7 @@ def test_page_draws_every_track_of_the_batch_it_shows(browser, scenario, free_po
             if period >= 0:
                 seen.setdefault(period, drawn)
             if shot is None and int(d.get("stcaLines") or 0) > 0 and drawn >= 10:
-                shot = (page.screenshot(), d)
+                shot = (page.locator("#scope").screenshot(), d)
             time.sleep(0.15)
         replay.join()
         assert wait_until(lambda: daemon.messages_processed >= 1000 and not daemon.queue.qsize(), 30)
@@ -205,6 +208,7 @@ def test_page_draws_every_track_of_the_batch_it_shows(browser, scenario, free_po
         pos = page.evaluate("id => window.radarFusionDisplay.screenOf(id)", target["track_id"])
         assert 0 < pos["x"] < box["width"] and 0 < pos["y"] < box["height"], pos  # the view frames the traffic
         page.mouse.click(box["x"] + pos["x"], box["y"] + pos["y"])
+        page.wait_for_function("() => !document.getElementById('track-details').innerText.includes('click a track')")
         details = page.locator("#track-details").inner_text()
         assert f"{target['track_id']} {target['status']}" in details, details
         assert "ground speed" in details

@@ -33,7 +33,7 @@
     msaArea: "rgba(255, 154, 31, 0.06)",
     msaEdge: "rgba(255, 154, 31, 0.45)",
     radarLive: "#6fb6ff",
-    radarDead: "#ff4040",
+    radarDead: "#d9534f", // not the STCA red: a silent radar is not a conflict
     selected: "#ffffff",
   };
   const STATUS_COLOUR = [COLOURS.confirmed, COLOURS.coasting, COLOURS.tentative];
@@ -740,6 +740,7 @@
     }
     state.selectedId = best >= 0 ? f.id[best] : null;
     if (best < 0) ui.details.replaceChildren(text("div", "click a track", "muted"));
+    else updateDetails();
     requestDraw();
   }
 
