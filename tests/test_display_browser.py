@@ -119,9 +119,9 @@ def settings_on_port(path, port):
 
 @pytest.fixture(scope="module")
 def scenario(tmp_path_factory):
-    """The demo scenario, 150 s of it: conflicts (STCA) from the first minute."""
+    """The demo scenario, 100 s of it: conflicts (STCA) from the first periods."""
     out = tmp_path_factory.mktemp("display")
-    sim.write_outputs(sim.simulate(sim.preset("demo", seed=3, duration_s=150.0)), out)
+    sim.write_outputs(sim.simulate(sim.preset("demo", seed=3, duration_s=100.0)), out)
     return out
 
 
@@ -157,7 +157,7 @@ def test_page_draws_every_track_of_the_batch_it_shows(browser, scenario, free_po
         assert colour_pixels(empty, CONFIRMED_RGB) == 0 and colour_pixels(empty, STCA_RGB) == 0
         replay = threading.Thread(
             target=replay_records,
-            args=(session, read_recording(scenario / "plots.rec"), settings.bus.prefix, 25.0),
+            args=(session, read_recording(scenario / "plots.rec"), settings.bus.prefix, 30.0),
             daemon=True,
         )
         replay.start()
@@ -170,7 +170,7 @@ def test_page_draws_every_track_of_the_batch_it_shows(browser, scenario, free_po
                 seen.setdefault(period, drawn)
             if shot is None and int(d.get("stcaLines") or 0) > 0 and drawn >= 10:
                 shot = (page.locator("#scope").screenshot(), d)
-            time.sleep(0.15)
+            time.sleep(0.1)
         replay.join()
         assert wait_until(lambda: daemon.messages_processed >= 1000 and not daemon.queue.qsize(), 30)
         last = max(b["period"] for b in collector.batches)
@@ -180,7 +180,7 @@ def test_page_draws_every_track_of_the_batch_it_shows(browser, scenario, free_po
 
         # every period the page showed, it drew the batch's count of tracks, no more, no less
         published = {b["period"]: len(b["tracks"]) for b in collector.batches}
-        assert len(seen) >= 10, seen
+        assert len(seen) >= 5, seen  # periods the page was seen drawing, the last one among them
         mismatched = {p: (n, published.get(p)) for p, n in seen.items() if published.get(p) != n}
         assert not mismatched, mismatched
         assert max(seen.values()) >= 20  # the demo's aircraft, not an empty picture
