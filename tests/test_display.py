@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 import re
+import sys
 from pathlib import Path
 
 import msgpack
@@ -323,3 +325,7 @@ def test_display_command_refuses_bad_arguments_without_starting(tmp_path, capsys
     assert "HOST:PORT" in capsys.readouterr().err
     assert main(["display", "--config", str(tmp_path / "missing.toml")]) == 2
     assert "file not found" in capsys.readouterr().err
+    # refused before the process's logging is set up (it would replace pytest's handlers)
+    assert not any(
+        isinstance(h, logging.StreamHandler) and h.stream is sys.stderr for h in logging.getLogger().handlers
+    )

@@ -27,13 +27,13 @@ def run(args: argparse.Namespace) -> int:
     from ..metrics import configure_logging
     from .server import DisplayServer, parse_listen
 
-    configure_logging(args.log_level, "text")
     try:
         settings = load_settings(args.config)
         host, port = parse_listen(args.listen)
     except (ConfigError, ValueError) as exc:
         print(f"not starting the display:\n{exc}", file=sys.stderr)
         return 2
+    configure_logging(args.log_level, "text")  # the process's root logging: only once it runs
     cfg, prefix = tool_client_config(args.config, args.connect, args.prefix)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
