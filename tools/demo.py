@@ -5,6 +5,10 @@
 3. replay the simulated plots through the bus as fast as the bus takes them;
 4. record the published track batches and alerts;
 5. score the tracks against the truth and print the table; write a PNG.
+
+With ``--display`` it is a live picture instead: the daemon, the situation display
+(``radar-fusion display``) beside it, and the scenario replayed at ``--speed`` (default
+4× in this mode) in a loop until Ctrl-C; the plain demo is unchanged.
 """
 
 from __future__ import annotations
@@ -23,7 +27,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--scenario", default="demo", help="simulator preset (default demo)")
     p.add_argument("--seed", type=int, default=1, help="random seed of the simulation (default 1)")
-    p.add_argument("--speed", default="max", help="replay speed: max (default) or a factor such as 50")
+    p.add_argument(
+        "--speed", default=None, help="replay speed: max or a factor such as 50 (default max; with --display 4)"
+    )
+    p.add_argument(
+        "--display",
+        action="store_true",
+        help="start the situation display beside the demo, print its URL and loop the scenario until Ctrl-C",
+    )
+    p.add_argument(
+        "--listen", default="127.0.0.1:8080", help="with --display: HOST:PORT of the web page (default 127.0.0.1:8080)"
+    )
 
 
 def free_tcp_port() -> int:
@@ -111,6 +125,11 @@ def run(args: argparse.Namespace) -> int:
     from . import simulate as sim
     from .replay import parse_speed
 
+    if args.display:
+        from .demo_display import run_display
+
+        return run_display(args)
+    speed = args.speed or "max"
     t_start = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -124,11 +143,9 @@ def run(args: argparse.Namespace) -> int:
     )
     n_radars, n_targets = len(settings.radars), len(set(simulation.truth.target_id.tolist()))
     print(f"      {n_radars} radars, {n_targets} aircraft, {len(simulation.messages)} messages -> {out}/plots.rec")
-    print(
-        f"[2/4] fusion daemon on an embedded Zenoh router at tcp/127.0.0.1:{port}; replaying at speed {args.speed} ..."
-    )
+    print(f"[2/4] fusion daemon on an embedded Zenoh router at tcp/127.0.0.1:{port}; replaying at speed {speed} ...")
     t_replay = time.perf_counter()
-    collector, daemon, n_sent = run_pipeline(settings, out / "plots.rec", parse_speed(args.speed), out / "tracks.rec")
+    collector, daemon, n_sent = run_pipeline(settings, out / "plots.rec", parse_speed(speed), out / "tracks.rec")
     dt_replay = time.perf_counter() - t_replay
     health = daemon.health_message()
     c = health["counters"]

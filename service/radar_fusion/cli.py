@@ -2,6 +2,7 @@
 
     radar-fusion demo                       the whole system on a simulated scenario, in one go
     radar-fusion serve --config FILE        the fusion daemon
+    radar-fusion display --config FILE      the live situation display in a browser
     radar-fusion simulate ...               write a recording of simulated radar plots + truth
     radar-fusion replay FILE ...            publish a recording to the bus
     radar-fusion record --out FILE ...      write what the bus carries to a recording
@@ -34,6 +35,12 @@ SUBCOMMANDS = {
         "_serve_arguments",
         "_serve",
         "run the fusion daemon (embedded Zenoh router by default)",
+    ),
+    "display": (
+        "radar_fusion.display.command",
+        "add_arguments",
+        "run",
+        "the live situation display in a browser: tracks, alerts and health from the bus over a WebSocket",
     ),
     "simulate": (
         "radar_fusion.tools.simulate",
