@@ -108,6 +108,12 @@ SUBCOMMANDS = {
         "run",
         "replay a long recording through the daemon as fast as it takes it; check no loss, flat memory, no drift",
     ),
+    "fuzz": (
+        "radar_fusion.tools.fuzz",
+        "add_arguments",
+        "run",
+        "hostile traffic (default 100,000 messages) over a real Zenoh bus into the daemon; check nothing is lost",
+    ),
     "identity": (
         "radar_fusion.tools.identity",
         "add_arguments",
