@@ -35,6 +35,7 @@ from radar_fusion.geo.unknown_height import (
     MAX_UNKNOWN_ALTITUDE_M,
     ground_range_for_unknown_height,
     polar_to_plane_unknown_height,
+    unknown_height_plots,
 )
 
 NM = 1852.0
@@ -766,3 +767,45 @@ def test_conformal_sphere_round_trips_and_destination_inverts_polar():
     c2, l2 = conformal_sphere_destination(plane.conformal_radius_m, s_chi, s_lam, az, g)
     x2, y2 = plane.from_conformal_sphere(c2, l2)
     assert np.max(np.hypot(x2 - x, y2 - y)) < 1e-3
+
+
+# --------------------------------------------------------------------------- height spread, split
+def test_unknown_height_plots_at_a_reference_height_and_their_spread_about_it():
+    """A primary plot converted at the assumed height with its spread over every height
+    apart: the position is the independent arccos + Geod.fwd one at that height, the noise
+    part is polar_to_plane's without the height term, and the spread's radial second
+    moment is E[(g(h) - g(h_ref))^2] over a uniform h in [0, FL450] by quadrature of the
+    independent law of cosines; the true position of a FL300-400 aircraft lies inside
+    3 sigma of it, not inside 3 sigma of the assumed height's noise."""
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    h_r = 600.0
+    sites = RadarSites([CENTER_LAT], [CENTER_LON], [h_r], [60.0], [0.08])
+    h_ref = 10_000 * FT
+    g = np.array([20e3, 40e3, 80e3])
+    az = np.array([10.0, 135.0, 250.0])
+    h_true = np.array([30_000, 35_000, 40_000]) * FT
+    _, _, rho, az_t, x_t, y_t = ecef_truth(CENTER_LAT, CENTER_LON, h_r, g, az, h_true)
+    u = unknown_height_plots(plane, sites, np.zeros(3, int), rho, az_t, reference_altitude_m=h_ref)
+    x_ref, y_ref, g_ref = ref_polar_to_xy(ref_transformer(), CENTER_LAT, CENTER_LON, h_r, rho, az_t, h_ref)
+    assert np.max(np.hypot(u.x_m - x_ref, u.y_m - y_ref)) < 0.01
+    _, _, cov_noise, _ = polar_to_plane(
+        plane,
+        sites,
+        np.zeros(3, int),
+        rho,
+        az_t,
+        np.full(3, np.nan),
+        assumed_altitude_m=h_ref,
+        sigma_unknown_altitude_m=0.0,
+    )
+    np.testing.assert_allclose(u.cov_noise_m2, cov_noise, rtol=0.02)
+    r = ref_radius(CENTER_LAT)
+    for i in range(3):
+        m2, _ = integrate.quad(lambda h, i=i: (ref_ground_from_slant(r, h_r, h, rho[i]) - g_ref[i]) ** 2, 0.0, FL450_M)
+        radial = np.array([x_t[i] - u.x_m[i], y_t[i] - u.y_m[i]])
+        radial /= np.linalg.norm(radial)
+        along_m2 = radial @ u.cov_height_m2[i] @ radial
+        assert abs(along_m2 / (m2 / FL450_M) - 1.0) < 0.01, (along_m2, m2 / FL450_M)
+        err = np.hypot(x_t[i] - u.x_m[i], y_t[i] - u.y_m[i])
+        assert err > 3.0 * np.sqrt(radial @ u.cov_noise_m2[i] @ radial)
+        assert err < 3.0 * np.sqrt(along_m2)
