@@ -325,3 +325,98 @@ def test_the_gate_step_converts_a_primary_plot_at_its_tracks_altitude():
         assumed_altitude_m=eng.assumed_altitude_m,
     )
     assert float(np.hypot(x_a[0] - truth_xy(t_ref_s - 1.0)[0], y_a[0] - truth_xy(t_ref_s - 1.0)[1])) > 500.0
+
+
+def primary(p):
+    """The plot as a primary-only radar reports it: no Mode C, no identity."""
+    p.fl, p.mode_s, p.mode3a = np.array([np.nan]), np.array([-1]), np.array([-1])
+    return p
+
+
+def assert_spans_every_height(eng, p):
+    """The one track's position covariance along radar b's radial is at least the second
+    moment of the plot's ground range over a uniform height in [0, FL450] about its ground
+    range at the assumed height (arccos law of cosines, quadrature)."""
+    from scipy import integrate
+
+    assert len(eng.tracks) == 1 and eng.tracks.updates[0] == 1
+    r_m, h_r = float(eng.sites.earth_radius_m[1]), float(eng.sites.alt_m[1])
+    rho = float(p.range_m[0])
+    a, h_a, top = r_m + h_r, eng.assumed_altitude_m, 45_000 * 0.3048
+
+    def g_of(h):
+        return r_m * np.arccos((a * a + (r_m + h) ** 2 - rho * rho) / (2.0 * a * (r_m + h)))
+
+    m2 = integrate.quad(lambda h: (g_of(h) - g_of(h_a)) ** 2, 0.0, top)[0] / top
+    sx, sy = eng.sites.plane_positions(eng.plane)
+    u = eng.tracks.x[0, [0, 3]] - np.array([sx[1], sy[1]])
+    u /= np.linalg.norm(u)
+    p_pos = eng.tracks.P[0][np.ix_([0, 3], [0, 3])]
+    assert u @ p_pos @ u >= 0.99 * m2, (u @ p_pos @ u, m2)
+    assert np.sqrt(m2) > 500.0  # the spread: hundreds of metres; the noise: tens
+
+
+def test_a_primary_only_track_spans_every_height_and_its_first_ssr_plot_joins_it():
+    """Radar b (primary only) sees a FL300 aircraft ~45 km out for twenty periods; radar a's
+    first plot of it (Mode C, no Mode S address) comes after. The primary track starts at
+    the assumed 10,000 ft, ~850 m beside the aircraft along b's radial; its position
+    covariance along that radial is at least the spread of the plot's ground range over
+    every height (quadrature of the law of cosines, independent of the module), so a's plot
+    joins it instead of starting a shadow track, and the track takes a's altitude and
+    position."""
+    eng = Engine(settings())
+    for k in range(20):
+        t = T0 + 4.0 * k
+        eng.ingest_status(RadarStatus(radar_id="a", t=t + 3.5, kind="heartbeat"))
+        eng.ingest_plots(primary(plot_of(eng, 1, k + 1, t + 3.0)))
+        eng.poll()
+        if k == 1:  # period 0 closed: one track, from one primary plot
+            assert_spans_every_height(eng, plot_of(eng, 1, 0, T0 + 3.0))
+    assert eng.counters["tracks_initiated"] == 1
+    tr = eng.tracks
+    assert not np.isfinite(tr.alt_x[0, 0])  # no altitude assumed for it
+    off_m = np.hypot(*(tr.x[0, [0, 3]] - truth_xy(tr.t_state_s[0])))
+    assert 500.0 < off_m < 1500.0, off_m
+    # a's plot (Mode A/C: Mode C, no address), then both radars on
+    for k in range(20, 24):
+        t = T0 + 4.0 * k
+        pa = plot_of(eng, 0, k + 1, t + 1.0)
+        pa.mode_s = np.array([-1])
+        eng.ingest_plots(pa)
+        eng.ingest_plots(primary(plot_of(eng, 1, k + 1, t + 3.0)))
+        eng.poll()
+    assert eng.counters["tracks_initiated"] == 1, eng.counters["tracks_initiated"]
+    assert tr.alt_x[0, 0] == pytest.approx(FL, abs=1.0)
+    assert np.hypot(*(tr.x[0, [0, 3]] - truth_xy(tr.t_state_s[0]))) < 100.0
+
+
+def test_floor_covariance_raises_each_direction_of_the_floor_and_nothing_else():
+    """floor_covariance against a direct computation: the floor's eigen-directions get at
+    least its eigenvalues, a direction already above keeps its variance, the velocity and
+    acceleration blocks and the position-velocity terms are untouched, per-model P alike."""
+    from radar_fusion.tracking.initiation import floor_covariance
+
+    rng = np.random.default_rng(3)
+    n = 50
+    a = rng.normal(size=(n, 6, 6))
+    P = a @ np.swapaxes(a, 1, 2) * 1e3 + np.eye(6) * 10.0
+    ang = rng.uniform(0, np.pi, n)
+    e1 = np.stack([np.sin(ang), np.cos(ang)], axis=1)
+    e2 = np.stack([np.cos(ang), -np.sin(ang)], axis=1)
+    l1, l2 = rng.uniform(0, 2e5, n), rng.uniform(0, 5e3, n)
+    B = l1[:, None, None] * e1[:, :, None] * e1[:, None, :] + l2[:, None, None] * e2[:, :, None] * e2[:, None, :]
+    Q = floor_covariance(P, B)
+    pos = [0, 3]
+    for i in range(n):
+        pp, qq = P[i][np.ix_(pos, pos)], Q[i][np.ix_(pos, pos)]
+        expected = pp.copy()
+        for lam, e in ((l1[i], e1[i]), (l2[i], e2[i])):
+            expected = expected + max(0.0, lam - e @ expected @ e) * np.outer(e, e)
+        np.testing.assert_allclose(qq, expected, rtol=1e-9, atol=1e-6)
+        assert e1[i] @ qq @ e1[i] >= l1[i] * (1 - 1e-9) - 1e-6
+        others = [1, 2, 4, 5]
+        np.testing.assert_array_equal(Q[i][np.ix_(others, range(6))], P[i][np.ix_(others, range(6))])
+        assert np.all(np.linalg.eigvalsh(Q[i]) > 0)
+    models = floor_covariance(np.stack([P, 2 * P], axis=1), B)
+    np.testing.assert_allclose(models[:, 0], Q)
+    np.testing.assert_allclose(models[:, 1], floor_covariance(2 * P, B))
