@@ -289,13 +289,14 @@ class Engine:
             assumed_altitude_m=self.assumed_altitude_m,
         )
         # A primary plot (no Mode C, no identity) no track lends a height to: at the assumed
-        # height, the noise in
-        # cov_m2 and the spread over every height apart (geo/unknown_height.py). (At the mean
-        # ground range over every height instead, the demo's primary-only FL120 aircraft and
-        # its Mode A-only FL200 one, seen by three radars, went from 78 / 105 m to 915 / 629 m
-        # position RMS, the three radars' means disagreeing; the primary-high scenario's
-        # FL300-400 ones from 1,050-1,300 m to 480-770 m. A Mode A plot without Mode C keeps
-        # the assumed height's covariance: with the floor, 105 -> 476 m for that FL200 one.)
+        # height, the noise in cov_m2 and the spread over every height apart
+        # (geo/unknown_height.py). (At the mean ground range over every height instead, the
+        # demo's primary-only FL120 aircraft and its Mode A-only FL200 one, seen by three
+        # radars, went from 78 / 105 m to 915 / 629 m position RMS, the radars' means
+        # disagreeing; the primary-high scenario's FL300-400 ones from 1,050-1,300 m to
+        # 480-770 m.) An SSR plot without Mode C keeps the assumed height's covariance: with
+        # the spread, that Mode A-only aircraft went to 551 m and the demo's GOSPA from 385
+        # to 1,306 m.
         height_cov_m2 = np.zeros_like(cov_m2)
         no_h = np.flatnonzero(~np.isfinite(altitude_m) & (raw.mode3a < 0) & (raw.mode_s < 0))
         if no_h.size:
@@ -480,11 +481,15 @@ class Engine:
           range; the spread joins the primary plot's covariance, so that it hardly weighs
           radially.
         * The one plot of a cluster, for a new target or a track that does not know its
-          position better than the spread along it (e1^T P e1 >= l1, the spread's main axis:
-          a track built from this radar's plots of this kind): the spread is common to all
+          position much better than the spread along it (e1^T P e1 >= l1 / 2, l1 the
+          spread's main axis: a track built from this radar's plots of this kind, floored
+          at the spread of its previous plot, which grows as the aircraft comes closer; a
+          strict e1^T P e1 >= l1 let such a track lose its floor, and the aircraft's first
+          SSR plot 940 m away start a shadow): the spread is common to all
           the plots that track gets from that radar, so the cluster keeps it apart and it
           floors the track's covariance (_floor_no_height, initiation.floor_covariance).
-        * Otherwise (plots of two radars, or a track they have triangulated): the assumed
+        * Otherwise (plots of two radars, or a track they have triangulated to better than
+          half the spread): the assumed
           height's noise alone, as before. Two radars' spreads are not common, but adding
           them made the demo's primary-only FL120 aircraft (near the assumed 10,000 ft) go
           from 78 to 244 m position RMS: its position then hangs on the azimuths only. The
@@ -509,7 +514,7 @@ class Engine:
             lam, vec = np.linalg.eigh(h_cov[hp[tracked]])
             e1 = vec[:, :, 1]
             along = np.einsum("ni,nij,nj->n", e1, cov_pos_m2(pred.P[row[tracked]]), e1)
-            own[np.flatnonzero(tracked)[along < lam[:, 1]]] = False
+            own[np.flatnonzero(tracked)[along < 0.5 * lam[:, 1]]] = False
         cluster_h_cov = np.zeros((n_clusters, 2, 2))
         cluster_h_cov[c[own]] = h_cov[hp[own]]
         return cluster_h_cov
