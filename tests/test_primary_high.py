@@ -9,7 +9,12 @@ time): a track whose aircraft passes within 1.5 km of another's biased primary-o
 is counted for the batch in which the assignment swaps them over.
 
 On main before this work (1440666), seeds 1-3: 1.10 ids per aircraft each, 4-8 s of
-shadow per run, and with ``stca_unknown_fl = "conflict"`` one self alert per run.
+shadow per run, and with ``stca_unknown_fl = "conflict"`` one self alert per run. Over
+seeds 1-16 (tests/primary_high.py): ids 1.069 -> 1.006, shadow 88 -> 44 s, self alerts
+1 -> 0 (11 -> 1 with "conflict": a Mode S plot without Mode C, converted at the assumed
+height, started a track before the primary track had an altitude), false tracks 5/177
+-> 4/166 (2.4 %: clutter of both radars confirmed at its second update; seeds 1-3 have
+none).
 """
 
 from __future__ import annotations
