@@ -420,3 +420,58 @@ def test_floor_covariance_raises_each_direction_of_the_floor_and_nothing_else():
     models = floor_covariance(np.stack([P, 2 * P], axis=1), B)
     np.testing.assert_allclose(models[:, 0], Q)
     np.testing.assert_allclose(models[:, 1], floor_covariance(2 * P, B))
+
+
+def primary_plot_at(engine, seq, t_s, xy_m):
+    """Radar b's primary plot (no Mode C, no identity) of a point at plane ``xy_m``, FL300."""
+    lat, lon = engine.plane.to_geodetic(np.array([xy_m[0]]), np.array([xy_m[1]]))
+    r_m, az_deg, _ = geodetic_to_polar(engine.sites, 1, lat, lon, np.array([FL * M_PER_FL]))
+    one = np.array([-1])
+    return DecodedPlots("b", seq, np.array([t_s]), r_m, az_deg, np.array([np.nan]), one, one, one, np.zeros(1, np.int8))
+
+
+@pytest.mark.parametrize(("step_m", "refused"), [(600.0, False), (3_000.0, True)])
+def test_two_height_less_plots_further_apart_than_any_aircraft_flies_are_no_pair(step_m, refused):
+    """Two primary plots of radar b 4 s apart, the second ``step_m`` further out along b's
+    radial: 600 m (150 m/s) pairs into one track; 3 km (750 m/s) lies inside the one-plot
+    track's gate (its covariance spans every height, and the velocity prior) but their
+    difference shares the height error, so only the noise excuses the excess over
+    max_speed_mps * dt (350 m/s * 4 s + 3.7 sigma of ~85 m): no pair, a track of its own."""
+    eng = Engine(settings())
+    sx, sy = eng.sites.plane_positions(eng.plane)
+    p0 = np.array([5_000.0, -3_000.0])
+    u = (p0 - np.array([sx[1], sy[1]])) / np.hypot(*(p0 - np.array([sx[1], sy[1]])))
+    for k, xy in enumerate((p0, p0 + step_m * u)):
+        t = T0 + 4.0 * k
+        eng.ingest_status(RadarStatus(radar_id="a", t=t + 3.5, kind="heartbeat"))
+        eng.ingest_plots(primary_plot_at(eng, k + 1, t + 3.0, xy))
+        eng.poll()
+    eng.ingest_status(RadarStatus(radar_id="a", t=T0 + 11.5, kind="heartbeat"))
+    eng.ingest_status(RadarStatus(radar_id="b", t=T0 + 11.5, kind="heartbeat"))
+    eng.poll()
+    assert eng.periods_closed >= 2
+    assert eng.counters["primary_pairs_refused"] == int(refused)
+    assert eng.counters["tracks_initiated"] == 1 + int(refused)
+    if not refused:
+        v = eng.tracks.x[0, [1, 4]]
+        assert np.hypot(*v) == pytest.approx(step_m / 4.0, rel=0.05)
+
+
+def test_a_new_targets_primary_plot_beside_an_ssr_plot_is_left_out_of_its_fusion():
+    """A FL300 aircraft's first plots: radar a's (Mode C) at 1 s and radar b's primary at
+    3 s. At the assumed height b's plot lies ~850 m out along b's radial; aligned with no
+    velocity (a new target) the two would fuse between them. b's plot is left out: the new
+    track starts on a's plot, within its noise of the aircraft."""
+    eng = Engine(settings())
+    pa = plot_of(eng, 0, 1, T0 + 1.0)
+    pa.mode_s = np.array([-1])
+    eng.ingest_plots(pa)
+    eng.ingest_plots(primary(plot_of(eng, 1, 1, T0 + 3.0)))
+    eng.ingest_status(RadarStatus(radar_id="a", t=T0 + 5.5, kind="heartbeat"))
+    eng.ingest_status(RadarStatus(radar_id="b", t=T0 + 5.5, kind="heartbeat"))
+    eng.poll()
+    assert eng.counters["tracks_initiated"] == 1
+    assert eng.counters["plots_primary_left_out"] == 1
+    assert eng.tracks.t_state_s[0] == pytest.approx(T0 + 1.0)
+    assert np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(T0 + 1.0))) < 20.0
+    assert eng.tracks.alt_x[0, 0] == pytest.approx(FL)
