@@ -23,15 +23,19 @@ from radar_fusion.geo.coordinates import (
     RadarSites,
     SystemPlane,
     altitude_m_to_flight_level,
+    conformal_sphere_destination,
+    conformal_sphere_polar,
     flight_level_to_altitude_m,
     gaussian_earth_radius_m,
     geodetic_to_polar,
+    ground_to_slant_range,
     polar_to_plane,
 )
 from radar_fusion.geo.unknown_height import (
     MAX_UNKNOWN_ALTITUDE_M,
     ground_range_for_unknown_height,
     polar_to_plane_unknown_height,
+    unknown_height_plots,
 )
 
 NM = 1852.0
@@ -711,3 +715,97 @@ def test_unknown_height_edge_cases():
     out = polar_to_plane_unknown_height(plane, sites, np.array([], int), [], [])
     assert out[0].shape == (0,) and out[2].shape == (0, 2, 2) and out[4].shape == (0,)
     assert pytest.approx(FL450_M) == MAX_UNKNOWN_ALTITUDE_M
+
+
+# --------------------------------------------------------------------------- fast polar coordinates
+@pytest.mark.parametrize("center_lat", [41.3, 50.0, 62.0])
+def test_conformal_sphere_polar_matches_geod_inv_over_the_coverage(center_lat):
+    """The primary-height picker's polar coordinates of a track from a radar (the plane
+    mapped to the projection's conformal sphere, great-circle formulas, no PROJ call)
+    against Geod.inv on WGS-84 after PROJ's inverse projection: sites up to 500 km from the
+    plane's centre, targets 0-250 km from them at FL0-FL450. Stated tolerance: ground and
+    slant range within 1 m, azimuth within 1e-4 degree (a radar's noise is >= 20 m and
+    0.03 degree; the gate is 4 sigma)."""
+    plane = SystemPlane(center_lat, 8.0)
+    rng = np.random.default_rng(int(center_lat))
+    worst_g = worst_rho = worst_az = 0.0
+    for site_dist_m in (0.0, 150e3, 300e3, 500e3):
+        for site_bearing in range(0, 360, 60):
+            lon_s, lat_s, _ = GEOD.fwd(8.0, center_lat, site_bearing, site_dist_m)
+            sites = RadarSites([lat_s], [lon_s], [rng.uniform(0.0, 2500.0)], [50.0], [0.08])
+            n = 400
+            g = np.concatenate([[0.0, 50.0], rng.uniform(100.0, 250e3, n - 2)])
+            az = rng.uniform(0.0, 360.0, n)
+            h = rng.uniform(0.0, FL450_M, n)
+            lon_t, lat_t, _ = GEOD.fwd(np.full(n, lon_s), np.full(n, lat_s), az, g)
+            x, y = ref_transformer(center_lat, 8.0).transform(lon_t, lat_t)
+            # exact: the module's own Geod path (PROJ inverse, Geod.inv, Gaussian sphere)
+            rho_ref, az_ref, g_ref = geodetic_to_polar(sites, np.zeros(n, int), *plane.to_geodetic(x, y), h)
+            sx, sy = sites.plane_positions(plane)
+            s_chi, s_lam = plane.to_conformal_sphere(sx, sy)
+            g_fast, az_fast = conformal_sphere_polar(
+                plane.conformal_radius_m, s_chi, s_lam, *plane.to_conformal_sphere(x, y)
+            )
+            rho_fast = ground_to_slant_range(sites.earth_radius_m[0], sites.alt_m[0], h, g_fast)
+            far = g > 1000.0  # the azimuth of a point under the antenna is meaningless
+            worst_g = max(worst_g, float(np.max(np.abs(g_fast - g_ref))))
+            worst_rho = max(worst_rho, float(np.max(np.abs(rho_fast - rho_ref))))
+            d_az = np.mod(az_fast - az_ref + 180.0, 360.0) - 180.0
+            worst_az = max(worst_az, float(np.max(np.abs(d_az[far]))))
+    assert worst_g < 1.0 and worst_rho < 1.0 and worst_az < 1e-4, (worst_g, worst_rho, worst_az)
+
+
+def test_conformal_sphere_round_trips_and_destination_inverts_polar():
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(-6e5, 6e5, 200), rng.uniform(-6e5, 6e5, 200)
+    chi, lam = plane.to_conformal_sphere(x, y)
+    xb, yb = plane.from_conformal_sphere(chi, lam)
+    assert np.max(np.hypot(xb - x, yb - y)) < 1e-6
+    s_chi, s_lam = plane.to_conformal_sphere(2e4, -3e4)
+    g, az = conformal_sphere_polar(plane.conformal_radius_m, s_chi, s_lam, chi, lam)
+    c2, l2 = conformal_sphere_destination(plane.conformal_radius_m, s_chi, s_lam, az, g)
+    x2, y2 = plane.from_conformal_sphere(c2, l2)
+    assert np.max(np.hypot(x2 - x, y2 - y)) < 1e-3
+
+
+# --------------------------------------------------------------------------- height spread, split
+def test_unknown_height_plots_at_a_reference_height_and_their_spread_about_it():
+    """A primary plot converted at the assumed height with its spread over every height
+    apart: the position is the independent arccos + Geod.fwd one at that height, the noise
+    part is polar_to_plane's without the height term, and the spread's radial second
+    moment is E[(g(h) - g(h_ref))^2] over a uniform h in [0, FL450] by quadrature of the
+    independent law of cosines; the true position of a FL300-400 aircraft lies inside
+    3 sigma of it, not inside 3 sigma of the assumed height's noise."""
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    h_r = 600.0
+    sites = RadarSites([CENTER_LAT], [CENTER_LON], [h_r], [60.0], [0.08])
+    h_ref = 10_000 * FT
+    g = np.array([20e3, 40e3, 80e3])
+    az = np.array([10.0, 135.0, 250.0])
+    h_true = np.array([30_000, 35_000, 40_000]) * FT
+    _, _, rho, az_t, x_t, y_t = ecef_truth(CENTER_LAT, CENTER_LON, h_r, g, az, h_true)
+    u = unknown_height_plots(plane, sites, np.zeros(3, int), rho, az_t, reference_altitude_m=h_ref)
+    x_ref, y_ref, g_ref = ref_polar_to_xy(ref_transformer(), CENTER_LAT, CENTER_LON, h_r, rho, az_t, h_ref)
+    assert np.max(np.hypot(u.x_m - x_ref, u.y_m - y_ref)) < 0.01
+    _, _, cov_noise, _ = polar_to_plane(
+        plane,
+        sites,
+        np.zeros(3, int),
+        rho,
+        az_t,
+        np.full(3, np.nan),
+        assumed_altitude_m=h_ref,
+        sigma_unknown_altitude_m=0.0,
+    )
+    np.testing.assert_allclose(u.cov_noise_m2, cov_noise, rtol=0.02)
+    r = ref_radius(CENTER_LAT)
+    for i in range(3):
+        m2, _ = integrate.quad(lambda h, i=i: (ref_ground_from_slant(r, h_r, h, rho[i]) - g_ref[i]) ** 2, 0.0, FL450_M)
+        radial = np.array([x_t[i] - u.x_m[i], y_t[i] - u.y_m[i]])
+        radial /= np.linalg.norm(radial)
+        along_m2 = radial @ u.cov_height_m2[i] @ radial
+        assert abs(along_m2 / (m2 / FL450_M) - 1.0) < 0.01, (along_m2, m2 / FL450_M)
+        err = np.hypot(x_t[i] - u.x_m[i], y_t[i] - u.y_m[i])
+        assert err > 3.0 * np.sqrt(radial @ u.cov_noise_m2[i] @ radial)
+        assert err < 3.0 * np.sqrt(along_m2)

@@ -505,3 +505,153 @@ def test_a_track_both_radars_keep_missing_ends_sooner():
     assert soon is not None and late is not None
     assert soon == pytest.approx(16.0)  # the first period end more than 12 s after its last update
     assert late == pytest.approx(28.0)  # more than 26 s
+
+
+def primary(p):
+    """The plot as a primary-only radar reports it: no Mode C, no identity."""
+    p.fl, p.mode_s, p.mode3a = np.array([np.nan]), np.array([-1]), np.array([-1])
+    return p
+
+
+def assert_spans_every_height(eng, p):
+    """The one track's position covariance along radar b's radial is at least the second
+    moment of the plot's ground range over a uniform height in [0, FL450] about its ground
+    range at the assumed height (arccos law of cosines, quadrature)."""
+    from scipy import integrate
+
+    assert len(eng.tracks) == 1 and eng.tracks.updates[0] == 1
+    r_m, h_r = float(eng.sites.earth_radius_m[1]), float(eng.sites.alt_m[1])
+    rho = float(p.range_m[0])
+    a, h_a, top = r_m + h_r, eng.assumed_altitude_m, 45_000 * 0.3048
+
+    def g_of(h):
+        return r_m * np.arccos((a * a + (r_m + h) ** 2 - rho * rho) / (2.0 * a * (r_m + h)))
+
+    m2 = integrate.quad(lambda h: (g_of(h) - g_of(h_a)) ** 2, 0.0, top)[0] / top
+    sx, sy = eng.sites.plane_positions(eng.plane)
+    u = eng.tracks.x[0, [0, 3]] - np.array([sx[1], sy[1]])
+    u /= np.linalg.norm(u)
+    p_pos = eng.tracks.P[0][np.ix_([0, 3], [0, 3])]
+    assert u @ p_pos @ u >= 0.99 * m2, (u @ p_pos @ u, m2)
+    assert np.sqrt(m2) > 500.0  # the spread: hundreds of metres; the noise: tens
+
+
+def test_a_primary_only_track_spans_every_height_and_its_first_ssr_plot_joins_it():
+    """Radar b (primary only) sees a FL300 aircraft ~45 km out for twenty periods; radar a's
+    first plot of it (Mode C, no Mode S address) comes after. The primary track starts at
+    the assumed 10,000 ft, ~850 m beside the aircraft along b's radial; its position
+    covariance along that radial is at least the spread of the plot's ground range over
+    every height (quadrature of the law of cosines, independent of the module), so a's plot
+    joins it instead of starting a shadow track, and the track takes a's altitude and
+    position."""
+    eng = Engine(settings())
+    for k in range(20):
+        t = T0 + 4.0 * k
+        eng.ingest_status(RadarStatus(radar_id="a", t=t + 3.5, kind="heartbeat"))
+        eng.ingest_plots(primary(plot_of(eng, 1, k + 1, t + 3.0)))
+        eng.poll()
+        if k == 1:  # period 0 closed: one track, from one primary plot
+            assert_spans_every_height(eng, plot_of(eng, 1, 0, T0 + 3.0))
+    assert eng.counters["tracks_initiated"] == 1
+    tr = eng.tracks
+    assert not np.isfinite(tr.alt_x[0, 0])  # no altitude assumed for it
+    off_m = np.hypot(*(tr.x[0, [0, 3]] - truth_xy(tr.t_state_s[0])))
+    assert 500.0 < off_m < 1500.0, off_m
+    # a's plot (Mode A/C: Mode C, no address), then both radars on
+    for k in range(20, 24):
+        t = T0 + 4.0 * k
+        pa = plot_of(eng, 0, k + 1, t + 1.0)
+        pa.mode_s = np.array([-1])
+        eng.ingest_plots(pa)
+        eng.ingest_plots(primary(plot_of(eng, 1, k + 1, t + 3.0)))
+        eng.poll()
+    assert eng.counters["tracks_initiated"] == 1, eng.counters["tracks_initiated"]
+    assert tr.alt_x[0, 0] == pytest.approx(FL, abs=1.0)
+    assert np.hypot(*(tr.x[0, [0, 3]] - truth_xy(tr.t_state_s[0]))) < 100.0
+
+
+def test_floor_covariance_raises_each_direction_of_the_floor_and_nothing_else():
+    """floor_covariance against a direct computation: the floor's eigen-directions get at
+    least its eigenvalues, a direction already above keeps its variance, the velocity and
+    acceleration blocks and the position-velocity terms are untouched, per-model P alike."""
+    from radar_fusion.tracking.initiation import floor_covariance
+
+    rng = np.random.default_rng(3)
+    n = 50
+    a = rng.normal(size=(n, 6, 6))
+    P = a @ np.swapaxes(a, 1, 2) * 1e3 + np.eye(6) * 10.0
+    ang = rng.uniform(0, np.pi, n)
+    e1 = np.stack([np.sin(ang), np.cos(ang)], axis=1)
+    e2 = np.stack([np.cos(ang), -np.sin(ang)], axis=1)
+    l1, l2 = rng.uniform(0, 2e5, n), rng.uniform(0, 5e3, n)
+    B = l1[:, None, None] * e1[:, :, None] * e1[:, None, :] + l2[:, None, None] * e2[:, :, None] * e2[:, None, :]
+    Q = floor_covariance(P, B)
+    pos = [0, 3]
+    for i in range(n):
+        pp, qq = P[i][np.ix_(pos, pos)], Q[i][np.ix_(pos, pos)]
+        expected = pp.copy()
+        for lam, e in ((l1[i], e1[i]), (l2[i], e2[i])):
+            expected = expected + max(0.0, lam - e @ expected @ e) * np.outer(e, e)
+        np.testing.assert_allclose(qq, expected, rtol=1e-9, atol=1e-6)
+        assert e1[i] @ qq @ e1[i] >= l1[i] * (1 - 1e-9) - 1e-6
+        others = [1, 2, 4, 5]
+        np.testing.assert_array_equal(Q[i][np.ix_(others, range(6))], P[i][np.ix_(others, range(6))])
+        assert np.all(np.linalg.eigvalsh(Q[i]) > 0)
+    models = floor_covariance(np.stack([P, 2 * P], axis=1), B)
+    np.testing.assert_allclose(models[:, 0], Q)
+    np.testing.assert_allclose(models[:, 1], floor_covariance(2 * P, B))
+
+
+def primary_plot_at(engine, seq, t_s, xy_m):
+    """Radar b's primary plot (no Mode C, no identity) of a point at plane ``xy_m``, FL300."""
+    lat, lon = engine.plane.to_geodetic(np.array([xy_m[0]]), np.array([xy_m[1]]))
+    r_m, az_deg, _ = geodetic_to_polar(engine.sites, 1, lat, lon, np.array([FL * M_PER_FL]))
+    one = np.array([-1])
+    return DecodedPlots("b", seq, np.array([t_s]), r_m, az_deg, np.array([np.nan]), one, one, one, np.zeros(1, np.int8))
+
+
+@pytest.mark.parametrize(("step_m", "refused"), [(600.0, False), (3_000.0, True)])
+def test_two_height_less_plots_further_apart_than_any_aircraft_flies_are_no_pair(step_m, refused):
+    """Two primary plots of radar b 4 s apart, the second ``step_m`` further out along b's
+    radial: 600 m (150 m/s) pairs into one track; 3 km (750 m/s) lies inside the one-plot
+    track's gate (its covariance spans every height, and the velocity prior) but their
+    difference shares the height error, so only the noise excuses the excess over
+    max_speed_mps * dt (350 m/s * 4 s + 3.7 sigma of ~85 m): no pair, a track of its own."""
+    eng = Engine(settings())
+    sx, sy = eng.sites.plane_positions(eng.plane)
+    p0 = np.array([5_000.0, -3_000.0])
+    u = (p0 - np.array([sx[1], sy[1]])) / np.hypot(*(p0 - np.array([sx[1], sy[1]])))
+    for k, xy in enumerate((p0, p0 + step_m * u)):
+        t = T0 + 4.0 * k
+        eng.ingest_status(RadarStatus(radar_id="a", t=t + 3.5, kind="heartbeat"))
+        eng.ingest_plots(primary_plot_at(eng, k + 1, t + 3.0, xy))
+        eng.poll()
+    eng.ingest_status(RadarStatus(radar_id="a", t=T0 + 11.5, kind="heartbeat"))
+    eng.ingest_status(RadarStatus(radar_id="b", t=T0 + 11.5, kind="heartbeat"))
+    eng.poll()
+    assert eng.periods_closed >= 2
+    assert eng.counters["primary_pairs_refused"] == int(refused)
+    assert eng.counters["tracks_initiated"] == 1 + int(refused)
+    if not refused:
+        v = eng.tracks.x[0, [1, 4]]
+        assert np.hypot(*v) == pytest.approx(step_m / 4.0, rel=0.05)
+
+
+def test_a_new_targets_primary_plot_beside_an_ssr_plot_is_left_out_of_its_fusion():
+    """A FL300 aircraft's first plots: radar a's (Mode C) at 1 s and radar b's primary at
+    3 s. At the assumed height b's plot lies ~850 m out along b's radial; aligned with no
+    velocity (a new target) the two would fuse between them. b's plot is left out: the new
+    track starts on a's plot, within its noise of the aircraft."""
+    eng = Engine(settings())
+    pa = plot_of(eng, 0, 1, T0 + 1.0)
+    pa.mode_s = np.array([-1])
+    eng.ingest_plots(pa)
+    eng.ingest_plots(primary(plot_of(eng, 1, 1, T0 + 3.0)))
+    eng.ingest_status(RadarStatus(radar_id="a", t=T0 + 5.5, kind="heartbeat"))
+    eng.ingest_status(RadarStatus(radar_id="b", t=T0 + 5.5, kind="heartbeat"))
+    eng.poll()
+    assert eng.counters["tracks_initiated"] == 1
+    assert eng.counters["plots_primary_left_out"] == 1
+    assert eng.tracks.t_state_s[0] == pytest.approx(T0 + 1.0)
+    assert np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(T0 + 1.0))) < 20.0
+    assert eng.tracks.alt_x[0, 0] == pytest.approx(FL)

@@ -464,10 +464,145 @@ def scenario_for_benchmark(
     )
 
 
+def primary_high_scenario(
+    seed: int = 1, duration_s: float = 300.0, start_t_s: float = EPOCH_2018_08_01_08Z
+) -> Scenario:
+    """High traffic seen by a primary-only radar (issue 15, item 1): the ground range of a
+    primary plot depends on the height it is converted at, and at FL300-400 20-80 km out a
+    guessed height puts it hundreds of metres to over a kilometre off.
+
+    Radars: ``psr`` at the centre, primary only (no Mode C, no identity: every plot it
+    makes is a ``psr`` plot), 4 s, sigma 60 m / 0.08 deg, 80 NM; ``msr`` 50 km east, a
+    Mode S / SSR radar without a primary, 5 s, whose coverage is cut at 70 km so that the
+    aircraft west of the primary are outside it. Pd 0.9 (secondary and primary), 3 false
+    plots per scan per radar (primary clutter, uniform over the coverage), few wild plots.
+
+    Ten aircraft at FL300-FL400 flying chords of the 20-80 km ring around the primary
+    (at 190-250 m/s they stay within it for the 300 s): five Mode S and one Mode A/C
+    inside both coverages (their primary plots must join the secondary track), two
+    Mode S aircraft outside the SSR's coverage and two without transponder (primary
+    only: each must keep one track), one of them turning, one pair on top of each other
+    (FL310 under FL370, 1 NM apart) and one descending.
+    """
+    rng = np.random.default_rng(20_000 + seed)
+    center = (47.3, 8.5)
+    plane = SystemPlane(*center)
+    km = 1000.0
+
+    def site(x_m: float, y_m: float) -> tuple[float, float]:
+        lat, lon = plane.to_geodetic(x_m, y_m)
+        return float(lat), float(lon)
+
+    rates = Rates(
+        pd=0.9,
+        pd_psr=0.9,
+        p_mode_c=0.99,
+        false_plots_per_scan=3.0,
+        wild_plot_prob=0.001,
+        wild_run_prob=0.0,
+    )
+    radars = [
+        RadarSpec(
+            "psr",
+            *site(0.0, 0.0),
+            alt_m=600.0,
+            rotation_period_s=4.0,
+            sigma_range_m=60.0,
+            sigma_azimuth_deg=0.08,
+            range_bias_m=20.0,
+            azimuth_bias_deg=0.02,
+            max_range_m=80 * M_PER_NM,
+            psr=True,
+            ssr=False,
+            mode_s=False,
+            n_sectors=16,
+            sac=3,
+            sic=1,
+        ),
+        RadarSpec(
+            "msr",
+            *site(50 * km, 0.0),
+            alt_m=900.0,
+            rotation_period_s=5.0,
+            sigma_range_m=40.0,
+            sigma_azimuth_deg=0.05,
+            range_bias_m=-25.0,
+            azimuth_bias_deg=-0.02,
+            max_range_m=70 * km,
+            psr=False,
+            ssr=True,
+            mode_s=True,
+            n_sectors=32,
+            sac=3,
+            sic=2,
+        ),
+    ]
+    total = duration_s + 60.0
+    targets: list[Target] = []
+    addr = iter(mode_s_addresses(rng, 16).tolist())
+    codes = iter(mode3a_codes(rng, 16).tolist())
+
+    def add(name: str, plan: FlightPlan, transponder: str = "modes") -> None:
+        k = len(targets) + 1
+        targets.append(
+            Target(
+                target_id=f"H{k:02d}",
+                callsign=name if transponder == "modes" else None,
+                mode_s=next(addr) if transponder == "modes" else None,
+                mode3a=next(codes) if transponder != "none" else None,
+                transponder=transponder,
+                mode_c=transponder != "none",
+                plan=plan,
+            )
+        )
+
+    half = 0.5 * duration_s
+
+    def chord(bearing_deg: float, r0_m: float, heading_deg: float, speed_mps: float, alt_ft: float) -> FlightPlan:
+        """A straight flight crossing the point at ``r0_m`` and ``bearing_deg`` from the
+        primary at mid-scenario (headings near the tangent keep it in the 20-80 km ring)."""
+        b = math.radians(bearing_deg)
+        return _plan_toward((r0_m * math.sin(b), r0_m * math.cos(b)), heading_deg, speed_mps, half, alt_ft, total)
+
+    # seen by both radars: their primary plots must join the secondary track
+    add("SWR301", chord(45.0, 40 * km, 135.0, 230.0, 30000.0))
+    add("DLH352", chord(100.0, 55 * km, 10.0, 240.0, 35000.0))
+    add("AFR383", chord(150.0, 30 * km, 240.0, 220.0, 38000.0))
+    add("KLM404", chord(70.0, 65 * km, 340.0, 250.0, 40000.0))
+    add("EZY321", chord(120.0, 45 * km, 210.0, 200.0, 32000.0), transponder="modeac")
+    add("BAW310", chord(20.0, 50 * km, 290.0, 210.0, 31000.0))
+    # primary only: west of the primary, outside the SSR's coverage (one turning) ...
+    add("RYR336", chord(270.0, 40 * km, 160.0, 230.0, 33600.0))
+    straight = chord(240.0, 35 * km, 330.0, 240.0, 39000.0)
+    add("UAE390", dataclasses.replace(straight, legs=(Leg(100.0), Leg(60.0, -1.5), Leg(total - 160.0))))
+    # ... and without transponder: 1 NM beside BAW310 (outward) at FL370, and a descent
+    add("PSR370", chord(20.0, 50 * km + M_PER_NM, 290.0, 210.0, 37000.0), transponder="none")
+    add(
+        "PSR345",
+        dataclasses.replace(
+            chord(200.0, 35 * km, 290.0, 190.0, 36000.0), legs=(Leg(60.0), Leg(150.0, 0.0, -1500.0), Leg(total - 210.0))
+        ),
+        transponder="none",
+    )
+    return Scenario(
+        "primary-high",
+        center[0],
+        center[1],
+        radars,
+        targets,
+        start_t_s=start_t_s,
+        duration_s=duration_s,
+        seed=seed,
+        period_s=4.0,
+        rates=rates,
+    )
+
+
 PRESETS: dict[str, Callable[..., Scenario]] = {
     "demo": demo_scenario,
     "adsb": adsb_scenario,
     "benchmark": scenario_for_benchmark,
+    "primary-high": primary_high_scenario,
 }
 
 

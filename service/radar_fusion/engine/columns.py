@@ -312,6 +312,9 @@ class ConvertedPlots:
     range_m: np.ndarray
     azimuth_deg: np.ndarray
     altitude_m: np.ndarray
+    # (n, 2, 2) the unknown height's part of a plot converted without any height
+    # (geo.unknown_height.unknown_height_plots), zero for the others; not in cov_m2
+    height_cov_m2: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -340,6 +343,9 @@ class ClusterMeasurements:
     mode3a: np.ndarray  # int64, -1 none
     revisit_s: np.ndarray  # shortest rotation period among the cluster's radars
     sources: np.ndarray  # uint64 bit mask of the cluster's radars
+    # (K, 2, 2) for a cluster of plots without any height, the unknown height's part of
+    # its error (not in R_m2; the track's covariance floor), zero for the others
+    height_cov_m2: np.ndarray | None = None
 
 
 @dataclass

@@ -50,11 +50,17 @@ from ..geo.coordinates import (
     polar_to_plane,
 )
 from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
+from ..geo.unknown_height import unknown_height_plots
 from ..safety_nets import SafetyNets
 from ..tracking.clustering import ClusterResult, cluster_plots
 from ..tracking.fusion import consensus_outliers, fuse_clusters
 from ..tracking.imm import MANOEUVRE, IMMFilter, IMMState
-from ..tracking.initiation import one_point_initiation, two_point_initiation, unknown_velocity_var_m2ps2
+from ..tracking.initiation import (
+    floor_covariance,
+    one_point_initiation,
+    two_point_initiation,
+    unknown_velocity_var_m2ps2,
+)
 from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
@@ -227,10 +233,16 @@ class Engine:
         A plot without Mode C (a primary plot) is converted at the predicted altitude of the
         track it may belong to (primary_height.py; issue 15: converted at a guessed height,
         the plots of a high aircraft missed its track and started a shadow track beside it);
-        with no such track, at the configured assumed height. (Spreading such a plot's
-        covariance over every height from the ground to FL450, geo.unknown_height.
+        with no such track, at the configured assumed height, its covariance split in the
+        measurement noise (``cov_m2``) and the spread of its ground range over every height
+        from the ground to FL450 (``height_cov_m2``, geo.unknown_height.unknown_height_plots).
+        The spread is common to all plots of one aircraft from one radar: a track made of
+        such plots filters with the noise and keeps the spread as the floor of its position
+        covariance (``_floor_no_height``), so the aircraft's first plot with a height (an
+        SSR's) joins it rather than start a second track; a cluster mixing both kinds fuses
+        with the spread added. (Spreading every such plot's covariance over the heights,
         polar_to_plane_unknown_height, was measured on the demo: 85 -> 98 m position RMS,
-        its wide radial gates letting clutter in; it is kept for track initiation, next.)"""
+        its wide radial gates letting clutter in.)"""
         if self.outlier_gate is not None and len(raw):
             keys = radar_track_keys(raw.radar, raw.track_no, raw.mode_s)
             has_key = np.flatnonzero(keys >= 0)
@@ -282,9 +294,41 @@ class Engine:
             altitude_m,
             assumed_altitude_m=self.assumed_altitude_m,
         )
+        # A primary plot (no Mode C, no identity) no track lends a height to: at the assumed
+        # height, the noise in cov_m2 and the spread over every height apart
+        # (geo/unknown_height.py). (At the mean ground range over every height instead, the
+        # demo's primary-only FL120 aircraft and its Mode A-only FL200 one, seen by three
+        # radars, went from 78 / 105 m to 915 / 629 m position RMS, the radars' means
+        # disagreeing; the primary-high scenario's FL300-400 ones from 1,050-1,300 m to
+        # 480-770 m.) An SSR plot without Mode C keeps the assumed height's covariance: with
+        # the spread, that Mode A-only aircraft went to 551 m and the demo's GOSPA from 385
+        # to 1,306 m.
+        height_cov_m2 = np.zeros_like(cov_m2)
+        no_h = np.flatnonzero(~np.isfinite(altitude_m) & (raw.mode3a < 0) & (raw.mode_s < 0))
+        if no_h.size:
+            u = unknown_height_plots(
+                self.plane,
+                self.sites,
+                raw.radar[no_h],
+                range_m[no_h],
+                azimuth_deg[no_h],
+                reference_altitude_m=self.assumed_altitude_m,
+            )
+            x_m[no_h], y_m[no_h], cov_m2[no_h], height_cov_m2[no_h] = u.x_m, u.y_m, u.cov_noise_m2, u.cov_height_m2
         # raw.fl stays NaN: the altitude filter is never updated with its own prediction
         return ConvertedPlots(
-            t_s, x_m, y_m, cov_m2, raw.radar, raw.mode_s, raw.mode3a, raw.fl, range_m, azimuth_deg, altitude_m
+            t_s,
+            x_m,
+            y_m,
+            cov_m2,
+            raw.radar,
+            raw.mode_s,
+            raw.mode3a,
+            raw.fl,
+            range_m,
+            azimuth_deg,
+            altitude_m,
+            height_cov_m2,
         )
 
     # --------------------------------------------------------------- predict
@@ -369,6 +413,18 @@ class Engine:
         """
         n_clusters = len(res.cluster_track)
         used = res.labels >= 0
+        if plots.height_cov_m2 is not None and n_clusters:
+            # A new target's primary plot without any height beside a plot with one adds
+            # nothing the other does not know better, and, aligned in time with no velocity
+            # (below), its height's error pulled the fused position by up to half its spread
+            # (issue 15: ~430 m, then a two-point velocity off by 100s of m/s): left out.
+            spread = np.trace(plots.height_cov_m2, axis1=1, axis2=2) > 0.0
+            c = np.where(used, res.labels, 0)
+            with_h = np.bincount(c[used & ~spread], minlength=n_clusters) > 0
+            drop = used & spread & with_h[c] & (res.cluster_track[c] < 0)
+            if drop.any():
+                used = used & ~drop
+                self.counters["plots_primary_left_out"] += int(drop.sum())
         lab = res.labels[used]
         n_in = np.bincount(lab, minlength=n_clusters)
         t_c = np.bincount(lab, weights=plots.t_s[used], minlength=n_clusters) / np.maximum(n_in, 1)
@@ -399,6 +455,7 @@ class Engine:
         self._register(plots, res, used, lab, row_of_plot, z_plot, R_plot, v, t_ref_s)
         beyond = np.fmax(res.plot_d2[used] / self.clustering.gate_chi2, 1.0)
         R_plot = R_plot * beyond[:, None, None]
+        cluster_h_cov = self._height_spread(plots, res, used, lab, n_in, R_plot, pred)
         z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
@@ -422,7 +479,64 @@ class Engine:
             mode3a=mode3a,
             revisit_s=revisit_s,
             sources=sources,
+            height_cov_m2=cluster_h_cov,
         )
+
+    def _height_spread(
+        self,
+        plots: ConvertedPlots,
+        res: ClusterResult,
+        used: np.ndarray,
+        lab: np.ndarray,
+        n_in: np.ndarray,
+        R_plot: np.ndarray,
+        pred: Prediction,
+    ) -> np.ndarray | None:
+        """Where the spread over every height of a primary plot without any height goes
+        (``plots.height_cov_m2``, geo.unknown_height): into its covariance ``R_plot`` (in
+        place), into the floor of its track's covariance (returned per cluster), or nowhere.
+
+        * A cluster with a plot with a height (Mode C, an SSR's): that plot fixes the ground
+          range; the spread joins the primary plot's covariance, so that it hardly weighs
+          radially.
+        * The one plot of a cluster, for a new target or a track that does not know its
+          position much better than the spread along it (e1^T P e1 >= l1 / 2, l1 the
+          spread's main axis: a track built from this radar's plots of this kind, floored
+          at the spread of its previous plot, which grows as the aircraft comes closer; a
+          strict e1^T P e1 >= l1 let such a track lose its floor, and the aircraft's first
+          SSR plot 940 m away start a shadow): the spread is common to all
+          the plots that track gets from that radar, so the cluster keeps it apart and it
+          floors the track's covariance (_floor_no_height, initiation.floor_covariance).
+        * Otherwise (plots of two radars, or a track they have triangulated to better than
+          half the spread): the assumed
+          height's noise alone, as before. Two radars' spreads are not common, but adding
+          them made the demo's primary-only FL120 aircraft (near the assumed 10,000 ft) go
+          from 78 to 244 m position RMS: its position then hangs on the azimuths only. The
+          height such a track could be given from its radars' disagreement is not estimated.
+
+        Returns None when the period has no such plot."""
+        if plots.height_cov_m2 is None:
+            return None
+        h_cov = plots.height_cov_m2[used]
+        spread = h_cov[:, 0, 0] + h_cov[:, 1, 1] > 0.0
+        hp = np.flatnonzero(spread)
+        if not hp.size:
+            return None
+        n_clusters = len(res.cluster_track)
+        c = lab[hp]
+        with_h = np.bincount(lab[~spread], minlength=n_clusters) > 0
+        R_plot[hp[with_h[c]]] += h_cov[hp[with_h[c]]]
+        row = res.cluster_track[c]
+        own = (n_in[c] == 1) & ~np.isfinite(np.concatenate([pred.alt_x[:, 0], [np.nan]])[row])
+        tracked = own & (row >= 0)
+        if tracked.any():
+            lam, vec = np.linalg.eigh(h_cov[hp[tracked]])
+            e1 = vec[:, :, 1]
+            along = np.einsum("ni,nij,nj->n", e1, cov_pos_m2(pred.P[row[tracked]]), e1)
+            own[np.flatnonzero(tracked)[along < 0.5 * lam[:, 1]]] = False
+        cluster_h_cov = np.zeros((n_clusters, 2, 2))
+        cluster_h_cov[c[own]] = h_cov[hp[own]]
+        return cluster_h_cov
 
     def _register(
         self,
@@ -445,7 +559,8 @@ class Engine:
         self._reg_next_t_s = t_ref_s + reg.params.update_interval_s
         status = np.concatenate([self.tracks.status, [TENTATIVE]])  # row -1: a new target
         established = status[row_of_plot] != TENTATIVE
-        inside = res.plot_d2[used] <= self.clustering.gate_chi2
+        # a plot without any height is no bias evidence: its ground range is the height's guess
+        inside = (res.plot_d2[used] <= self.clustering.gate_chi2) & np.isfinite(plots.altitude_m[used])
         reg.update(
             t_ref_s,
             plots.radar[used],
@@ -465,6 +580,7 @@ class Engine:
         """Tracks that got a cluster: each is predicted to its cluster's time, then the
         Kalman update (Shu eq. 7, 9, 10), or, at its second measurement, the two-point
         initiation (Shu §4). Returns the rows updated."""
+        self._refuse_impossible_pairs(cl)
         matched = np.flatnonzero(cl.valid & (cl.track_row >= 0))
         rows = cl.track_row[matched]
         if not rows.size:
@@ -486,9 +602,16 @@ class Engine:
                 tr.nis_avg[r], tr.manoeuvre[r] = self.manoeuvres.detect(tr.nis_avg[r], tr.manoeuvre[r], nu, S)
         two = ~init
         if two.any():
+            # A first position without any height and a second with one (an SSR's): the
+            # first one's height error does not cancel in their difference, so it enters
+            # with its whole covariance, floor included (_floor_no_height), not its noise.
+            R1 = tr.R1_m2[rows[two]]
+            biased = ~np.isfinite(tr.alt_x[rows[two], 0]) & np.isfinite(cl.fl[matched[two]])
+            if biased.any():
+                R1 = np.where(biased[:, None, None], cov_pos_m2(tr.P[rows[two]]), R1)
             x, P = two_point_initiation(
                 tr.z1_m[rows[two]],
-                tr.R1_m2[rows[two]],
+                R1,
                 z_m[two],
                 R_m2[two],
                 cl.t_s[matched[two]] - tr.t_state_s[rows[two]],
@@ -499,6 +622,7 @@ class Engine:
             self._imm_initiate(rows[two], x, P)
         tr.x[rows], tr.P[rows] = x_c, P_c
         tr.alt_x[rows], tr.alt_P[rows] = self.alt_filter.update(at_cluster.alt_x, at_cluster.alt_P, cl.fl[matched])
+        self._floor_no_height(rows, cl.height_cov_m2, matched)
         tr.t_state_s[rows] = cl.t_s[matched]
         tr.updates[rows] += 1
         tr.last_update_t_s[rows] = t_ref_s
@@ -508,6 +632,50 @@ class Engine:
         tr.seen_by[rows] |= cl.sources[matched]
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
+
+    def _refuse_impossible_pairs(self, cl: ClusterMeasurements) -> None:
+        """A one-plot track without altitude and a second cluster without any height: their
+        two positions share the unknown height's error, so their difference has the noise
+        alone (R1 + R2), and a pair further apart than ``max_speed_mps`` dt plus
+        sqrt(gate_chi2) noise standard deviations (largest eigenvalue) is no aircraft. The
+        χ² gate of the one-plot track spans every height (its covariance floor) and, near
+        a radar, kilometres: primary clutter paired inside it at 800-1,500 m/s and was
+        confirmed. Such a cluster starts a track of its own instead (in place)."""
+        if cl.height_cov_m2 is None:
+            return
+        tr = self.tracks
+        k = np.flatnonzero(cl.valid & (cl.track_row >= 0))
+        rows = cl.track_row[k]
+        no_h_cluster = np.trace(cl.height_cov_m2[k], axis1=1, axis2=2) > 0.0
+        pair = ~tr.initiated[rows] & ~np.isfinite(tr.alt_x[rows, 0]) & no_h_cluster
+        if not pair.any():
+            return
+        k, rows = k[pair], rows[pair]
+        dt_s = np.abs(cl.t_s[k] - tr.t_state_s[rows])
+        noise_m = np.sqrt(np.linalg.eigvalsh(tr.R1_m2[rows] + cl.R_m2[k])[:, -1])
+        reach_m = self.clustering.max_speed_mps * dt_s + math.sqrt(self.clustering.gate_chi2) * noise_m
+        far = np.hypot(*(cl.z_m[k] - tr.z1_m[rows]).T) > reach_m
+        if far.any():
+            cl.track_row[k[far]] = -1
+            self.counters["primary_pairs_refused"] += int(far.sum())
+
+    def _floor_no_height(self, rows: np.ndarray, height_cov_m2: np.ndarray | None, clusters: np.ndarray) -> None:
+        """A track that has no altitude after its update, from a cluster of plots without
+        any height: its position covariance is kept at least the unknown height's part of
+        its plots' error (initiation.floor_covariance; issue 15: converted at a guessed
+        height, such a track sat up to a kilometre beside its aircraft and the aircraft's
+        first SSR plots started a second track). The initiation spans every height so."""
+        if height_cov_m2 is None or not rows.size:
+            return
+        tr = self.tracks
+        B = height_cov_m2[clusters]
+        sel = ~np.isfinite(tr.alt_x[rows, 0]) & (np.trace(B, axis1=1, axis2=2) > 0.0)
+        if not sel.any():
+            return
+        r = rows[sel]
+        tr.P[r] = floor_covariance(tr.P[r], B[sel])
+        if self.imm is not None:
+            tr.P_models[r] = floor_covariance(tr.P_models[r], B[sel])
 
     # -------------------------------------------------------------- initiate
     def _initiate(self, cl: ClusterMeasurements, t_ref_s: float) -> np.ndarray:
@@ -528,6 +696,7 @@ class Engine:
         tr.t_state_s[new] = cl.t_s[new_cl]
         tr.z1_m[new], tr.R1_m2[new] = cl.z_m[new_cl], cl.R_m2[new_cl]
         tr.alt_x[new], tr.alt_P[new] = self.alt_filter.initiate(cl.fl[new_cl])
+        self._floor_no_height(np.arange(new.start, new.stop), cl.height_cov_m2, new_cl)
         tr.updates[new] = 1
         tr.first_t_s[new] = tr.last_update_t_s[new] = t_ref_s
         tr.mode_s[new] = cl.mode_s[new_cl]

@@ -42,6 +42,7 @@ we use it as geometric height (no QNH, temperature or geoid correction) -- see
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -56,11 +57,14 @@ __all__ = [
     "RadarSites",
     "SystemPlane",
     "altitude_m_to_flight_level",
+    "conformal_sphere_destination",
+    "conformal_sphere_polar",
     "flight_level_to_altitude_m",
     "gaussian_earth_radius_m",
     "geodetic_to_polar",
     "ground_to_slant_range",
     "mark_unconverted",
+    "plane_to_ground_polar",
     "polar_to_plane",
     "radial_to_plane",
     "slant_to_ground_range",
@@ -113,8 +117,44 @@ class SystemPlane:
             units="m",
         )
 
+        # The Gauss conformal sphere under the projection (PROJ's pj_gauss_ini, as sterea
+        # uses it): radius R_c = a sqrt(1 - e^2) / (1 - e^2 sin^2 phi0) (the Gaussian radius
+        # at the centre) and the centre's conformal latitude chi0 = asin(sin(phi0) / C),
+        # C = sqrt(1 + e^2 cos^4(phi0) / (1 - e^2)). See :meth:`to_conformal_sphere`.
+        phi0 = math.radians(self.center_lat_deg)
+        c_gauss = math.sqrt(1.0 + _WGS84_E2 * math.cos(phi0) ** 4 / (1.0 - _WGS84_E2))
+        self.conformal_radius_m = _WGS84_A_M * math.sqrt(1.0 - _WGS84_E2) / (1.0 - _WGS84_E2 * math.sin(phi0) ** 2)
+        self.conformal_center_lat_rad = math.asin(math.sin(phi0) / c_gauss)
+
     def __repr__(self) -> str:
         return f"SystemPlane(center_lat_deg={self.center_lat_deg!r}, center_lon_deg={self.center_lon_deg!r})"
+
+    def to_conformal_sphere(self, x_m: Any, y_m: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Plane (x_m, y_m) -> (conformal latitude chi, longitude Lambda from the centre),
+        radians, on the Gauss conformal sphere the projection is built on: the inverse of
+        the stereographic projection of a sphere of radius R_c (``conformal_radius_m``),
+        k0 = 1, centred at chi0 (Snyder 1987, eq. 21-15, 20-14, 20-15 with R = R_c):
+
+            r = |(x, y)|,  c = 2 atan(r / (2 R_c)),
+            sin chi = cos c sin chi0 + y sin c cos chi0 / r,
+            Lambda = atan2(x sin c, r cos chi0 cos c - y sin chi0 sin c).
+
+        Pure numpy (no PROJ call). The ellipsoid -> sphere map is conformal with a scale
+        within ~1e-6 of 1 for a few hundred km around the centre, so great-circle
+        distances and azimuths on this sphere are the WGS-84 geodesic's to well under a
+        metre and 1e-4 degree there (tests/test_coordinates.py measures it against
+        ``Geod.inv``): :func:`plane_to_ground_polar`.
+        """
+        x = np.asarray(x_m, dtype=float)
+        y = np.asarray(y_m, dtype=float)
+        r = np.hypot(x, y)
+        c = 2.0 * np.arctan(r / (2.0 * self.conformal_radius_m))
+        sin_c, cos_c = np.sin(c), np.cos(c)
+        s0, c0 = math.sin(self.conformal_center_lat_rad), math.cos(self.conformal_center_lat_rad)
+        y_over_r = np.divide(y, r, out=np.zeros_like(r), where=r > 0.0)
+        chi = np.arcsin(np.clip(cos_c * s0 + y_over_r * sin_c * c0, -1.0, 1.0))
+        lam = np.arctan2(x * sin_c, r * c0 * cos_c - y * s0 * sin_c)
+        return chi, lam
 
     def to_plane(self, lat_deg: Any, lon_deg: Any) -> tuple[np.ndarray, np.ndarray]:
         """Geodetic (degrees) -> plane (x_m east, y_m north), arrays in and out."""
@@ -129,6 +169,22 @@ class SystemPlane:
         y = np.asarray(y_m, dtype=float)
         lon, lat = self.proj(x, y, inverse=True, errcheck=False)
         return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
+
+    def from_conformal_sphere(self, chi_rad: Any, lam_rad: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(conformal latitude, longitude from the centre) on the Gauss conformal sphere ->
+        plane (x_m, y_m): the stereographic projection of that sphere, the inverse of
+        :meth:`to_conformal_sphere` (Snyder 1987, eq. 21-4, 21-2, 21-3 with R = R_c, k0 = 1):
+
+            k = 2 / (1 + sin chi0 sin chi + cos chi0 cos chi cos Lambda),
+            x = R_c k cos chi sin Lambda,  y = R_c k (cos chi0 sin chi - sin chi0 cos chi cos Lambda).
+        """
+        chi, lam = np.asarray(chi_rad, dtype=float), np.asarray(lam_rad, dtype=float)
+        s0, c0 = math.sin(self.conformal_center_lat_rad), math.cos(self.conformal_center_lat_rad)
+        cos_chi, cos_lam = np.cos(chi), np.cos(lam)
+        k = 2.0 / (1.0 + s0 * np.sin(chi) + c0 * cos_chi * cos_lam)
+        x_m: NDArray[np.float64] = self.conformal_radius_m * k * cos_chi * np.sin(lam)
+        y_m: NDArray[np.float64] = self.conformal_radius_m * k * (c0 * np.sin(chi) - s0 * cos_chi * cos_lam)
+        return x_m, y_m
 
     def meridian_factors(
         self, lat_deg: np.ndarray, lon_deg: np.ndarray, x_m: np.ndarray, y_m: np.ndarray
@@ -514,6 +570,73 @@ def geodetic_to_polar(
         ground_m[bad] = np.nan
     range_m = ground_to_slant_range(sites.earth_radius_m[idx], sites.alt_m[idx], h_t, ground_m)
     return range_m, az_deg, ground_m
+
+
+def plane_to_ground_polar(
+    plane: SystemPlane,
+    site_chi_rad: NDArray[np.float64],
+    site_lam_rad: NDArray[np.float64],
+    x_m: Any,
+    y_m: Any,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Plane positions -> ground range (m) and azimuth (degrees, [0, 360)) from sites
+    given on the conformal sphere (``plane.to_conformal_sphere`` of their plane
+    positions; ``site_*`` broadcast against ``x_m``/``y_m``), without PROJ: a fast
+    stand-in for ``to_geodetic`` + ``Geod.inv`` (:func:`geodetic_to_polar`) where many
+    (site, point) pairs are needed, e.g. to gate plots against tracks.
+
+    On the sphere of radius R_c, with dchi, dLambda the differences from the site
+    (haversine and the initial great-circle bearing):
+
+        g = 2 R_c asin(sqrt(sin^2(dchi/2) + cos chi_s cos chi sin^2(dLambda/2))),
+        theta = atan2(sin dLambda cos chi, cos chi_s sin chi - sin chi_s cos chi cos dLambda).
+
+    Against ``Geod.inv``, for sites within 500 km of the plane's centre and points 0-250
+    km from them: < 1 m and < 1e-4 degree (tests/test_coordinates.py), far below a
+    radar's noise (>= 20 m, 0.03 degree).
+    """
+    chi, lam = plane.to_conformal_sphere(x_m, y_m)
+    return conformal_sphere_polar(plane.conformal_radius_m, site_chi_rad, site_lam_rad, chi, lam)
+
+
+def conformal_sphere_polar(
+    radius_m: float, site_chi_rad: Any, site_lam_rad: Any, chi_rad: Any, lam_rad: Any
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The formulas of :func:`plane_to_ground_polar` for points already on the conformal
+    sphere (``SystemPlane.to_conformal_sphere``), so that each point is mapped once for
+    all the sites it is seen from. Returns (ground_m, azimuth_deg)."""
+    chi, lam = np.asarray(chi_rad, dtype=float), np.asarray(lam_rad, dtype=float)
+    site_chi = np.asarray(site_chi_rad, dtype=float)
+    d_lam = lam - np.asarray(site_lam_rad, dtype=float)
+    cos_s, cos_t = np.cos(site_chi), np.cos(chi)
+    hav = np.sin(0.5 * (chi - site_chi)) ** 2 + cos_s * cos_t * np.sin(0.5 * d_lam) ** 2
+    ground_m: NDArray[np.float64] = 2.0 * radius_m * np.arcsin(np.sqrt(np.clip(hav, 0.0, 1.0)))
+    az = np.arctan2(np.sin(d_lam) * cos_t, cos_s * np.sin(chi) - np.sin(site_chi) * cos_t * np.cos(d_lam))
+    az_deg: NDArray[np.float64] = np.mod(np.degrees(az), 360.0)
+    return ground_m, az_deg
+
+
+def conformal_sphere_destination(
+    radius_m: float, site_chi_rad: Any, site_lam_rad: Any, azimuth_deg: Any, ground_m: Any
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The point ``ground_m`` from a site at initial bearing ``azimuth_deg`` along the great
+    circle of the conformal sphere (the inverse of :func:`conformal_sphere_polar`), with
+    delta = g / R_c:
+
+        sin chi = sin chi_s cos delta + cos chi_s sin delta cos theta,
+        Lambda = Lambda_s + atan2(sin theta sin delta cos chi_s, cos delta - sin chi_s sin chi).
+
+    Returns (chi_rad, lam_rad); ``SystemPlane.from_conformal_sphere`` puts it in the plane."""
+    theta = np.radians(np.asarray(azimuth_deg, dtype=float))
+    delta = np.asarray(ground_m, dtype=float) / radius_m
+    site_chi = np.asarray(site_chi_rad, dtype=float)
+    sin_s, cos_s = np.sin(site_chi), np.cos(site_chi)
+    sin_chi = np.clip(sin_s * np.cos(delta) + cos_s * np.sin(delta) * np.cos(theta), -1.0, 1.0)
+    lam = np.asarray(site_lam_rad, dtype=float) + np.arctan2(
+        np.sin(theta) * np.sin(delta) * cos_s, np.cos(delta) - sin_s * sin_chi
+    )
+    chi: NDArray[np.float64] = np.arcsin(sin_chi)
+    return chi, lam
 
 
 def flight_level_to_altitude_m(fl: Any) -> np.ndarray:

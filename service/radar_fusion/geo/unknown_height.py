@@ -24,8 +24,10 @@ __all__ = [
     "MAX_UNKNOWN_ALTITUDE_M",
     "MIN_UNKNOWN_ALTITUDE_M",
     "GroundRangeInterval",
+    "UnknownHeightPlots",
     "ground_range_for_unknown_height",
     "polar_to_plane_unknown_height",
+    "unknown_height_plots",
 ]
 
 MIN_UNKNOWN_ALTITUDE_M: float = 0.0
@@ -153,7 +155,25 @@ def ground_range_for_unknown_height(
     )
 
 
-def polar_to_plane_unknown_height(
+class UnknownHeightPlots(NamedTuple):
+    """Plots without height converted at the mean ground range over every possible height,
+    with the covariance split in its two parts (:func:`unknown_height_plots`)."""
+
+    x_m: NDArray[np.float64]
+    y_m: NDArray[np.float64]
+    cov_noise_m2: NDArray[np.float64]
+    """(N, 2, 2) the measurement noise alone: along-range (dg/drho sigma_rho)^2, cross-range
+    (R sin(E[g]/R) sigma_theta)^2. Two plots of one radar of one aircraft share their height,
+    so the difference of their positions has only this part (their velocity is exact)."""
+    cov_height_m2: NDArray[np.float64]
+    """(N, 2, 2) the unknown height's part: Var_h[g] along the radial (rank one, k^2 u u^T
+    Var_h[g]); along the cross-range, Var_h[g] sigma_theta^2 (second order) is kept in
+    ``cov_noise_m2``. Common to every plot of one aircraft from one radar: a bias."""
+    ground_m: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+
+
+def unknown_height_plots(
     plane: SystemPlane,
     sites: RadarSites,
     radar_index: Any,
@@ -161,25 +181,30 @@ def polar_to_plane_unknown_height(
     azimuth_deg: Any,
     min_altitude_m: float = MIN_UNKNOWN_ALTITUDE_M,
     max_altitude_m: float = MAX_UNKNOWN_ALTITUDE_M,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
-    """Plots without height (no Mode C, no track altitude) -> plane position and a
-    covariance that spans every possible height in [min_altitude_m, max_altitude_m].
+    *,
+    reference_altitude_m: float | None = None,
+) -> UnknownHeightPlots:
+    """Plots without height (no Mode C, no track altitude) -> plane position at the mean
+    ground range E[g] of :func:`ground_range_for_unknown_height`, along the geodesic at
+    their azimuth, and the covariance in two parts, built as in :func:`polar_to_plane`
+    (radial / cross-range frame at the target, meridian convergence, scale factor k):
 
-    The plot is put at the mean ground range E[g] of :func:`ground_range_for_unknown_height`
-    along the geodesic at its azimuth. Its covariance is built as in
-    :func:`polar_to_plane` (radial / cross-range frame at the target, meridian convergence,
-    scale factor k), with
+        noise   var_r = (dg/drho * sigma_rho)^2       (dg/drho at mid-height)
+                var_c = ((R sin(E[g]/R))^2 + Var_h[g]) * sigma_theta^2   (~ E[g^2] sigma_theta^2)
+        height  var_r = Var_h[g],  var_c = 0
 
-        along-range  var_r = Var_h[g] + (dg/drho * sigma_rho)^2      (dg/drho at mid-height)
-        cross-range  var_c = ((R sin(E[g]/R))^2 + Var_h[g]) * sigma_theta^2   (~ E[g^2] sigma_theta^2)
-
-    (height and measurement noise independent). Plots with no feasible height (slant range
-    shorter than min_altitude_m - h_r) are put at the site with isotropic variance
-    rho^2 + sigma_rho^2 per axis and ``valid = False``, as :func:`polar_to_plane` clamps;
-    non-finite or negative input gives NaN and ``valid = False``.
-
-    Returns ``(x_m, y_m, cov_xy_m2 (N,2,2), ground_range_m, valid)``, the same shapes as
-    ``polar_to_plane(..., return_valid=True)``, so the rows can replace its rows.
+    (height and measurement noise independent). With ``reference_altitude_m`` h_ref the
+    plot is put at g(h_ref) instead (the ground range at that height, as
+    :func:`polar_to_plane` converts at an assumed height, dg/drho taken there too) and the height's part is the
+    second moment about it, Var_h[g] + (E[g] - g(h_ref))^2, along the radial: the same
+    spread of possible positions, about another point. Their sum is the covariance of one plot
+    over every height (:func:`polar_to_plane_unknown_height`); a track built from such
+    plots of one radar filters with the noise part and carries the height part as a
+    common bias (engine.py, initiation.floor_covariance). Plots with no feasible height
+    (slant range shorter than min_altitude_m - h_r) are put at the site with isotropic
+    variance rho^2 + sigma_rho^2 per axis (in the noise part) and ``valid = False``, as
+    :func:`polar_to_plane` clamps; non-finite or negative input gives NaN and
+    ``valid = False``.
     """
     idx = sites.check_index(radar_index)
     rho, theta_deg, idx = (
@@ -193,14 +218,50 @@ def polar_to_plane_unknown_height(
     valid = iv.valid & finite_in
     ground_m = np.where(valid, iv.ground_mean_m, 0.0)
     var_g = np.where(valid, iv.ground_var_m2, 0.0)
+    d_rho_mid = iv.dground_drange
+    if reference_altitude_m is not None:
+        g_ref, ok_ref, d_rho_ref, _ = slant_to_ground_range(
+            r_m, sites.alt_m[idx], np.full(rho_safe.shape, reference_altitude_m), rho_safe
+        )
+        g_ref = np.where(ok_ref, g_ref, ground_m)
+        d_rho_mid = np.where(ok_ref, d_rho_ref, d_rho_mid)
+        var_g = var_g + (ground_m - g_ref) ** 2
+        ground_m = np.where(valid, g_ref, 0.0)
     sigma_rho = sites.sigma_range_m[idx]
     sigma_theta = sites.sigma_azimuth_rad[idx]
     # dg/drho is infinite only if the whole feasible interval sits on the cone (h_lo = h_hi
     # = h_r + rho); there 1 (the flat, level value) stands in.
-    d_rho = np.where(valid & np.isfinite(iv.dground_drange), iv.dground_drange, 1.0)
-    var_r = var_g + (d_rho * sigma_rho) ** 2
+    d_rho = np.where(valid & np.isfinite(d_rho_mid), d_rho_mid, 1.0)
     var_c = ((r_m * np.sin(ground_m / r_m)) ** 2 + var_g) * sigma_theta**2
-    x_m, y_m, cov = radial_to_plane(plane, sites, idx, theta_safe, ground_m, var_r, var_c)
-
+    x_m, y_m, cov = radial_to_plane(plane, sites, idx, theta_safe, ground_m, (d_rho * sigma_rho) ** 2, var_c)
+    # the height part k^2 Var_h[g] u u^T: the same radial line converted with (1, 0)
+    _, _, radial = radial_to_plane(plane, sites, idx, theta_safe, ground_m, np.ones_like(var_g), np.zeros_like(var_g))
+    cov_h = radial * var_g[:, None, None]
     x_m, y_m, cov, ground_m = mark_unconverted(x_m, y_m, cov, ground_m, rho, sigma_rho, finite_in, valid)
-    return x_m, y_m, cov, ground_m, valid
+    cov_h[~valid] = 0.0
+    if not np.all(finite_in):
+        cov_h[~finite_in] = np.nan
+    return UnknownHeightPlots(x_m, y_m, cov, cov_h, ground_m, valid)
+
+
+def polar_to_plane_unknown_height(
+    plane: SystemPlane,
+    sites: RadarSites,
+    radar_index: Any,
+    range_m: Any,
+    azimuth_deg: Any,
+    min_altitude_m: float = MIN_UNKNOWN_ALTITUDE_M,
+    max_altitude_m: float = MAX_UNKNOWN_ALTITUDE_M,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Plots without height (no Mode C, no track altitude) -> plane position and a
+    covariance that spans every possible height in [min_altitude_m, max_altitude_m]: the
+    sum of the two parts of :func:`unknown_height_plots`,
+
+        along-range  var_r = Var_h[g] + (dg/drho * sigma_rho)^2      (dg/drho at mid-height)
+        cross-range  var_c = ((R sin(E[g]/R))^2 + Var_h[g]) * sigma_theta^2   (~ E[g^2] sigma_theta^2)
+
+    Returns ``(x_m, y_m, cov_xy_m2 (N,2,2), ground_range_m, valid)``, the same shapes as
+    ``polar_to_plane(..., return_valid=True)``, so the rows can replace its rows.
+    """
+    p = unknown_height_plots(plane, sites, radar_index, range_m, azimuth_deg, min_altitude_m, max_altitude_m)
+    return p.x_m, p.y_m, p.cov_noise_m2 + p.cov_height_m2, p.ground_m, p.valid

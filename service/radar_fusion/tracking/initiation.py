@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .singer_filter import POS_IDX, STATE_DIM, as_tracks
 
-__all__ = ["one_point_initiation", "two_point_initiation", "unknown_velocity_var_m2ps2"]
+__all__ = ["floor_covariance", "one_point_initiation", "two_point_initiation", "unknown_velocity_var_m2ps2"]
 
 Float = NDArray[np.float64]
 
@@ -116,3 +116,39 @@ def two_point_initiation(
     P[:, vel[:, None], vel[None, :]] = vv
     P[:, 2, 2] = P[:, 5, 5] = sigma_m_mps2**2
     return x, P
+
+
+def floor_covariance(P: Float, floor_m2: Float) -> Float:
+    """Position covariance of tracks raised to at least ``floor_m2`` in every direction.
+
+    For a track whose plots all come without height (a primary-only aircraft), the plots
+    are converted at the mean ground range over every possible height and filtered with
+    their noise alone; the unknown height adds one error common to all of them, B
+    (geo.unknown_height.unknown_height_plots ``cov_height_m2``, along the radial), which
+    no number of plots of that radar averages out (a Schmidt "consider" parameter). The
+    track's position error is then at least B: with B = sum_i l_i e_i e_i^T (its
+    eigen-decomposition, rank one for one radar), each direction e_i gets
+
+        P_pos += max(0, l_i - e_i^T P_pos e_i) e_i e_i^T,
+
+    which leaves the velocity and its cross terms alone: the velocity from successive
+    plots of one height is exact (the bias cancels in the difference), so the first plot
+    with a height (Mode C, from an SSR) moves the position by up to the whole interval
+    while hardly touching the velocity.
+
+    Shapes: P (N,6,6) or (N,M,6,6) (the IMM's per-model covariances), floor_m2 (N,2,2).
+    Returns a new array.
+    """
+    P = np.array(P, dtype=float, copy=True)
+    B = np.asarray(floor_m2, dtype=float)
+    lam, vec = np.linalg.eigh(np.where(np.isfinite(B), B, 0.0))  # (N,2), (N,2,2) columns e_i
+    pos = POS_IDX
+    extra_shape = P.shape[1:-2]  # () or (M,)
+    for i in range(2):
+        e = vec[:, :, i]  # (N,2)
+        e_b = e.reshape(e.shape[:1] + (1,) * len(extra_shape) + (2,))
+        p_pos = P[..., pos[:, None], pos[None, :]]
+        along = np.einsum("...i,...ij,...j->...", e_b, p_pos, e_b)
+        add = np.maximum(lam[:, i].reshape(lam.shape[:1] + (1,) * len(extra_shape)) - along, 0.0)
+        P[..., pos[:, None], pos[None, :]] = p_pos + add[..., None, None] * (e_b[..., :, None] * e_b[..., None, :])
+    return P

@@ -9,9 +9,12 @@ interval (geo.unknown_height.polar_to_plane_unknown_height).
 
 The comparison is made where the plot was measured, in the radar's own polar
 coordinates, so it needs no height for the plot: each track's position is converted to
-what the plot's radar would measure of it (``SystemPlane.to_geodetic`` then
-``geodetic_to_polar``: slant range rho_t, azimuth theta_t, ground range g_t, all exact on
-the site's Gaussian sphere).
+what the plot's radar would measure of it: ground range g_t and azimuth theta_t by
+great-circle formulas on the projection's conformal sphere
+(``coordinates.conformal_sphere_polar``, each track mapped to that sphere once; within
+1 m and 1e-4 deg of ``Geod.inv`` over the coverage), and the slant range rho_t from g_t
+on the site's Gaussian sphere. The plot is then converted exactly (polar_to_plane) at
+the chosen track's altitude.
 
 * A track with an altitude h_t has one slant range. Its position covariance P (plane,
   2x2) is projected on the radial u and the cross-range v directions (from the site to
@@ -41,12 +44,15 @@ the most likely, the smallest Gaussian negative log-likelihood
 with S_rho_j = sigma_rho^2 + var_rho_j + halfwidth_j^2 / 3 (a track without altitude
 spreads its slant range uniformly over its interval): so a plot right on a track with
 altitude is not taken by a track without altitude whose wide interval also holds it,
-as the bare distance to the interval (zero inside) would do. Candidates are
-the ``n_candidates`` nearest tracks in the radar's slant-range plane
-rho (sin theta, cos theta) (a k-d tree per radar; |p_i - p_j|^2 = drho^2 +
-4 rho_i rho_j sin^2(dtheta / 2) ~ drho^2 + (rho dtheta)^2, and no wrap at north):
-O(M log N) for M plots and N tracks, plus one ``Geod.inv`` per (radar, track within the
-reach of its plots) pair.
+as the bare distance to the interval (zero inside) would do. Candidates: the tracks in
+the plane within reach of the plot's ground-range interval over [min, max] altitude (one
+k-d tree over all tracks, one ball query per plot, all radars at once), of which the
+``n_candidates`` nearest in the radar's slant-range plane rho (sin theta, cos theta)
+compete (|p_i - p_j|^2 = drho^2 + 4 rho_i rho_j sin^2(dtheta / 2) ~ drho^2 +
+(rho dtheta)^2, no wrap at north): O(M log N) for M plots and N tracks, plus a few numpy
+operations per candidate pair (one ``Geod.inv`` per (radar, track within the reach of its
+plots) pair and a k-d tree per radar before: ~20 ms per period at 4,000 aircraft and 10
+radars, now ~3-5 ms).
 """
 
 from __future__ import annotations
@@ -61,7 +67,8 @@ from scipy.spatial import cKDTree
 from ..geo.coordinates import (
     RadarSites,
     SystemPlane,
-    geodetic_to_polar,
+    conformal_sphere_destination,
+    conformal_sphere_polar,
     ground_to_slant_range,
     slant_to_ground_range,
 )
@@ -146,121 +153,117 @@ def primary_plot_altitude(
         return PrimaryHeight(track_index, np.full(m, np.nan))
 
     xy_u, alt_u, cov_u, vel_u, var_h_u = xy[usable], alt[usable], cov[usable], vel[usable], var_h[usable]
-    known = np.isfinite(alt_u)
-    lat_u, lon_u = plane.to_geodetic(xy_u[:, 0], xy_u[:, 1])
+    known_u = np.isfinite(alt_u)
+    # Each track on the projection's conformal sphere once; its polar coordinates from a
+    # plot's radar by great-circle formulas (coordinates.conformal_sphere_polar: < 1 m and
+    # 1e-4 deg from Geod.inv over the coverage), per candidate pair, not per (radar, track).
+    chi_u, lam_u = plane.to_conformal_sphere(xy_u[:, 0], xy_u[:, 1])
     site_x, site_y = sites.plane_positions(plane)
-    k = min(int(n_candidates), usable.size)
+    site_chi, site_lam = plane.to_conformal_sphere(site_x, site_y)
+    r_c = plane.conformal_radius_m
 
-    # Tracks a radar's plots can reach: plane distance ~ k g <= 1.01 rho (k the plane's
-    # scale factor, < 1.006 within 1,000 km), plus motion and gate. A cheap bound that keeps
-    # the Geod.inv per (radar, track) to the radar's coverage.
+    # Candidates, all radars at once: a plot lies in the plane within its ground-range
+    # interval over [min, max] altitude along its azimuth. From the interval's middle
+    # (put in the plane exactly, on the conformal sphere), half its width plus a slack for
+    # the track's motion over the plot's time offset, its gate and 1 km for the sphere's
+    # and the plane's approximations (< 1 m per 100 km; the plane's scale k - 1 < 0.6 %
+    # of the half width) reach every track that may gate the plot. One k-d tree over the
+    # tracks' plane positions.
+    plots = np.flatnonzero(need)
+    rp, tp, pr = rho_p[plots], theta_p[plots], radar[plots]
+    r_arr, h_arr = sites.earth_radius_m[pr], sites.alt_m[pr]
+    h_top = np.minimum(max_altitude_m, h_arr + 0.999 * rp)
+    g_low = slant_to_ground_range(r_arr, h_arr, np.full(plots.size, min_altitude_m), rp)[0]
+    g_top = slant_to_ground_range(r_arr, h_arr, h_top, rp)[0]
+    g_mid = 0.5 * (g_low + g_top)
+    g_mid = np.where(np.isfinite(g_mid), g_mid, rp)
+    g_half_m = 0.5 * np.abs(g_low - g_top)
+    g_half_m = np.where(np.isfinite(g_half_m), g_half_m, rp)
     slack_m = (
-        5e3
-        + float(np.max(np.hypot(vel_u[:, 0], vel_u[:, 1]))) * float(np.max(np.abs(dt_p[need])))
-        + gate_sigmas * float(np.sqrt(np.max(cov_u[:, 0, 0] + cov_u[:, 1, 1])))
+        1e3
+        + float(np.max(np.hypot(vel_u[:, 0], vel_u[:, 1]))) * float(np.max(np.abs(dt_p[plots])))
+        + gate_sigmas * float(np.sqrt(np.max(cov_u[:, 0, 0] + cov_u[:, 1, 1]) + np.max(sites.sigma_range_m[pr]) ** 2))
     )
-    dist_from_site_m = np.empty(usable.size)
+    chi_m, lam_m = conformal_sphere_destination(r_c, site_chi[pr], site_lam[pr], np.degrees(tp), g_mid)
+    where = np.stack(plane.from_conformal_sphere(chi_m, lam_m), axis=1)
+    hits = cKDTree(xy_u).query_ball_point(where, g_half_m + slack_m, return_sorted=False)
+    lens = np.fromiter(map(len, hits), dtype=np.intp, count=len(hits))
+    if not lens.sum():
+        return PrimaryHeight(track_index, np.full(m, np.nan))
+    pair_p = np.repeat(np.arange(plots.size), lens)  # index into ``plots``
+    pair_t = np.fromiter(itertools.chain.from_iterable(hits), dtype=np.intp, count=int(lens.sum()))
 
-    for r in np.unique(radar[need]):
-        plots = np.flatnonzero(need & (radar == r))
-        np.hypot(xy_u[:, 0] - site_x[r], xy_u[:, 1] - site_y[r], out=dist_from_site_m)
-        sel = np.flatnonzero(dist_from_site_m <= 1.01 * float(rho_p[plots].max()) + slack_m)
-        # ... and of those only the tracks near the plots (the Geod.inv below is the cost):
-        # a plot lies in the plane within its ground-range interval along its azimuth; from
-        # the interval's middle, half its width, 6 % of the range (the grid convergence,
-        # < 3.5 deg within 500 km of the plane's origin, and the plane's scale, < 0.6 %) and
-        # the slack bound where a track that gates with it can be.
-        if sel.size > plots.size:
-            rp, tp = rho_p[plots], theta_p[plots]
-            r_arr = np.full(plots.size, float(sites.earth_radius_m[r]))
-            h_arr = np.full(plots.size, float(sites.alt_m[r]))
-            h_top = np.minimum(max_altitude_m, h_arr + 0.999 * rp)
-            g_low = slant_to_ground_range(r_arr, h_arr, np.full(plots.size, min_altitude_m), rp)[0]
-            g_top = slant_to_ground_range(r_arr, h_arr, h_top, rp)[0]
-            g_mid = 0.5 * (g_low + g_top)
-            g_mid = np.where(np.isfinite(g_mid), g_mid, rp)
-            g_half_m = 0.5 * np.abs(g_low - g_top)
-            reach_m = np.where(np.isfinite(g_half_m), g_half_m, rp) + 0.06 * rp + slack_m
-            where = np.stack([site_x[r] + g_mid * np.sin(tp), site_y[r] + g_mid * np.cos(tp)], axis=1)
-            hits = cKDTree(xy_u[sel]).query_ball_point(where, reach_m, return_sorted=False)
-            lens = np.fromiter(map(len, hits), dtype=np.intp, count=len(hits))
-            flat = np.fromiter(itertools.chain.from_iterable(hits), dtype=np.intp, count=int(lens.sum()))
-            sel = sel[np.unique(flat)]
-        if sel.size == 0:
-            continue
-        xy_s, alt_s, cov_s, vel_s, var_h_s, known_s = (
-            xy_u[sel],
-            alt_u[sel],
-            cov_u[sel],
-            vel_u[sel],
-            var_h_u[sel],
-            known[sel],
-        )
-        n_s = sel.size
-        # What radar r measures of every track (for tracks without altitude: at min_altitude_m).
-        h_t = np.where(known_s, alt_s, min_altitude_m)
-        rho_t, az_t_deg, g_t = geodetic_to_polar(sites, np.full(n_s, r), lat_u[sel], lon_u[sel], h_t)
-        theta_t = np.radians(az_t_deg)
-        r_m, h_r = float(sites.earth_radius_m[r]), float(sites.alt_m[r])
-        a = r_m + h_r
-        gamma = g_t / r_m
-        # Slant-range interval of a track without altitude over [min, max] altitude; its
-        # minimum over heights is at b = a cos(gamma) when inside.
-        h_star = np.clip(a * np.cos(gamma) - r_m, min_altitude_m, max_altitude_m)
-        r_arr, h_r_arr = np.full(n_s, r_m), np.full(n_s, h_r)
-        rho_ends = [
-            ground_to_slant_range(r_arr, h_r_arr, h, g_t)
-            for h in (np.full(n_s, min_altitude_m), np.full(n_s, max_altitude_m), h_star)
-        ]
-        rho_lo = np.where(known_s, rho_t, np.minimum(np.minimum(rho_ends[0], rho_ends[1]), rho_ends[2]))
-        rho_hi = np.where(known_s, rho_t, np.maximum(rho_ends[0], rho_ends[1]))
-        rho_mid, half_m = 0.5 * (rho_lo + rho_hi), 0.5 * (rho_hi - rho_lo)
+    # What the plot's radar measures of each candidate track (at min_altitude_m for a
+    # track without altitude), and the slant-range interval of a track without altitude
+    # over [min, max] altitude: its minimum over heights is at b = a cos(gamma) if inside.
+    r_q = pr[pair_p]
+    r_m, h_r = sites.earth_radius_m[r_q], sites.alt_m[r_q]
+    known = known_u[pair_t]
+    g_t, az_t_deg = conformal_sphere_polar(r_c, site_chi[r_q], site_lam[r_q], chi_u[pair_t], lam_u[pair_t])
+    theta_t = np.radians(az_t_deg)
+    h_t = np.where(known, alt_u[pair_t], min_altitude_m)
+    rho_t = ground_to_slant_range(r_m, h_r, h_t, g_t)
+    a = r_m + h_r
+    gamma = g_t / r_m
+    h_star = np.clip(a * np.cos(gamma) - r_m, min_altitude_m, max_altitude_m)
+    rho_ends = [ground_to_slant_range(r_m, h_r, np.full(r_q.shape, h), g_t) for h in (min_altitude_m, max_altitude_m)]
+    rho_star = ground_to_slant_range(r_m, h_r, h_star, g_t)
+    rho_lo = np.where(known, rho_t, np.minimum(np.minimum(rho_ends[0], rho_ends[1]), rho_star))
+    rho_hi = np.where(known, rho_t, np.maximum(rho_ends[0], rho_ends[1]))
+    rho_mid, half_m = 0.5 * (rho_lo + rho_hi), 0.5 * (rho_hi - rho_lo)
 
-        # Track uncertainty and motion in the radar's frame.
-        b = r_m + np.where(known_s, alt_s, 0.5 * (min_altitude_m + max_altitude_m))
-        rho_b = ground_to_slant_range(r_arr, h_r_arr, b - r_m, g_t)
-        drho_dg = np.where(rho_b > 0.0, a * b * np.sin(gamma) / (r_m * np.maximum(rho_b, 1e-9)), 1.0)
-        drho_dh = np.where(rho_b > 0.0, (b - a * np.cos(gamma)) / np.maximum(rho_b, 1e-9), 1.0)
-        u = np.stack([xy_s[:, 0] - site_x[r], xy_s[:, 1] - site_y[r]], axis=1)
-        u_norm = np.linalg.norm(u, axis=1, keepdims=True)
-        # u: radial unit vector; its clockwise normal v = (uy, -ux) points where azimuth grows.
-        u = np.where(u_norm > 0.0, u / np.where(u_norm > 0.0, u_norm, 1.0), np.array([0.0, 1.0]))
-        g_safe = np.maximum(g_t, _MIN_GROUND_M)
-        p_xx, p_xy, p_yy = cov_s[:, 0, 0], cov_s[:, 0, 1], cov_s[:, 1, 1]
-        ux, uy = u[:, 0], u[:, 1]  # v = (uy, -ux)
-        p_uu = ux * ux * p_xx + 2.0 * ux * uy * p_xy + uy * uy * p_yy
-        p_vv = uy * uy * p_xx - 2.0 * ux * uy * p_xy + ux * ux * p_yy
-        var_rho_t = drho_dg**2 * p_uu + np.where(known_s, drho_dh**2 * var_h_s, 0.0)
-        var_theta_t = p_vv / g_safe**2
-        rho_rate = drho_dg * (ux * vel_s[:, 0] + uy * vel_s[:, 1])
-        theta_rate = (uy * vel_s[:, 0] - ux * vel_s[:, 1]) / g_safe
+    # Track uncertainty and motion in the radar's frame.
+    b = r_m + np.where(known, alt_u[pair_t], 0.5 * (min_altitude_m + max_altitude_m))
+    rho_b = ground_to_slant_range(r_m, h_r, b - r_m, g_t)
+    drho_dg = np.where(rho_b > 0.0, a * b * np.sin(gamma) / (r_m * np.maximum(rho_b, 1e-9)), 1.0)
+    drho_dh = np.where(rho_b > 0.0, (b - a * np.cos(gamma)) / np.maximum(rho_b, 1e-9), 1.0)
+    xy_t = xy_u[pair_t]
+    u = np.stack([xy_t[:, 0] - site_x[r_q], xy_t[:, 1] - site_y[r_q]], axis=1)
+    u_norm = np.linalg.norm(u, axis=1, keepdims=True)
+    # u: radial unit vector; its clockwise normal v = (uy, -ux) points where azimuth grows.
+    u = np.where(u_norm > 0.0, u / np.where(u_norm > 0.0, u_norm, 1.0), np.array([0.0, 1.0]))
+    g_safe = np.maximum(g_t, _MIN_GROUND_M)
+    cov_t, vel_t = cov_u[pair_t], vel_u[pair_t]
+    p_xx, p_xy, p_yy = cov_t[:, 0, 0], cov_t[:, 0, 1], cov_t[:, 1, 1]
+    ux, uy = u[:, 0], u[:, 1]  # v = (uy, -ux)
+    p_uu = ux * ux * p_xx + 2.0 * ux * uy * p_xy + uy * uy * p_yy
+    p_vv = uy * uy * p_xx - 2.0 * ux * uy * p_xy + ux * ux * p_yy
+    var_rho_t = drho_dg**2 * p_uu + np.where(known, drho_dh**2 * var_h_u[pair_t], 0.0)
+    var_theta_t = p_vv / g_safe**2
+    rho_rate = drho_dg * (ux * vel_t[:, 0] + uy * vel_t[:, 1])
+    theta_rate = (uy * vel_t[:, 0] - ux * vel_t[:, 1]) / g_safe
 
-        k_s = min(k, n_s)
-        # Candidates: nearest tracks in the slant-range plane rho (sin theta, cos theta).
-        tree = cKDTree(np.stack([rho_mid * np.sin(theta_t), rho_mid * np.cos(theta_t)], axis=1))
-        q = np.stack([rho_p[plots] * np.sin(theta_p[plots]), rho_p[plots] * np.cos(theta_p[plots])], axis=1)
-        _, cand = tree.query(q, k=k_s)
-        cand = np.asarray(cand, dtype=np.intp).reshape(plots.size, k_s)
-
-        dt = dt_p[plots][:, None]
-        d_rho = np.maximum(np.abs(rho_p[plots][:, None] - (rho_mid[cand] + rho_rate[cand] * dt)) - half_m[cand], 0.0)
-        d_theta = np.mod(theta_p[plots][:, None] - theta_t[cand] - theta_rate[cand] * dt + np.pi, 2.0 * np.pi) - np.pi
-        s_rho = float(sites.sigma_range_m[r]) ** 2 + var_rho_t[cand]
-        s_theta = float(sites.sigma_azimuth_rad[r]) ** 2 + var_theta_t[cand]
-        with np.errstate(divide="ignore", invalid="ignore"):  # 0/0 (no noise, exact) is a distance 0
-            d2 = np.where(d_rho == 0.0, 0.0, d_rho**2 / s_rho) + np.where(d_theta == 0.0, 0.0, d_theta**2 / s_theta)
-        inside = np.isfinite(d2) & (d2 <= gate_sigmas**2)
-        # Choice among the gated: the Gaussian negative log-likelihood (a track without
-        # altitude spreads its slant range uniformly over its interval: variance hw^2/3).
-        s_rho_eff = s_rho + half_m[cand] ** 2 / 3.0
-        d_mid = rho_p[plots][:, None] - (rho_mid[cand] + rho_rate[cand] * dt)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            nll = d_mid**2 / s_rho_eff + np.log(s_rho_eff) + d_theta**2 / s_theta + np.log(s_theta)
-        nll = np.where(inside, np.where(np.isnan(nll), -np.inf, nll), np.inf)
-        best = np.argmin(nll, axis=1)
-        rows = np.arange(plots.size)
-        ok = inside[rows, best]
-        track_index[plots[ok]] = usable[sel[cand[rows[ok], best[ok]]]]
+    dt = dt_p[plots][pair_p]
+    rho_q, theta_q = rp[pair_p], tp[pair_p]
+    d_mid = rho_q - (rho_mid + rho_rate * dt)
+    d_rho = np.maximum(np.abs(d_mid) - half_m, 0.0)
+    d_theta = np.mod(theta_q - theta_t - theta_rate * dt + np.pi, 2.0 * np.pi) - np.pi
+    s_rho = sites.sigma_range_m[r_q] ** 2 + var_rho_t
+    s_theta = sites.sigma_azimuth_rad[r_q] ** 2 + var_theta_t
+    with np.errstate(divide="ignore", invalid="ignore"):  # 0/0 (no noise, exact) is a distance 0
+        d2 = np.where(d_rho == 0.0, 0.0, d_rho**2 / s_rho) + np.where(d_theta == 0.0, 0.0, d_theta**2 / s_theta)
+    inside = np.isfinite(d2) & (d2 <= gate_sigmas**2)
+    # Only the n_candidates nearest in the radar's slant-range plane rho (sin theta, cos theta)
+    # compete: |p_i - p_j|^2 = drho^2 + 4 rho_i rho_j sin^2(dtheta / 2).
+    polar_d2 = (rho_q - rho_mid) ** 2 + 4.0 * rho_q * rho_mid * np.sin(0.5 * (theta_q - theta_t)) ** 2
+    order = np.lexsort((polar_d2, pair_p))
+    first = np.searchsorted(pair_p[order], pair_p[order], side="left")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size) - first
+    inside &= rank < int(n_candidates)
+    # Choice among the gated: the Gaussian negative log-likelihood (a track without
+    # altitude spreads its slant range uniformly over its interval: variance hw^2/3).
+    s_rho_eff = s_rho + half_m**2 / 3.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nll = d_mid**2 / s_rho_eff + np.log(s_rho_eff) + d_theta**2 / s_theta + np.log(s_theta)
+    nll = np.where(inside, np.where(np.isnan(nll), -np.inf, nll), np.inf)
+    # best per plot: sort the pairs by (plot, nll), take each plot's first
+    order = np.lexsort((nll, pair_p))
+    is_first = np.ones(order.size, bool)
+    is_first[1:] = pair_p[order][1:] != pair_p[order][:-1]
+    best = order[is_first]
+    ok = inside[best]
+    track_index[plots[pair_p[best[ok]]]] = usable[pair_t[best[ok]]]
 
     matched = track_index >= 0
     altitude_m = np.full(m, np.nan)
