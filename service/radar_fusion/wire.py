@@ -7,7 +7,8 @@ them (``radar-fusion schemas``) and a test fails when the two drift apart.
 Decoding never raises on bad input: it returns a :class:`Rejection` with a reason from
 :data:`REJECTION_REASONS`, which the daemon counts and shows on the health key.  A plot
 batch is validated per plot: one bad plot is rejected (and counted) without spoiling the
-good plots of its batch.
+good plots of its batch. The daemon validates a batch's plots as columns (wire_columns.py:
+these models' rules on numpy arrays, the same verdicts and reasons, a test proves it).
 """
 
 from __future__ import annotations
@@ -248,8 +249,9 @@ _UNPACK_LIMITS = dict(
 _PLOT_LIST = TypeAdapter(list[Plot])
 
 
-def _plot_reason(err: ValidationError) -> str:
-    """Map a pydantic error on one plot to a rejection reason."""
+def plot_rejection_reason(err: ValidationError) -> str:
+    """Map the model's errors on one plot to a rejection reason: a NaN or an infinity in
+    any field first, then a value outside its range or pattern, else ``plot_schema``."""
     for e in err.errors():
         if e["type"] == "finite_number":
             return "plot_non_finite"
@@ -283,8 +285,8 @@ def _envelope_check(obj: Any) -> Rejection | None:
     return None
 
 
-def decode_plot_batch(payload: bytes, max_bytes: int = 4 << 20) -> DecodedPlots | Rejection:
-    """Decode and validate a PlotBatch; bad plots are dropped and counted in ``rejected``."""
+def _plot_batch_envelope(payload: bytes, max_bytes: int) -> tuple[str, int, list[Any]] | Rejection:
+    """The checks of a PlotBatch message as a whole: (radar_id, seq, the plot list) or why not."""
     obj = unpack(payload, max_bytes)
     if isinstance(obj, Rejection):
         return obj
@@ -300,17 +302,52 @@ def decode_plot_batch(payload: bytes, max_bytes: int = 4 << 20) -> DecodedPlots 
         return Rejection("schema", "plots is not a list")
     if len(plots) > MAX_PLOTS_PER_BATCH:
         return Rejection("schema", f"more than {MAX_PLOTS_PER_BATCH} plots in one batch")
+    return radar_id, seq, plots
+
+
+def decode_plot_batch(payload: bytes, max_bytes: int = 4 << 20) -> DecodedPlots | Rejection:
+    """Decode and validate a PlotBatch; bad plots are dropped and counted in ``rejected``.
+
+    The plots are validated as columns (wire_columns.py: the model's rules for the whole
+    batch at once, with the model's reasons); :func:`decode_plot_batch_by_model` is the
+    same through the model, one plot at a time, and gives the same result."""
+    from .wire_columns import validate_plot_columns
+
+    env = _plot_batch_envelope(payload, max_bytes)
+    if isinstance(env, Rejection):
+        return env
+    radar_id, seq, plots = env
+    c = validate_plot_columns(plots)
+    return DecodedPlots(
+        radar_id, seq, c.t_s, c.range_m, c.azimuth_deg, c.fl, c.mode3a, c.mode_s, c.track_no, c.kind, c.rejected
+    )
+
+
+def validate_plots_by_model(plots: list[Any]) -> tuple[list[Plot], dict[str, int]]:
+    """The plots the model accepts, in order, and the rest counted by reason."""
     rejected: dict[str, int] = {}
     try:
-        good = _PLOT_LIST.validate_python(plots)
+        return _PLOT_LIST.validate_python(plots), rejected
     except ValidationError:
-        good = []
-        for p in plots:  # slow path, only for a batch that holds a bad plot
-            try:
-                good.append(Plot.model_validate(p))
-            except ValidationError as exc:
-                reason = _plot_reason(exc)
-                rejected[reason] = rejected.get(reason, 0) + 1
+        pass
+    good = []
+    for p in plots:
+        try:
+            good.append(Plot.model_validate(p))
+        except ValidationError as exc:
+            reason = plot_rejection_reason(exc)
+            rejected[reason] = rejected.get(reason, 0) + 1
+    return good, rejected
+
+
+def decode_plot_batch_by_model(payload: bytes, max_bytes: int = 4 << 20) -> DecodedPlots | Rejection:
+    """:func:`decode_plot_batch` with every plot validated by the model (wire.Plot): the
+    contract's own reading, the reference for the columnar one (about 3.5 µs a plot)."""
+    env = _plot_batch_envelope(payload, max_bytes)
+    if isinstance(env, Rejection):
+        return env
+    radar_id, seq, plots = env
+    good, rejected = validate_plots_by_model(plots)
     n = len(good)
     return DecodedPlots(
         radar_id=radar_id,

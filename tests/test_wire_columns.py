@@ -1,0 +1,307 @@
+"""Columnar plot validation (wire_columns.py, issue 16 item 1) against the model (wire.Plot).
+
+The property: for any PlotBatch payload, ``decode_plot_batch`` (the columns) and
+``decode_plot_batch_by_model`` (wire.Plot, one plot at a time) give the same rejection,
+or the same accepted plots (every column, bit for bit) and the same rejections by
+reason. The generated plots are mostly near the contract's edges (boundary values, NaN,
+±inf, out of range, bad Mode S strings and kinds) with every other type mixed in (bools,
+huge integers, floats for integers, strings, bytes, nested lists and maps, missing and
+extra fields, non-map plots, unicode); then realistic batches of the simulator, clean and
+corrupted. FUZZ_EXAMPLES=5000 runs a longer search.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+from collections import Counter
+
+import msgpack
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from radar_fusion import wire
+from radar_fusion.tools import simulate as sim
+from radar_fusion.wire_columns import validate_plot_columns
+
+EXAMPLES = settings(
+    max_examples=int(os.environ.get("FUZZ_EXAMPLES", "400")),
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+    derandomize=True,
+)
+COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind")
+SEEN: Counter = Counter()  # what the generated plots exercised; printed at the end (-s)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def report_seen():
+    yield
+    print("\ncolumnar validation, plots tried:", dict(sorted(SEEN.items())))
+
+
+def same_result(payload: bytes) -> wire.DecodedPlots | wire.Rejection:
+    """Decode both ways; assert they agree; return the columnar result."""
+    fast = wire.decode_plot_batch(payload)
+    ref = wire.decode_plot_batch_by_model(payload)
+    if isinstance(ref, wire.Rejection):
+        assert fast == ref
+        return fast
+    assert isinstance(fast, wire.DecodedPlots)
+    assert (fast.radar_id, fast.seq) == (ref.radar_id, ref.seq)
+    assert fast.rejected == ref.rejected
+    for name in COLUMNS:
+        a, b = getattr(fast, name), getattr(ref, name)
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        assert a.tobytes() == b.tobytes(), (name, a, b)  # bit for bit: -0.0, NaN for absent
+    return fast
+
+
+def pack(obj) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+def batch(plots, **kw) -> bytes:
+    return pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": plots, **kw})
+
+
+# ---------------------------------------------------------------- generated values
+TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=8)
+HEXISH = st.text("0123456789abcdefABCDEFgxX \n٤４", min_size=4, max_size=8)
+BIG_INTS = st.sampled_from([-(2**63), -1, 2**31, 2**32 - 1, 2**32, 2**53 + 1, 2**63 - 1, 2**63, 2**64 - 1])
+EXOTIC = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**63), 2**64 - 1),
+    BIG_INTS,
+    st.floats(allow_nan=True, allow_infinity=True),
+    TEXT,
+    st.binary(max_size=6),
+    st.lists(st.integers(0, 9), max_size=3),
+    st.dictionaries(st.text(max_size=3), st.integers(0, 9), max_size=2),
+)
+
+
+def edges(*values: float) -> st.SearchStrategy:
+    """Each bound, and the nearest floats either side of it."""
+    around = [x for v in values for x in (v, math.nextafter(v, -math.inf), math.nextafter(v, math.inf))]
+    return st.sampled_from(around + [-0.0, math.nan, math.inf, -math.inf])
+
+
+def valid_number(lo: float, hi: float, exclude_min: bool = False, exclude_max: bool = False) -> st.SearchStrategy:
+    ints = st.integers(int(math.floor(lo)) + (1 if exclude_min else 0), int(math.ceil(hi)) - (1 if exclude_max else 0))
+    return st.one_of(st.floats(lo, hi, exclude_min=exclude_min, exclude_max=exclude_max), ints)
+
+
+HEX6 = st.text("0123456789abcdefABCDEF", min_size=6, max_size=6)
+# values the contract accepts, edges included
+VALID = {
+    "t": valid_number(0.0, 1e10, exclude_min=True, exclude_max=True),
+    "range_m": st.one_of(valid_number(0.0, 2e6), st.just(-0.0)),
+    "azimuth_deg": valid_number(0.0, 360.0, exclude_max=True),
+    "fl": valid_number(-20.0, 1300.0),
+    "mode3a": st.integers(0, 0o7777),
+    "mode_s": HEX6,
+    "track_no": st.integers(0, 2**32 - 1),
+    "kind": st.sampled_from(wire.PLOT_KINDS),
+}
+# values near the edges and of every other type
+HOSTILE = {
+    "t": st.one_of(edges(0.0, 1e10), EXOTIC),
+    "range_m": st.one_of(edges(0.0, 2e6), st.integers(-10, 2_000_010), EXOTIC),
+    "azimuth_deg": st.one_of(edges(0.0, 360.0), st.floats(-720, 720), EXOTIC),
+    "fl": st.one_of(edges(-20.0, 1300.0), st.integers(-100, 2000), EXOTIC),
+    "mode3a": st.one_of(st.integers(-5, 0o7777 + 5), BIG_INTS, st.floats(0, 4095), EXOTIC),
+    "mode_s": st.one_of(HEXISH, EXOTIC),
+    "track_no": st.one_of(BIG_INTS, EXOTIC),
+    "kind": st.one_of(st.sampled_from(["PSR", "ssr ", "", "mode_s", "psr\x00"]), EXOTIC),
+}
+REQUIRED = ("t", "range_m", "azimuth_deg")
+
+
+@st.composite
+def plots(draw) -> object:
+    """A valid plot (optional fields absent or present), then none to three faults: a
+    hostile value, a removed field, an unknown or bytes key; or not a map at all."""
+    if draw(st.integers(0, 19)) == 0:
+        return draw(EXOTIC)
+    p: dict = {}
+    for name, values in VALID.items():
+        if name in REQUIRED or draw(st.booleans()):
+            p[name] = draw(values)
+    for _ in range(draw(st.sampled_from([0, 0, 0, 1, 1, 2, 3]))):
+        name = draw(st.sampled_from(sorted(VALID)))
+        fault = draw(st.integers(0, 9))
+        if fault == 0:
+            p.pop(name, None)
+        elif fault == 1:
+            p[draw(st.one_of(TEXT, st.just(b"t")))] = draw(EXOTIC)  # unknown fields are ignored
+        else:
+            p[name] = draw(HOSTILE[name])
+    return p
+
+
+@EXAMPLES
+@given(st.lists(plots(), max_size=25))
+def test_columns_and_model_agree_on_any_plots(plot_list):
+    d = same_result(batch(plot_list))
+    assert isinstance(d, wire.DecodedPlots)
+    assert len(d) + sum(d.rejected.values()) == len(plot_list)  # every plot accepted or counted
+    SEEN["plots"] += len(plot_list)
+    SEEN["accepted"] += len(d)
+    for reason, n in d.rejected.items():
+        SEEN[reason] += n
+
+
+@EXAMPLES
+@given(st.lists(st.fixed_dictionaries({k: st.one_of(VALID[k], HOSTILE[k]) for k in REQUIRED}), max_size=40))
+def test_columns_and_model_agree_on_well_typed_numbers(plot_list):
+    """Required numbers only, every combination of the edges: the columns' own verdicts."""
+    same_result(batch(plot_list))
+
+
+@EXAMPLES
+@given(
+    st.fixed_dictionaries(
+        {},
+        optional={
+            "v": st.one_of(st.just(1), EXOTIC),
+            "radar_id": st.one_of(st.sampled_from(["r1", "r 1", "", "x" * 33]), EXOTIC),
+            "seq": st.one_of(st.integers(0, 9), BIG_INTS, EXOTIC),
+            "plots": st.one_of(st.lists(plots(), max_size=5), EXOTIC),
+            "extra": EXOTIC,
+        },
+    )
+)
+def test_columns_and_model_agree_on_whole_messages(message):
+    same_result(pack(message))
+
+
+# ------------------------------------------------------------------------ examples
+def full_plot(**kw):
+    p = {
+        "t": 1.7e9,
+        "range_m": 120_000.0,
+        "azimuth_deg": 45.0,
+        "fl": 350.0,
+        "mode3a": 0o1234,
+        "mode_s": "4ca1F3",
+        "track_no": 17,
+        "kind": "cmb",
+    }
+    p.update(kw)
+    return p
+
+
+@pytest.mark.parametrize(
+    "bad, reason",
+    [
+        ({"t": math.nan}, "plot_non_finite"),
+        ({"fl": math.inf}, "plot_non_finite"),
+        ({"fl": math.nan, "range_m": -1.0}, "plot_non_finite"),  # non-finite before out of range
+        ({"t": 0.0}, "plot_out_of_range"),
+        ({"t": 1e10}, "plot_out_of_range"),
+        ({"azimuth_deg": 360.0}, "plot_out_of_range"),
+        ({"range_m": 2_000_001}, "plot_out_of_range"),
+        ({"fl": -20.5}, "plot_out_of_range"),
+        ({"mode3a": 0o10000}, "plot_out_of_range"),
+        ({"track_no": 2**64 - 1}, "plot_out_of_range"),
+        ({"mode_s": "4CA1F"}, "plot_out_of_range"),
+        ({"mode_s": "4CA1F3\n"}, "plot_out_of_range"),  # the model's regex: $ is the end of the text
+        ({"mode_s": "4CA1F٣"}, "plot_out_of_range"),  # a non-ASCII digit
+        ({"kind": "PSR"}, "plot_schema"),
+        ({"kind": "laser", "mode_s": "nothex"}, "plot_out_of_range"),  # out of range before schema
+    ],
+)
+def test_faults_of_well_typed_plots_are_judged_by_the_columns(bad, reason):
+    plot_list = [full_plot(), full_plot(**bad), full_plot(azimuth_deg=0.0, fl=None, mode_s=None, kind=None)]
+    c = validate_plot_columns(msgpack.unpackb(pack(plot_list), raw=False))
+    assert c.by_model == 0 and c.rejected == {reason: 1}
+    assert c.azimuth_deg.tolist() == [45.0, 0.0]
+    same_result(batch(plot_list))
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"t": True},
+        {"t": None},
+        {"range_m": "120000"},
+        {"mode3a": 12.0},
+        {"mode_s": b"4CA1F3"},
+        {"kind": ["psr"]},
+        {"fl": {"value": 350.0}},
+    ],
+)
+def test_other_types_go_to_the_model_and_get_its_reason(bad):
+    plot_list = [full_plot(), full_plot(**bad), "not a plot", full_plot(t=math.nan, range_m="x")]
+    c = validate_plot_columns(msgpack.unpackb(pack(plot_list), raw=False))
+    assert c.by_model == 3 and len(c.t_s) == 1
+    assert c.rejected == {"plot_schema": 2, "plot_non_finite": 1}
+    same_result(batch(plot_list))
+
+
+def test_accepted_values_are_those_of_the_model():
+    plot_list = [
+        full_plot(t=1_700_000_000, range_m=0, azimuth_deg=359.99999999999994, fl=-20, mode3a=0, track_no=2**32 - 1),
+        full_plot(range_m=-0.0, fl=None, mode3a=None, mode_s="00000a", track_no=None, kind="modes"),
+        {"t": 1.5, "range_m": 2_000_000.0, "azimuth_deg": 0, "unknown": [1, {"x": None}]},
+    ]
+    d = same_result(batch(plot_list))
+    assert isinstance(d, wire.DecodedPlots) and d.rejected == {} and len(d) == 3
+    assert d.t_s.tolist() == [1.7e9, 1.7e9, 1.5] and math.copysign(1.0, d.range_m[1]) == -1.0
+    assert d.mode_s.tolist() == [0x4CA1F3, 0xA, -1] and d.mode3a.tolist() == [0, -1, -1]
+    assert d.track_no.tolist() == [2**32 - 1, -1, -1] and d.kind.tolist() == [3, 4, 0]
+
+
+def test_an_empty_and_a_full_batch():
+    assert len(same_result(batch([]))) == 0
+    d = same_result(batch([full_plot(azimuth_deg=i % 360) for i in range(wire.MAX_PLOTS_PER_BATCH)]))
+    assert len(d) == wire.MAX_PLOTS_PER_BATCH
+
+
+@pytest.fixture(
+    scope="module",
+    params=["demo", "benchmark"],
+)
+def simulated(request):
+    if request.param == "demo":
+        return sim.simulate(sim.preset("demo", seed=11, duration_s=120.0))
+    return sim.simulate(sim.scenario_for_benchmark(300, 4, 40.0, 2), encode=True)
+
+
+def test_realistic_batches_decode_the_same_both_ways(simulated):
+    """Every PlotBatch of the demo scenario (small batches) and of a benchmark scenario
+    (hundreds of plots a batch) as the simulator encodes them (absent optional fields,
+    PSR/SSR/Mode S plots, wild and false plots), then each with a fifth of its plots
+    corrupted the ways a front-end might."""
+    rng = random.Random(3)
+    corruptions = [
+        ("range_m", math.nan),
+        ("azimuth_deg", 360.0),
+        ("fl", 4000.0),
+        ("mode_s", "ZZZZZZ"),
+        ("kind", "radar"),
+        ("t", "1.7e9"),
+        ("mode3a", -1),
+        ("track_no", 1.0),
+    ]
+    n_batches = n_plots = 0
+    for _, key, payload in simulated.messages:
+        if not key.endswith("/plots"):
+            continue
+        d = same_result(payload)
+        assert isinstance(d, wire.DecodedPlots) and d.rejected == {}
+        obj = msgpack.unpackb(payload, raw=False)
+        for p in obj["plots"]:
+            if rng.random() < 0.2:
+                name, value = rng.choice(corruptions)
+                p[name] = value
+        bad = same_result(pack(obj))
+        assert isinstance(bad, wire.DecodedPlots)
+        assert len(bad) + sum(bad.rejected.values()) == len(obj["plots"])
+        n_batches += 1
+        n_plots += len(d)
+    assert n_batches > 30 and n_plots > 1000
