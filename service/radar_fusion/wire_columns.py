@@ -28,7 +28,7 @@ import math
 import operator
 import re
 from dataclasses import dataclass
-from itertools import compress, repeat
+from itertools import repeat
 from typing import Any, Literal, get_args
 
 import annotated_types
@@ -46,63 +46,58 @@ _MODE_S_DIGITS = 6
 _IMPLEMENTED_MODE_S_PATTERN = r"^[0-9A-Fa-f]{6}$"
 
 
-@dataclass(frozen=True)
-class _Bounds:
-    """A numeric field's constraints as the model declares them (None: no such bound)."""
-
-    gt: float | None = None
-    ge: float | None = None
-    lt: float | None = None
-    le: float | None = None
-
-    def within(self, a: np.ndarray) -> np.ndarray:
-        ok = np.ones(a.shape, bool)
-        if self.gt is not None:
-            ok &= a > self.gt
-        if self.ge is not None:
-            ok &= a >= self.ge
-        if self.lt is not None:
-            ok &= a < self.lt
-        if self.le is not None:
-            ok &= a <= self.le
-        return ok
-
-
-def _bounds(name: str) -> _Bounds:
-    kw: dict[str, float] = {}
+def _closed_interval(name: str) -> tuple[float, float]:
+    """The field's gt/ge/lt/le as one closed float64 interval [lo, hi]: for floats, a > x
+    is a >= nextafter(x, +inf) (no float lies between), a < x is a <= nextafter(x, -inf)."""
+    lo, hi = -math.inf, math.inf
     for m in Plot.model_fields[name].metadata:
-        for kind in ("gt", "ge", "lt", "le"):
-            if isinstance(m, getattr(annotated_types, kind.capitalize())):
-                kw[kind] = float(getattr(m, kind))
-    return _Bounds(**kw)
+        if isinstance(m, annotated_types.Gt):
+            lo = max(lo, math.nextafter(float(m.gt), math.inf))  # type: ignore[arg-type]
+        elif isinstance(m, annotated_types.Ge):
+            lo = max(lo, float(m.ge))  # type: ignore[arg-type]
+        elif isinstance(m, annotated_types.Lt):
+            hi = min(hi, math.nextafter(float(m.lt), -math.inf))  # type: ignore[arg-type]
+        elif isinstance(m, annotated_types.Le):
+            hi = min(hi, float(m.le))  # type: ignore[arg-type]
+    return lo, hi
 
 
-# field → (its kind here, required); the model's own annotation is checked against it below
+# the numeric fields, judged together as the rows of one (6, n) float64 array
 _FLOAT_FIELDS = ("t", "range_m", "azimuth_deg", "fl")
 _INT_FIELDS = ("mode3a", "track_no")
+_NUMERIC = _FLOAT_FIELDS + _INT_FIELDS
 _REQUIRED = {name: f.is_required() for name, f in Plot.model_fields.items()}
-_BOUNDS = {name: _bounds(name) for name in _FLOAT_FIELDS + _INT_FIELDS}
+_ALLOWED = {
+    name: (_INT_TYPES if name in _INT_FIELDS else _NUMBER_TYPES) | (frozenset() if _REQUIRED[name] else {_NONE_TYPE})
+    for name in _NUMERIC
+}
+_ALLOWED_TEXT = _STR_TYPES | {_NONE_TYPE}
+_LO, _HI = (np.array(b)[:, None] for b in zip(*(_closed_interval(name) for name in _NUMERIC)))
 
 
 def _check_model_is_covered() -> None:
     """Fail at import when wire.Plot has a field or a rule this module does not implement."""
     fields = Plot.model_fields
-    covered = set(_FLOAT_FIELDS + _INT_FIELDS + ("mode_s", "kind"))
+    covered = set(_NUMERIC + ("mode_s", "kind"))
     if set(fields) != covered:
         raise RuntimeError(f"wire_columns does not implement wire.Plot fields {sorted(set(fields) ^ covered)}")
     cfg = Plot.model_config
     if not (cfg.get("strict") and cfg.get("allow_inf_nan") is False and cfg.get("extra") == "ignore"):
         raise RuntimeError("wire_columns implements a strict, finite-only Plot that ignores extra fields")
     known = (annotated_types.Gt, annotated_types.Ge, annotated_types.Lt, annotated_types.Le)
-    for name in _FLOAT_FIELDS + _INT_FIELDS:
+    for name in _NUMERIC:
         f = fields[name]
         want = float if name in _FLOAT_FIELDS else int
         if f.annotation not in (want, want | None) or (f.annotation is want) != f.is_required():
             raise RuntimeError(f"wire.Plot.{name}: {f.annotation} is not implemented here")
         if not f.is_required() and f.default is not None:
             raise RuntimeError(f"wire.Plot.{name}: an optional field must default to None")
-        if any(not isinstance(m, known) for m in f.metadata):
-            raise RuntimeError(f"wire.Plot.{name}: a constraint other than gt/ge/lt/le: {f.metadata}")
+        for m in f.metadata:
+            bound = getattr(m, type(m).__name__.lower(), None)
+            if not isinstance(m, known) or not isinstance(bound, (int, float)) or float(bound) != bound:
+                raise RuntimeError(f"wire.Plot.{name}: not a gt/ge/lt/le exact in float64: {m}")
+            if name in _INT_FIELDS and abs(bound) >= 2**53:
+                raise RuntimeError(f"wire.Plot.{name}: integer bound {bound} not exact as a float")
     if MODE_S_PATTERN != _IMPLEMENTED_MODE_S_PATTERN or fields["mode_s"].annotation != str | None:
         raise RuntimeError("wire.Plot.mode_s: a pattern or type other than the one implemented here")
     kind_args = tuple(a for a in get_args(fields["kind"].annotation) if a is not _NONE_TYPE)
@@ -132,110 +127,99 @@ class PlotColumns:
     by_model: int = 0
 
 
-class _Verdicts:
-    """Per plot of the batch: what the columns found, for the reason's precedence."""
-
-    def __init__(self, n: int):
-        self.non_finite = np.zeros(n, bool)
-        self.out_of_range = np.zeros(n, bool)
-        self.schema = np.zeros(n, bool)
-        self.to_model = np.zeros(n, bool)  # a type the columns leave to the model
-
-
-def _column(maps: list[dict[Any, Any]], name: str, allowed: frozenset[type], v: _Verdicts) -> list[Any]:
-    """The field's values (None when absent); a value of a type not in ``allowed`` sends its
-    plot to the model and is replaced by None here."""
-    col = list(map(dict.get, maps, repeat(name)))
-    if not set(map(type, col)) <= allowed:
-        odd = [type(x) not in allowed for x in col]
-        v.to_model |= np.array(odd, bool)
-        col = [None if o else x for x, o in zip(col, odd)]
-    return col
-
-
 def _absent(col: list[Any]) -> np.ndarray:
     return np.fromiter(map(operator.is_, col, repeat(None)), bool, len(col))
 
 
-def _numbers(maps: list[dict[Any, Any]], name: str, integer: bool, v: _Verdicts) -> np.ndarray:
-    """A float or integer field as float64, NaN where absent. Integers are compared as
-    floats: exactly for every value that can pass (the bounds are far below 2**53), and a
-    larger one still compares beyond them."""
-    allowed = (_INT_TYPES if integer else _NUMBER_TYPES) | (frozenset() if _REQUIRED[name] else {_NONE_TYPE})
-    col = _column(maps, name, allowed, v)
-    a = np.array(col, float)  # None → NaN; ints → float (2**64 − 1 too)
+class _Batch:
+    """One batch's fields as columns; ``to_model``: plots with a type the columns refuse
+    (their values are None here), None while there is none."""
+
+    def __init__(self, plots: list[Any]):
+        self.n = len(plots)
+        # a plot that is not a map reads as one without fields: its required fields go to the model
+        self.maps = plots if set(map(type, plots)) <= {dict} else [p if type(p) is dict else {} for p in plots]
+        self.to_model: np.ndarray | None = None
+
+    def column(self, name: str, allowed: frozenset[type]) -> list[Any]:
+        col = list(map(dict.get, self.maps, repeat(name)))
+        if not set(map(type, col)) <= allowed:
+            odd = [type(x) not in allowed for x in col]
+            self.to_model = np.array(odd, bool) | (False if self.to_model is None else self.to_model)
+            col = [None if o else x for x, o in zip(col, odd)]
+        return col
+
+
+def _numbers(b: _Batch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The six numeric fields as rows of one float64 array (NaN: absent; integers compared
+    as floats, exactly for every value that can pass, the bounds being far below 2**53),
+    and per plot: a NaN or infinity was sent; a value is out of its range."""
+    cols = [b.column(name, _ALLOWED[name]) for name in _NUMERIC]
+    a = np.array(cols, float).reshape(len(_NUMERIC), b.n)  # None → NaN; ints → float, 2**64 − 1 too
     isnan = np.isnan(a)
-    # an int is never NaN; else every NaN is an absent value unless more NaN than None
-    nan_sent = not integer and isnan.any() and col.count(None) != int(np.count_nonzero(isnan))
-    absent = _absent(col) if nan_sent else isnan
-    non_finite = ~np.isfinite(a) & ~absent
-    v.non_finite |= non_finite
-    v.out_of_range |= ~(absent | non_finite | _BOUNDS[name].within(a))
-    return a
+    non_finite = np.asarray(np.isinf(a).any(axis=0))
+    if isnan.any():
+        # every NaN is an absent value, unless a float field has more NaN than None
+        n_nan = np.count_nonzero(isnan[: len(_FLOAT_FIELDS)], axis=1).tolist()
+        for k, count in enumerate(n_nan):
+            if count and cols[k].count(None) != count:
+                non_finite |= isnan[k] & ~_absent(cols[k])
+    out_of_range = np.asarray(((a < _LO) | (a > _HI)).any(axis=0))  # NaN compares False: absent is in range
+    return a, non_finite, out_of_range
 
 
-def _mode_s(maps: list[dict[Any, Any]], v: _Verdicts) -> np.ndarray:
-    """The Mode S address as an int64 (−1 absent); a string that is not 6 hex digits is out
-    of range (the model's ``string_pattern_mismatch``)."""
-    col = _column(maps, "mode_s", _STR_TYPES | {_NONE_TYPE}, v)
-    n = len(col)
-    out = np.full(n, -1, np.int64)
-    n_absent = col.count(None)
-    if n_absent == n:
-        return out
-    rows = np.arange(n) if n_absent == 0 else np.flatnonzero(~_absent(col))
-    strs: list[str] = col if n_absent == 0 else [col[i] for i in rows.tolist()]
-    joined = "".join(strs)
-    if set(map(len, strs)) == {_MODE_S_DIGITS} and _HEX_RUN.fullmatch(joined):
-        ok = np.ones(len(strs), bool)
-    else:  # some string is not 6 ASCII hex digits: judge each
-        ok = np.array([len(s) == _MODE_S_DIGITS and _HEX_RUN.fullmatch(s) is not None for s in strs], bool)
-        joined = "".join(compress(strs, ok.tolist()))
-    v.out_of_range[rows[~ok]] = True
-    b = np.frombuffer(bytes.fromhex(joined), np.uint8).reshape(-1, 3).astype(np.int64)
-    out[rows[ok]] = (b[:, 0] << 16) | (b[:, 1] << 8) | b[:, 2]
-    return out
+# Mode S address strings seen, valid ones only, and None (absent): their value (−1 absent).
+# Bounded: cleared when it grows beyond _MODE_S_CACHE_MAX (a sender cycling addresses).
+_MODE_S_CACHE: dict[str | None, int] = {None: -1}
+_MODE_S_CACHE_MAX = 200_000
 
 
-def _kind(maps: list[dict[Any, Any]], v: _Verdicts) -> np.ndarray:
-    """The report type's code (wire.KIND_CODES, 0 absent); another string is a schema fault
-    (the model's ``literal_error``)."""
-    col = _column(maps, "kind", _STR_TYPES | {_NONE_TYPE}, v)
-    codes = np.fromiter(map(KIND_CODES.get, col, repeat(-1)), np.int8, len(col))
-    v.schema |= codes < 0
-    return np.maximum(codes, 0)
+def _mode_s(b: _Batch, out_of_range: np.ndarray) -> np.ndarray:
+    """The Mode S address as an int64 (−1 absent); a string that is not 6 ASCII hex digits
+    is out of range (the model's ``string_pattern_mismatch``)."""
+    col = b.column("mode_s", _ALLOWED_TEXT)
+    cache = _MODE_S_CACHE
+    values = list(map(cache.get, col))
+    if None in values:  # a string not seen before (or not an address)
+        if len(cache) > _MODE_S_CACHE_MAX:
+            cache.clear()
+            cache[None] = -1
+        for i in [i for i, v in enumerate(values) if v is None]:
+            s = col[i]
+            if len(s) == _MODE_S_DIGITS and _HEX_RUN.fullmatch(s):
+                values[i] = cache[s] = int(s, 16)
+            else:
+                values[i] = -1
+                out_of_range[i] = True
+    return np.array(values, np.int64)
 
 
 def validate_plot_columns(plots: list[Any]) -> PlotColumns:
     """Validate a decoded batch's plot list (at most wire.MAX_PLOTS_PER_BATCH items)."""
-    n = len(plots)
-    # a plot that is not a map reads as a map without fields: its required fields go to the model
-    maps = plots if set(map(type, plots)) <= {dict} else [p if type(p) is dict else {} for p in plots]
-    v = _Verdicts(n)
-    t_s = _numbers(maps, "t", False, v)
-    range_m = _numbers(maps, "range_m", False, v)
-    azimuth_deg = _numbers(maps, "azimuth_deg", False, v)
-    fl = _numbers(maps, "fl", False, v)
-    mode3a = _numbers(maps, "mode3a", True, v)
-    track_no = _numbers(maps, "track_no", True, v)
-    mode_s = _mode_s(maps, v)
-    kind = _kind(maps, v)
-
-    judged = ~v.to_model
-    non_finite = v.non_finite & judged
-    out_of_range = v.out_of_range & judged & ~non_finite
-    schema = v.schema & judged & ~non_finite & ~out_of_range
-    good = judged & ~(non_finite | out_of_range | schema)
-    rejected = {
-        reason: k
-        for reason, flags in (
-            ("plot_non_finite", non_finite),
-            ("plot_out_of_range", out_of_range),
-            ("plot_schema", schema),
-        )
-        if (k := int(np.count_nonzero(flags)))
-    }
-    by_model = np.flatnonzero(v.to_model).tolist()
+    b = _Batch(plots)
+    a, non_finite, out_of_range = _numbers(b)
+    mode_s = _mode_s(b, out_of_range)
+    # the report type's code (wire.KIND_CODES, 0 absent); −1: another string, the model's literal_error
+    kind = np.fromiter(map(KIND_CODES.get, b.column("kind", _ALLOWED_TEXT), repeat(-1)), np.int8, b.n)
+    schema = kind < 0
+    fault = non_finite | out_of_range | schema
+    rejected: dict[str, int] = {}
+    if b.to_model is None and not fault.any():  # the usual batch: every plot is good
+        ints = np.where(np.isnan(a[4:]), -1, a[4:]).astype(np.int64)
+        return PlotColumns(a[0], a[1], a[2], a[3], ints[0], mode_s, ints[1], kind, rejected)
+    judged = ~b.to_model if b.to_model is not None else np.ones(b.n, bool)
+    non_finite &= judged
+    out_of_range &= judged & ~non_finite
+    schema &= judged & ~non_finite & ~out_of_range
+    for reason, flags in (
+        ("plot_non_finite", non_finite),
+        ("plot_out_of_range", out_of_range),
+        ("plot_schema", schema),
+    ):
+        if k := int(np.count_nonzero(flags)):
+            rejected[reason] = k
+    good = judged & ~fault
+    by_model = np.flatnonzero(~judged).tolist()
     for row in by_model:  # the model judges what the columns could not
         try:
             p = Plot.model_validate(plots[row])
@@ -244,17 +228,12 @@ def validate_plot_columns(plots: list[Any]) -> PlotColumns:
             rejected[reason] = rejected.get(reason, 0) + 1
             continue
         # never so far (a type the columns refuse, the strict model refuses too): its values
-        t_s[row], range_m[row], azimuth_deg[row] = p.t, p.range_m, p.azimuth_deg
-        fl[row] = math.nan if p.fl is None else p.fl
-        mode3a[row] = math.nan if p.mode3a is None else p.mode3a
-        track_no[row] = math.nan if p.track_no is None else p.track_no
+        a[:, row] = [p.t, p.range_m, p.azimuth_deg] + [
+            math.nan if x is None else x for x in (p.fl, p.mode3a, p.track_no)
+        ]
         mode_s[row] = -1 if p.mode_s is None else int(p.mode_s, 16)
         kind[row] = KIND_CODES[p.kind]
         good[row] = True
-    cols = [t_s, range_m, azimuth_deg, fl, mode3a, mode_s, track_no, kind]
-    if not good.all():
-        cols = [c[good] for c in cols]
-    for i in (4, 6):  # mode3a, track_no: every accepted value is an exact small integer
-        cols[i] = np.where(np.isnan(cols[i]), -1, cols[i]).astype(np.int64)
-    t_s, range_m, azimuth_deg, fl, mode3a, mode_s, track_no, kind = cols
-    return PlotColumns(t_s, range_m, azimuth_deg, fl, mode3a, mode_s, track_no, kind, rejected, len(by_model))
+    a, mode_s, kind = a[:, good], mode_s[good], kind[good]
+    ints = np.where(np.isnan(a[4:]), -1, a[4:]).astype(np.int64)  # accepted values: exact small integers
+    return PlotColumns(a[0], a[1], a[2], a[3], ints[0], mode_s, ints[1], kind, rejected, len(by_model))
