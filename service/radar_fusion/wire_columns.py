@@ -32,6 +32,7 @@ from itertools import repeat
 from typing import Any, Literal, get_args
 
 import annotated_types
+import msgpack
 import numpy as np
 from pydantic import ValidationError
 
@@ -237,3 +238,129 @@ def validate_plot_columns(plots: list[Any]) -> PlotColumns:
     a, mode_s, kind = a[:, good], mode_s[good], kind[good]
     ints = np.where(np.isnan(a[4:]), -1, a[4:]).astype(np.int64)  # accepted values: exact small integers
     return PlotColumns(a[0], a[1], a[2], a[3], ints[0], mode_s, ints[1], kind, rejected, len(by_model))
+
+
+# --------------------------------------------------------------------------- out
+class MapRows:
+    """msgpack maps, one per row, built a field at a time for every row at once: the bytes
+    ``msgpack.packb`` gives for the same values as Python objects (``use_bin_type=True``),
+    without one Python object per value.
+
+    Each field adds a (rows, width) uint8 block whose row holds that row's bytes left-aligned
+    and, for variable-length fields, each row's byte count; :meth:`tobytes` concatenates the
+    rows' bytes in order.
+    """
+
+    _INT_CLASSES = (  # (tag or None for a fixint, payload bytes) in msgpack-python's order
+        (None, 1),
+        (0xCC, 1),
+        (0xCD, 2),
+        (0xCE, 4),
+        (0xCF, 8),
+        (None, 1),
+        (0xD0, 1),
+        (0xD1, 2),
+        (0xD2, 4),
+        (0xD3, 8),
+    )
+
+    def __init__(self, n: int):
+        self.n = n
+        self._blocks: list[np.ndarray] = []
+        self._lengths: list[np.ndarray | None] = []  # None: every row uses the whole width
+
+    def raw(self, packed: bytes) -> MapRows:
+        """The same bytes in every row (a map header, a key, a constant value)."""
+        self._blocks.append(np.broadcast_to(np.frombuffer(packed, np.uint8), (self.n, len(packed))))
+        self._lengths.append(None)
+        return self
+
+    def key(self, name: str) -> MapRows:
+        return self.raw(msgpack.packb(name))
+
+    def float64(self, a: np.ndarray, nil: np.ndarray | None = None) -> MapRows:
+        """Python floats (float 64, 0xcb); rows where ``nil`` is set are None (0xc0)."""
+        block = np.empty((self.n, 9), np.uint8)
+        block[:, 0] = 0xCB
+        block[:, 1:] = np.ascontiguousarray(a, ">f8").view(np.uint8).reshape(self.n, 8)
+        if nil is None:
+            return self._add(block, None)
+        block[nil, 0] = 0xC0
+        return self._add(block, np.where(nil, 1, 9))
+
+    def integers(self, a: np.ndarray, nil: np.ndarray | None = None) -> MapRows:
+        """Python ints (int64 values) in msgpack's smallest form; rows where ``nil`` is set are None."""
+        v = np.asarray(a, np.int64)
+        source = np.empty((self.n, 9), np.uint8)  # [tag, big-endian 8 bytes]
+        source[:, 1:] = v.astype(">i8").view(np.uint8).reshape(self.n, 8)
+        neg = v < 0
+        # the class: positive fixint, uint8/16/32/64, negative fixint, int8/16/32/64
+        pos_class = np.searchsorted(np.array([0x80, 0x100, 0x10000, 0x100000000], np.int64), v, side="right")
+        # negative: 5 fixint (≥ −0x20) ... 9 int64 (below −2**31), by the bounds at or below v
+        neg_class = 9 - np.searchsorted(np.array([-(2**31), -0x8000, -0x80, -0x20], np.int64), v, side="right")
+        cls = np.where(neg, neg_class, pos_class)
+        tags = np.array([0 if t is None else t for t, _ in self._INT_CLASSES], np.uint8)
+        source[:, 0] = tags[cls]
+        pattern = np.zeros((len(self._INT_CLASSES), 9), np.intp)
+        lengths_of = np.empty(len(self._INT_CLASSES), np.int64)
+        for c, (tag, k) in enumerate(self._INT_CLASSES):
+            idx = ([] if tag is None else [0]) + list(range(9 - k, 9))
+            pattern[c, : len(idx)] = idx
+            lengths_of[c] = len(idx)
+        block = np.take_along_axis(source, pattern[cls], axis=1)
+        lengths = lengths_of[cls]
+        if nil is not None:
+            block[nil, 0] = 0xC0
+            lengths = np.where(nil, 1, lengths)
+        return self._add(block, lengths)
+
+    def table(self, codes: np.ndarray, packed: list[bytes]) -> MapRows:
+        """Row i's value is the already packed ``packed[codes[i]]`` (strings, lists of strings)."""
+        width = max((len(p) for p in packed), default=0)
+        tab = np.zeros((len(packed), max(width, 1)), np.uint8)
+        for i, p in enumerate(packed):
+            tab[i, : len(p)] = np.frombuffer(p, np.uint8)
+        sizes = np.array([len(p) for p in packed], np.int64)
+        return self._add(tab[codes], sizes[codes])
+
+    def block(self, block: np.ndarray, lengths: np.ndarray | None) -> MapRows:
+        """Rows' bytes already built: (rows, width), left-aligned, ``lengths`` per row (None: all)."""
+        return self._add(block, lengths)
+
+    def _add(self, block: np.ndarray, lengths: np.ndarray | None) -> MapRows:
+        self._blocks.append(block)
+        self._lengths.append(lengths)
+        return self
+
+    def tobytes(self) -> bytes:
+        if not self.n or not self._blocks:
+            return b""
+        data = np.concatenate(self._blocks, axis=1)
+        if all(length is None for length in self._lengths):
+            return data.tobytes()
+        keep = np.concatenate(
+            [
+                np.broadcast_to(True, b.shape) if length is None else np.arange(b.shape[1]) < length[:, None]
+                for b, length in zip(self._blocks, self._lengths)
+            ],
+            axis=1,
+        )
+        return data[keep].tobytes()
+
+
+def array_header(n: int) -> bytes:
+    """msgpack's header of an array of ``n`` items."""
+    if n < 16:
+        return bytes([0x90 | n])
+    if n < 1 << 16:
+        return b"\xdc" + n.to_bytes(2, "big")
+    return b"\xdd" + n.to_bytes(4, "big")
+
+
+def map_header(n: int) -> bytes:
+    """msgpack's header of a map of ``n`` pairs."""
+    if n < 16:
+        return bytes([0x80 | n])
+    if n < 1 << 16:
+        return b"\xde" + n.to_bytes(2, "big")
+    return b"\xdf" + n.to_bytes(4, "big")
