@@ -305,18 +305,26 @@ def _plot_batch_envelope(payload: bytes, max_bytes: int) -> tuple[str, int, list
     return radar_id, seq, plots
 
 
-def decode_plot_batch(payload: bytes, max_bytes: int = 4 << 20) -> DecodedPlots | Rejection:
+#: batches of fewer plots are validated by the model (as fast there: numpy's fixed cost per call)
+COLUMNS_FROM_PLOTS = 24
+
+
+def decode_plot_batch(
+    payload: bytes, max_bytes: int = 4 << 20, columns_from: int = COLUMNS_FROM_PLOTS
+) -> DecodedPlots | Rejection:
     """Decode and validate a PlotBatch; bad plots are dropped and counted in ``rejected``.
 
-    The plots are validated as columns (wire_columns.py: the model's rules for the whole
-    batch at once, with the model's reasons); :func:`decode_plot_batch_by_model` is the
-    same through the model, one plot at a time, and gives the same result."""
+    A batch of ``columns_from`` plots or more is validated as columns (wire_columns.py: the
+    model's rules for the whole batch at once, with the model's reasons), a smaller one by
+    the model, as :func:`decode_plot_batch_by_model` does; both give the same result."""
     from .wire_columns import validate_plot_columns
 
     env = _plot_batch_envelope(payload, max_bytes)
     if isinstance(env, Rejection):
         return env
     radar_id, seq, plots = env
+    if len(plots) < columns_from:
+        return _decoded_by_model(radar_id, seq, plots)
     c = validate_plot_columns(plots)
     return DecodedPlots(
         radar_id, seq, c.t_s, c.range_m, c.azimuth_deg, c.fl, c.mode3a, c.mode_s, c.track_no, c.kind, c.rejected
@@ -346,7 +354,10 @@ def decode_plot_batch_by_model(payload: bytes, max_bytes: int = 4 << 20) -> Deco
     env = _plot_batch_envelope(payload, max_bytes)
     if isinstance(env, Rejection):
         return env
-    radar_id, seq, plots = env
+    return _decoded_by_model(*env)
+
+
+def _decoded_by_model(radar_id: str, seq: int, plots: list[Any]) -> DecodedPlots:
     good, rejected = validate_plots_by_model(plots)
     n = len(good)
     return DecodedPlots(
