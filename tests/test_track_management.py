@@ -287,10 +287,17 @@ def test_log_miss_probability_by_hand():
     pd = np.array([0.9, 0.7])
     seen = np.array([0b11, 0b01, 0b01, 0b10], dtype=np.uint64)
     xy = np.array([[50_000.0, 0.0], [50_000.0, 0.0], [-200_000.0, 0.0], [300_000.0, 0.0]])
-    tau = np.array([12.0, 12.0, 12.0, 12.0])
-    got = log_miss_probability(seen, xy, tau, site_xy, max_range, rotation, pd)
+    last_update = np.full(4, 100.0)
+    swept = np.array([112.0, 112.0])  # both radars swept 12 s since
+    got = log_miss_probability(seen, xy, last_update, swept, site_xy, max_range, rotation, pd)
     # both radars: 3 scans of radar 0 and 1 scan of radar 1 all missed
     assert got[0] == pytest.approx(3 * math.log(0.1) + 1 * math.log(0.3))
     assert got[1] == pytest.approx(3 * math.log(0.1))  # radar 1 never saw it: not counted
     assert got[2] == -math.inf  # out of its only radar's range: nothing can see it
     assert got[3] == -math.inf  # 200 km from radar 1, beyond its 150 km: likewise
+    # radar 1 fell silent 4 s after the update: one third of its scan counts; radar 0 swept on
+    got = log_miss_probability(seen, xy, last_update, np.array([112.0, 104.0]), site_xy, max_range, rotation, pd)
+    assert got[0] == pytest.approx(3 * math.log(0.1) + (4.0 / 12.0) * math.log(0.3))
+    # a radar never heard from (watermark -inf) has swept nothing
+    got = log_miss_probability(seen, xy, last_update, np.array([-math.inf, 112.0]), site_xy, max_range, rotation, pd)
+    assert got[0] == pytest.approx(1 * math.log(0.3)) and got[1] == 0.0

@@ -746,10 +746,17 @@ class Engine:
             )
         log_miss = None
         if self.rules.end_miss_probability > 0 and len(tr):
-            since_s = t_ref_s - tr.last_update_t_s
             xy_m = position_m(tr.x) + velocity_mps(tr.x) * (t_ref_s - tr.t_state_s)[:, None]
+            swept_until_s = np.minimum(self.buffer.watermark_s, t_ref_s)  # deterministic: not past the period
             log_miss = log_miss_probability(
-                tr.seen_by, xy_m, since_s, self.site_xy_m, self.max_range_m, self.rotation_s, self.pd
+                tr.seen_by,
+                xy_m,
+                tr.last_update_t_s,
+                swept_until_s,
+                self.site_xy_m,
+                self.max_range_m,
+                self.rotation_s,
+                self.pd,
             )
         ended = apply_life_cycle(tr, t_ref_s, self.rules, log_miss)
         self.counters["tracks_ended"] += int(ended.size)

@@ -304,7 +304,8 @@ def apply_life_cycle(
 def log_miss_probability(
     seen_by: np.ndarray,
     xy_m: np.ndarray,
-    since_update_s: np.ndarray,
+    last_update_t_s: np.ndarray,
+    swept_until_s: np.ndarray,
     site_xy_m: np.ndarray,
     max_range_m: np.ndarray,
     rotation_s: np.ndarray,
@@ -316,24 +317,28 @@ def log_miss_probability(
     detected it: a secondary radar does not see an aircraft without transponder, nor a
     radar the aircraft is hidden from) whose instrumented range covers its predicted
     position ``xy_m`` (plane, m; the distance in the plane from the site, an approximation
-    of the ground range good to a fraction of a percent inside a few hundred km). Over
-    tau = ``since_update_s`` a radar of rotation T and detection probability Pd has made
-    tau/T scans, each missing independently with probability 1 − Pd, so
+    of the ground range good to a fraction of a percent inside a few hundred km). Radar r
+    has swept the sky until ``swept_until_s[r]`` (its watermark, at most the period's
+    time: a radar that fell silent has made no scan since), so since the track's last
+    update it made tau_r / T_r scans, tau_r = max(swept_until_r − last_update, 0), each
+    missing the aircraft independently with probability 1 − Pd_r:
 
-        ln P = Σ_r (tau / T_r) · ln(1 − Pd_r)
+        ln P = Σ_r (tau_r / T_r) · ln(1 − Pd_r)
 
-    over those radars; −inf when none covers it (the aircraft left their coverage),
-    0 for tau = 0. Arrays: seen_by (N,) uint64, xy_m (N, 2), since_update_s (N,);
-    per radar site_xy_m (R, 2), max_range_m, rotation_s, pd (R,).
+    over those radars; −inf when none covers it (the aircraft left their coverage).
+    Arrays: seen_by (N,) uint64, xy_m (N, 2), last_update_t_s (N,); per radar
+    swept_until_s, site_xy_m (R, 2), max_range_m, rotation_s, pd (R,).
     """
     n, n_radars = seen_by.shape[0], site_xy_m.shape[0]
     bits = (seen_by[:, None] >> np.arange(n_radars, dtype=np.uint64)[None, :]) & np.uint64(1)
     d = xy_m[:, None, :] - site_xy_m[None, :, :]
     covered = np.hypot(d[..., 0], d[..., 1]) <= max_range_m[None, :]
     should = (bits == 1) & covered
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         per_s = np.log1p(-np.asarray(pd, dtype=float)) / rotation_s  # ln(1 − Pd) / T < 0; −inf for Pd = 1
-    out = np.where(should, per_s[None, :], 0.0).sum(axis=1) * since_update_s
+        tau_s = np.clip(np.asarray(swept_until_s, float)[None, :] - last_update_t_s[:, None], 0.0, None)
+        tau_s = np.where(np.isfinite(tau_s), tau_s, 0.0)  # a radar never heard from has swept nothing
+        out = np.where(should & (tau_s > 0), tau_s * per_s[None, :], 0.0).sum(axis=1)
     out = np.where(should.any(axis=1), out, -np.inf)
     return np.asarray(out if n else np.zeros(0))
 
