@@ -26,6 +26,7 @@ from radar_fusion import wire
 from radar_fusion.bus import FusionDaemon
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
+from radar_fusion.tools import fuzz
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.replay import replay_into_engine
 
@@ -56,16 +57,7 @@ def report_inputs():
 
 
 def good_plot(t_s=T0 + 10.0, range_m=120_000.0, azimuth_deg=45.0):
-    return {
-        "t": t_s,
-        "range_m": range_m,
-        "azimuth_deg": azimuth_deg,
-        "fl": 350.0,
-        "mode3a": 0o1234,
-        "mode_s": "4CA1F3",
-        "track_no": 17,
-        "kind": "cmb",
-    }
+    return fuzz.good_plot(t_s, range_m, azimuth_deg)
 
 
 def check_decoded(d) -> None:
@@ -94,7 +86,7 @@ ANY = st.recursive(
     lambda kids: st.one_of(st.lists(kids, max_size=4), st.dictionaries(st.text(max_size=8), kids, max_size=4)),
     max_leaves=12,
 )
-PLOT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind")
+PLOT_FIELDS = fuzz.PLOT_FIELDS
 HOSTILE_PLOT = st.one_of(
     ANY,
     st.dictionaries(st.sampled_from(PLOT_FIELDS), st.one_of(SCALARS, ANY), max_size=8),
@@ -112,8 +104,7 @@ HOSTILE_BATCH = st.fixed_dictionaries(
 )
 
 
-def pack(obj) -> bytes:
-    return msgpack.packb(obj, use_bin_type=True)
+pack = fuzz.pack
 
 
 @FUZZ
@@ -434,8 +425,6 @@ N_HOSTILE = 2000
 
 @pytest.mark.bus
 def test_daemon_survives_hostile_bus_traffic_and_keeps_tracking(free_port):
-    from radar_fusion.tools import fuzz
-
     r = fuzz.run_bus(N_HOSTILE, seed=20240808, port=free_port)
     INPUTS.update({f"bus: {cat}": n for cat, n in r.categories.items()})
     SKIPPED_VALID[0] += r.skipped_valid

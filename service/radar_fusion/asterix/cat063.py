@@ -23,11 +23,10 @@ from dataclasses import dataclass
 from typing import Any, cast
 
 import asterix.generated as gen
-from asterix.base import Bits, RawDatablock
 
 from ..geo.units import M_PER_NM, SECONDS_PER_DAY
 from ..wire import Health
-from .decode import _element, _fields
+from .decode import _element, _fields, parse_block_records
 from .framing import DecodeCounters
 
 CAT063 = gen.Cat_063_1_7
@@ -110,17 +109,7 @@ class Cat063Encoder:
 def decode_cat063_block(block: bytes, counters: DecodeCounters | None = None) -> list[SensorStatusRecord]:
     """Decode one CAT063 data block (others: counted, [])."""
     counters = counters if counters is not None else DecodeCounters()
-    if not block or block[0] != 63:
-        counters.skip("unknown_category")
-        return []
-    raw = RawDatablock.parse_single(Bits.from_bytes(block))
-    if isinstance(raw, ValueError):
-        counters.skip("truncated_block")
-        return []
-    records = CAT063.cv_uap.parse(raw[0].get_raw_records())
-    if isinstance(records, ValueError):
-        counters.skip("undecodable_records")
-        return []
+    records = parse_block_records(block, 63, CAT063, counters)
     out = []
     for rec in records:
         i010, i050, i030 = rec.get_item("010"), rec.get_item("050"), rec.get_item("030")

@@ -260,19 +260,29 @@ def decode_datablock(block: bytes, counters: DecodeCounters) -> list[TargetRepor
 # ============================================================================ CAT062 (to check what cat062.py sends)
 
 
-def decode_cat062_block(block: bytes, counters: DecodeCounters | None = None) -> list[SystemTrackRecord]:
-    """Decode one CAT062 data block into :class:`SystemTrackRecord` (others: counted, [])."""
-    counters = counters if counters is not None else DecodeCounters()
-    if not block or block[0] != 62:
+def parse_block_records(block: bytes, category: int, spec: Any, counters: DecodeCounters) -> list[Any]:
+    """The records of one data block of ``category`` parsed by libasterix with ``spec``
+    (e.g. CAT062); a block of another category, truncated or undecodable is counted and
+    gives []."""
+    if not block or block[0] != category:
         counters.skip("unknown_category")
         return []
     raw = RawDatablock.parse_single(Bits.from_bytes(block))
     if isinstance(raw, ValueError):
         counters.skip("truncated_block")
         return []
-    records = CAT062.cv_uap.parse(raw[0].get_raw_records())
+    records = spec.cv_uap.parse(raw[0].get_raw_records())
     if isinstance(records, ValueError):
         counters.skip("undecodable_records")
+        return []
+    return list(records)
+
+
+def decode_cat062_block(block: bytes, counters: DecodeCounters | None = None) -> list[SystemTrackRecord]:
+    """Decode one CAT062 data block into :class:`SystemTrackRecord` (others: counted, [])."""
+    counters = counters if counters is not None else DecodeCounters()
+    records = parse_block_records(block, 62, CAT062, counters)
+    if not records:
         return []
     counters.counts["cat062_records"] += len(records)
     out = []
