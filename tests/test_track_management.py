@@ -301,3 +301,29 @@ def test_log_miss_probability_by_hand():
     # a radar never heard from (watermark -inf) has swept nothing
     got = log_miss_probability(seen, xy, last_update, np.array([-math.inf, 112.0]), site_xy, max_range, rotation, pd)
     assert got[0] == pytest.approx(1 * math.log(0.3)) and got[1] == 0.0
+
+
+def test_merging_young_tracks_keeps_the_one_most_radars_agreed_on():
+    """Three one-update tracks carry one address: the first from radar 0 alone, the second
+    from radars 1 and 2 together, the third (a wild plot, the latest measurement) from radar
+    0 alone. None is established, so the survivor (the oldest id) takes the state of the
+    member two radars agreed on, not the latest one; with a tie the latest measurement wins."""
+    from radar_fusion.tracking.track_management import merge_same_address
+
+    def table(sources, t_state):
+        tab = TrackTable()
+        rows = tab.append(len(sources))
+        tab.mode_s[rows] = 0x4B1234
+        tab.updates[rows] = 1
+        tab.sources[rows] = np.array(sources, dtype=np.uint64)
+        tab.t_state_s[rows] = t_state
+        tab.x[rows, 0] = np.arange(len(sources)) * 1_000.0  # x position tells the members apart
+        return tab
+
+    tab = table([0b001, 0b110, 0b001], [1.0, 2.0, 3.0])
+    _, merged = merge_same_address(tab, confirm_updates=3)
+    assert len(tab) == 1 and tab.track_id[0] == 1 and merged.tolist() == [2, 3]
+    assert tab.x[0, 0] == 1_000.0  # the two-radar member's state
+    tab = table([0b001, 0b010], [1.0, 2.0])  # one radar each: the latest
+    merge_same_address(tab, confirm_updates=3)
+    assert tab.x[0, 0] == 1_000.0 and tab.t_state_s[0] == 2.0

@@ -374,7 +374,8 @@ def merge_same_address(
     the state of the most recently updated member that is itself established
     (``confirm_updates`` updates: the one that followed the aircraft), never a young
     one-point state that would throw away the old track's velocity; when no member is
-    established, the most recently updated one (a first plot far from the address's later
+    established, the one whose latest update most radars agreed on, and among those the most
+    recently updated (a wild plot is one radar's; a first plot far from the address's later
     plots, e.g. a wild one, is not kept: those plots could not reach it and started the
     younger tracks). It is confirmed when any member was. The other rows are removed.
     Rows of ``outputs`` (arrays row-aligned with the table) are copied the same way but not
@@ -394,9 +395,14 @@ def merge_same_address(
             continue
         oldest = members[0]
         established = members[table.updates[members] >= confirm_updates]
-        if not established.size:  # all young: the latest measurement (the oldest may be a wild first plot)
-            established = members
-        newest = established[np.argmax(table.t_state_s[established])]
+        if established.size:
+            newest = established[np.argmax(table.t_state_s[established])]
+        else:
+            # all young: the one most radars agreed on in its latest update, then the latest
+            # measurement (a wild plot is one radar's, and the oldest may be a wild first plot)
+            votes = radar_count(table.sources[members])
+            best = members[votes == votes.max()]
+            newest = best[np.argmax(table.t_state_s[best])]
         if newest != oldest:
             for name in _STATE_COLUMNS:
                 getattr(table, name)[oldest] = getattr(table, name)[newest]
