@@ -68,8 +68,7 @@ class Figures:
 
 
 def truth_of(simulation: Any) -> ev.Truth:
-    t = simulation.truth
-    return ev.Truth.from_columns(t.t_s, t.target_id, t.x_m, t.y_m, t.vx_mps, t.vy_mps, detectable=t.detectable)
+    return simulation.truth  # the simulation's own Truth (tools/truth.py)
 
 
 def run_engine(scenario: Any, messages: list, **sections: Any) -> tuple[list[dict], list[dict], Engine]:

@@ -24,16 +24,7 @@ TURNING = ["T06", "T07", "T08", "T09"]
 def demo():
     scenario = sim.preset("demo", seed=3, duration_s=300.0)
     simulation = sim.simulate(scenario)
-    truth = ev.Truth.from_columns(
-        simulation.truth.t_s,
-        simulation.truth.target_id,
-        simulation.truth.x_m,
-        simulation.truth.y_m,
-        simulation.truth.vx_mps,
-        simulation.truth.vy_mps,
-        detectable=simulation.truth.detectable,
-    )
-    return scenario, simulation, truth
+    return scenario, simulation, simulation.truth
 
 
 def run(scenario, messages, radars=None, **sections):
@@ -133,16 +124,7 @@ def test_a_run_of_five_wild_plots_does_not_pull_the_track_off(demo):
         messages.append((t_s, key, payload))
     engine, batches = run(sc, messages)
     assert engine.counters["plots_wild"] == 5
-    t_truth = ev.Truth.from_columns(
-        s.truth.t_s,
-        s.truth.target_id,
-        s.truth.x_m,
-        s.truth.y_m,
-        s.truth.vx_mps,
-        s.truth.vy_mps,
-        detectable=s.truth.detectable,
-    )
-    scores = ev.evaluate(batches, t_truth)
+    scores = ev.evaluate(batches, s.truth)
     assert scores.targets[0].n_track_ids == 1 and scores.false_tracks == 0
     assert scores.pos_rms_settled_m < 150.0
 

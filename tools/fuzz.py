@@ -275,15 +275,7 @@ def run_bus(n_hostile: int, seed: int = 20240808, port: int | None = None) -> Bu
         collector.close()
         session.close()
     health = collector.health[-1] if collector.health else {"rejected": {}, "counters": {}, "radars": {}}
-    truth = ev.Truth.from_columns(
-        simulation.truth.t_s,
-        simulation.truth.target_id,
-        simulation.truth.x_m,
-        simulation.truth.y_m,
-        simulation.truth.vx_mps,
-        simulation.truth.vy_mps,
-        detectable=simulation.truth.detectable,
-    )
+    truth = simulation.truth  # already a Truth (tools/truth.py)
     after = [b for b in collector.batches if b["t"] > t0_s + 60.0 + 20.0]
     categories: dict[str, int] = {}
     for _, _, cat in hostile:
