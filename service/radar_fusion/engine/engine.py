@@ -586,18 +586,25 @@ class Engine:
         if not rows.size:
             return rows.astype(np.int64)
         tr = self.tracks
-        at_cluster = self._predict_rows(rows, cl.t_s[matched] - tr.t_state_s[rows])
-        x_c, P_c = at_cluster.x, at_cluster.P
+        dt_s = cl.t_s[matched] - tr.t_state_s[rows]
+        x_c = np.empty((rows.size,) + tr.x.shape[1:])
+        P_c = np.empty((rows.size,) + tr.P.shape[1:])
         z_m, R_m2 = cl.z_m[matched], cl.R_m2[matched]
         init = tr.initiated[rows]
         if init.any():
+            # Only these rows are predicted to their cluster's time, and with the IMM only
+            # per model: the update replaces the rest (a second measurement's two-point
+            # initiation starts afresh, and the IMM's output is the combination after its
+            # update), so neither is computed to be thrown away.
             r = rows[init]
-            if self.imm is not None and at_cluster.imm is not None:
-                st = self.imm.update(at_cluster.imm.select(init), z_m[init], R_m2[init])
+            if self.imm is not None:
+                prior = self.imm.predict(IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r]), dt_s[init])
+                st = self.imm.update(prior, z_m[init], R_m2[init])
                 tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
                 x_c[init], P_c[init] = self.imm.combine(st)
             else:
-                x, P, nu, S = self.filter.update(x_c[init], P_c[init], z_m[init], R_m2[init])
+                x, P = self.manoeuvres.predict(self.filter, tr.x[r], tr.P[r], dt_s[init], tr.manoeuvre[r])
+                x, P, nu, S = self.filter.update(x, P, z_m[init], R_m2[init])
                 x_c[init], P_c[init] = x, P
                 tr.nis_avg[r], tr.manoeuvre[r] = self.manoeuvres.detect(tr.nis_avg[r], tr.manoeuvre[r], nu, S)
         two = ~init
@@ -621,7 +628,8 @@ class Engine:
             tr.initiated[rows[two]] = True
             self._imm_initiate(rows[two], x, P)
         tr.x[rows], tr.P[rows] = x_c, P_c
-        tr.alt_x[rows], tr.alt_P[rows] = self.alt_filter.update(at_cluster.alt_x, at_cluster.alt_P, cl.fl[matched])
+        alt_x, alt_P = self.alt_filter.predict(tr.alt_x[rows], tr.alt_P[rows], dt_s)
+        tr.alt_x[rows], tr.alt_P[rows] = self.alt_filter.update(alt_x, alt_P, cl.fl[matched])
         self._floor_no_height(rows, cl.height_cov_m2, matched)
         tr.t_state_s[rows] = cl.t_s[matched]
         tr.updates[rows] += 1
