@@ -178,6 +178,17 @@ def within_reach(
     return np.asarray(np.hypot(d[:, 0], d[:, 1]) <= reach_m)
 
 
+def sorted_isin(values: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """``np.isin(values, members)`` for integer arrays, by one sort and a binary search
+    (numpy >= 2.3's np.isin de-duplicates ``members`` with its hash np.unique first, several
+    times slower at the period's 10^4-10^5 pairs)."""
+    if not members.size:
+        return np.zeros(values.shape, bool)
+    ref = np.sort(members)
+    at = np.minimum(np.searchsorted(ref, values), ref.size - 1)
+    return np.asarray(ref[at] == values)
+
+
 def first_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
     """Index of the element of smallest key in each group (groups given by ``group``)."""
     order = np.lexsort((key, group))
@@ -488,8 +499,9 @@ def gated_pairs(
         )
         n_tracks = track_xy.shape[0]
         # a plot of a live track's address is offered to that track only
-        keep = ~np.isin(pair_plot, id_plot) | np.isin(pair_plot * n_tracks + pair_track, id_plot * n_tracks + id_track)
-        new = ~np.isin(id_plot * n_tracks + id_track, pair_plot * n_tracks + pair_track)
+        pair_key, id_key = pair_plot * n_tracks + pair_track, id_plot * n_tracks + id_track
+        keep = ~sorted_isin(pair_plot, id_plot) | sorted_isin(pair_key, id_key)
+        new = ~sorted_isin(id_key, pair_key)
         add_plot, add_track = id_plot[new], id_track[new]
         add_xy, add_cov = align_to_reference(
             plot_xy[add_plot], plot_cov[add_plot], plot_t[add_plot], t_ref, track_v[add_track], track_cv[add_track]

@@ -344,7 +344,8 @@ def _cluster_new_targets(
     degree = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
     simple = np.ones(n_comp, dtype=bool)
     simple[comp[degree != size[comp] - 1]] = False  # not a clique
-    distinct = np.unique(comp.astype(np.int64) * n_radars + radar)
+    key = np.sort(comp.astype(np.int64) * n_radars + radar)  # sorted and de-duplicated: np.unique's
+    distinct = key[np.r_[True, key[1:] != key[:-1]]]  # hash path (numpy >= 2.3) is several times slower
     simple &= np.bincount(distinct // n_radars, minlength=n_comp) == size  # radar repeated
 
     labels = np.full(n, -1, dtype=np.intp)

@@ -389,10 +389,10 @@ def merge_same_address(
     if not same.any():
         return keep, np.empty(0, np.int64)
     group_start = np.flatnonzero(np.r_[True, ~same])
-    for a, b in zip(group_start, np.r_[group_start[1:], order.size]):  # over duplicated addresses only
+    group_end = np.r_[group_start[1:], order.size]
+    shared = group_end - group_start > 1
+    for a, b in zip(group_start[shared], group_end[shared]):  # over duplicated addresses only
         members = order[a:b]
-        if members.size < 2:
-            continue
         oldest = members[0]
         established = members[table.updates[members] >= confirm_updates]
         if established.size:
