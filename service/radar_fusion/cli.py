@@ -218,8 +218,44 @@ def one_blas_thread() -> None:
     threadpool_limits(limits=1, user_api="blas")
 
 
-def main(argv: list[str] | None = None) -> int:
+# glibc's mallopt parameters (malloc.h)
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+
+
+def reuse_freed_memory() -> None:
+    """Process-wide, with glibc: freed blocks of up to 32 MiB stay in the heap for the
+    next allocation instead of going back to the kernel. Each step of a period makes
+    numpy temporaries of 0.1-10 MB (a stack of 6×6 covariances is 1.2 MB at 4,000
+    tracks); above glibc's default threshold (128 kB, adapting upwards only as far as the
+    largest block freed so far) each was a fresh mmap whose pages the kernel faulted in
+    and zeroed at first touch, and unmapped again when freed. Measured at 4,000 aircraft ×
+    10 radars, one engine run: 227,000 → 42,000 page faults, engine CPU time about 0.75×.
+    The heap keeps up to 256 MiB free at its top before it is trimmed. Elsewhere (no
+    glibc) nothing changes."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    mallopt(_M_MMAP_THRESHOLD, 32 << 20)  # glibc's largest allowed on 64-bit
+    mallopt(_M_TRIM_THRESHOLD, 256 << 20)
+
+
+def process_settings() -> None:
+    """Every process-wide setting of a radar-fusion process: :func:`one_blas_thread`,
+    :func:`reuse_freed_memory` (the garbage collector's freeze is the daemon's, after
+    start-up)."""
     one_blas_thread()
+    reuse_freed_memory()
+
+
+def main(argv: list[str] | None = None) -> int:
+    process_settings()
     argv = sys.argv[1:] if argv is None else list(argv)
     only = argv[0] if argv and argv[0] in SUBCOMMANDS else None
     args = build_parser(only).parse_args(argv)

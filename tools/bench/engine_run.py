@@ -43,11 +43,12 @@ def reset_peak_rss() -> bool:
 
 def in_fresh_process(fn, *args):
     """Run ``fn(*args)`` in a new spawned interpreter and return its result; the child
-    gets the process-wide settings of every radar-fusion entry point (one BLAS thread)."""
-    from radar_fusion.cli import one_blas_thread
+    gets the process-wide settings of every radar-fusion entry point (cli.process_settings:
+    one BLAS thread, freed memory kept for reuse)."""
+    from radar_fusion.cli import process_settings
 
     with ProcessPoolExecutor(
-        max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=one_blas_thread
+        max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=process_settings
     ) as pool:
         return pool.submit(fn, *args).result()
 
