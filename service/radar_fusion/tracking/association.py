@@ -260,6 +260,7 @@ def assign_per_radar(
     pair_cost: np.ndarray,
     n_plots: int,
     dummy_cost: float,
+    best: np.ndarray | None = None,
 ) -> np.ndarray:
     """Min-cost assignment of plots to (track, radar) slots, at most one plot per slot.
 
@@ -267,12 +268,14 @@ def assign_per_radar(
     index of its chosen pair or −1.  A connected component of the plot–slot graph in
     which no two plots share their best slot is solved by taking each plot's best pair
     (the sum of the per-plot minima is a lower bound, so it is optimal); the components
-    with a conflict are solved together by one sparse LAPJV call.
+    with a conflict are solved together by one sparse LAPJV call.  ``best``: each plot's
+    cheapest pair, ``first_per_group(pair_plot, pair_cost)``, when the caller has it.
     """
     assign = np.full(n_plots, -1, dtype=np.intp)
     if pair_plot.size == 0:
         return assign
-    best = first_per_group(pair_plot, pair_cost)
+    if best is None:
+        best = first_per_group(pair_plot, pair_cost)
     slots, slot_id = np.unique(pair_slot, return_inverse=True)
     n_slots = slots.shape[0]
     demand = np.bincount(slot_id[best], minlength=n_slots)

@@ -533,7 +533,10 @@ def cluster_plots(
     pair_radar = radar[pair_plot]
 
     # 4: seed, nearest representative with one plot per radar per cluster.
-    seed_assign = assign_per_radar(pair_plot, pair_track * n_radars + pair_radar, cost, n_plots, params.gate_chi2)
+    best = first_per_group(pair_plot, cost)  # each gated plot's nearest track (in cost)
+    seed_assign = assign_per_radar(
+        pair_plot, pair_track * n_radars + pair_radar, cost, n_plots, params.gate_chi2, best=best
+    )
     # 5: transfers among the track clusters (eq. 3 corrected).
     assign, track_rounds = transfer_track_clusters(
         seed_assign,
@@ -567,7 +570,6 @@ def cluster_plots(
     v_var = unknown_velocity_var_m2ps2(params.max_speed_mps)
     aligned_xy, aligned_cov = align_to_reference(plot_xy, plot_cov, plot_t, t_ref, np.zeros(2), v_var * np.eye(2))
     if pair_plot.size:
-        best = first_per_group(pair_plot, cost)
         aligned_xy[pair_plot[best]] = pair_xy[best]
         aligned_cov[pair_plot[best]] = pair_cov[best]
     used = np.flatnonzero(assign >= 0)
