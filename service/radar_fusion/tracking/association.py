@@ -178,17 +178,6 @@ def within_reach(
     return np.asarray(np.hypot(d[:, 0], d[:, 1]) <= reach_m)
 
 
-def sorted_isin(values: np.ndarray, members: np.ndarray) -> np.ndarray:
-    """``np.isin(values, members)`` for integer arrays, by one sort and a binary search
-    (numpy >= 2.3's np.isin de-duplicates ``members`` with its hash np.unique first, several
-    times slower at the period's 10^4-10^5 pairs)."""
-    if not members.size:
-        return np.zeros(values.shape, bool)
-    ref = np.sort(members)
-    at = np.minimum(np.searchsorted(ref, values), ref.size - 1)
-    return np.asarray(ref[at] == values)
-
-
 def first_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
     """Index of the element of smallest key in each group (groups given by ``group``)."""
     order = np.lexsort((key, group))
@@ -500,11 +489,15 @@ def gated_pairs(
         id_plot, id_track = identity_pairs(
             plot_ms, plot_ok, plot_xy, plot_cov, plot_t, track_ms, track_ok, *last, params.max_speed_mps
         )
-        n_tracks = track_xy.shape[0]
-        # a plot of a live track's address is offered to that track only
-        pair_key, id_key = pair_plot * n_tracks + pair_track, id_plot * n_tracks + id_track
-        keep = ~sorted_isin(pair_plot, id_plot) | sorted_isin(pair_key, id_key)
-        new = ~sorted_isin(id_key, pair_key)
+        # a plot of a live track's address is offered to that track only (identity_pairs
+        # gives a plot at most one track: its address's)
+        id_track_of_plot = np.full(plot_xy.shape[0], -1, np.intp)
+        id_track_of_plot[id_plot] = id_track
+        own_id = id_track_of_plot[pair_plot]
+        keep = (own_id < 0) | (own_id == pair_track)
+        gated_own = np.zeros(plot_xy.shape[0], bool)
+        gated_own[pair_plot[own_id == pair_track]] = True
+        new = ~gated_own[id_plot]
         add_plot, add_track = id_plot[new], id_track[new]
         add_xy, add_cov = align_to_reference(
             plot_xy[add_plot], plot_cov[add_plot], plot_t[add_plot], t_ref, track_v[add_track], track_cv[add_track]
