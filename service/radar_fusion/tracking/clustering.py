@@ -62,6 +62,7 @@ track clusters, are in association.py, step 6, the new targets, here:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -184,6 +185,8 @@ class ClusterResult:
                         only for a plot that joined by its Mode S address.
     seed_labels, seed_cluster_track, sse_seed_m2:
                         the same for the initial (seed) assignment, before transfers.
+    sse_m2 and the seed's three are computed on first access, from ``seed`` and the arrays
+    above as they are then.
     """
 
     labels: np.ndarray
@@ -191,16 +194,54 @@ class ClusterResult:
     aligned_xy_m: np.ndarray
     aligned_cov_m2: np.ndarray
     n_iterations: int
-    sse_m2: float
     redundant: np.ndarray
     plot_d2: np.ndarray
-    seed_labels: np.ndarray
-    seed_cluster_track: np.ndarray
-    sse_seed_m2: float
+    seed: _SeedRecord  # what the diagnostics below are computed from, on first access
 
     @property
     def n_clusters(self) -> int:
         return int(self.cluster_track.shape[0])
+
+    # The diagnostics (tests, tools/bench_clustering.py): the engine reads none of them, so
+    # they are computed on first access (1-2 ms a period at 4,000 tracks otherwise).
+    @cached_property
+    def sse_m2(self) -> float:
+        return _sse_m2(self.labels, self.cluster_track, self.aligned_xy_m, self.seed.track_xy, self.seed.anchor_weight)
+
+    @cached_property
+    def _seed_clusters(self) -> tuple[np.ndarray, np.ndarray]:
+        sd = self.seed
+        return _labels_from_assignment(sd.assign, sd.pair_track, sd.new_idx, sd.new_labels, self.labels.shape[0])
+
+    @property
+    def seed_labels(self) -> np.ndarray:
+        return self._seed_clusters[0]
+
+    @property
+    def seed_cluster_track(self) -> np.ndarray:
+        return self._seed_clusters[1]
+
+    @cached_property
+    def sse_seed_m2(self) -> float:
+        sd = self.seed
+        seed_xy = self.aligned_xy_m.copy()
+        seed_used = np.flatnonzero(sd.assign >= 0)
+        seed_xy[seed_used] = sd.pair_xy[sd.assign[seed_used]]
+        return _sse_m2(self.seed_labels, self.seed_cluster_track, seed_xy, sd.track_xy, sd.anchor_weight)
+
+
+@dataclass(frozen=True)
+class _SeedRecord:
+    """The seed assignment (step 4, before transfers) and what E of eq. 2 needs, kept
+    for :class:`ClusterResult`'s diagnostics."""
+
+    assign: np.ndarray  # (M,) pair index of each plot in the seed, −1 none
+    pair_track: np.ndarray
+    pair_xy: np.ndarray
+    new_idx: np.ndarray
+    new_labels: np.ndarray  # the new-target seed labels
+    track_xy: np.ndarray
+    anchor_weight: float
 
 
 # --------------------------------------------------------------------------------------
@@ -580,21 +621,13 @@ def cluster_plots(
     plot_d2[used] = d2[assign[used]]
 
     labels, cluster_track = _labels_from_assignment(assign, pair_track, new_idx, new_labels, n_plots)
-    seed_labels, seed_cluster_track = _labels_from_assignment(seed_assign, pair_track, new_idx, new_seed, n_plots)
-    seed_xy = aligned_xy.copy()
-    seed_used = np.flatnonzero(seed_assign >= 0)
-    seed_xy[seed_used] = pair_xy[seed_assign[seed_used]]
-    w = params.track_anchor_weight
     return ClusterResult(
         labels=labels,
         cluster_track=cluster_track,
         aligned_xy_m=aligned_xy,
         aligned_cov_m2=aligned_cov,
         n_iterations=max(track_rounds, new_sweeps),
-        sse_m2=_sse_m2(labels, cluster_track, aligned_xy, track_xy, w),
         redundant=redundant,
         plot_d2=plot_d2,
-        seed_labels=seed_labels,
-        seed_cluster_track=seed_cluster_track,
-        sse_seed_m2=_sse_m2(seed_labels, seed_cluster_track, seed_xy, track_xy, w),
+        seed=_SeedRecord(seed_assign, pair_track, pair_xy, new_idx, new_seed, track_xy, params.track_anchor_weight),
     )
