@@ -78,11 +78,18 @@ class PeriodBuffer:
         return np.isfinite(self.watermark_s) & (self.watermark_s >= newest - self.radar_timeout_s)
 
     def closable_until_s(self) -> float:
-        """Every period ending at or before this event time may close now."""
-        live = self.live_mask()
-        if not live.any():
+        """Every period ending at or before this event time may close now: the earliest
+        watermark of the live radars (:meth:`live_mask`) less ``allowed_lateness_s``.
+        Asked at every poll, i.e. after every message: over a few radars, plain floats
+        cost a fifth of the numpy calls."""
+        w: list[float] = self.watermark_s.tolist()
+        oldest_live_s = newest_s = max(w)
+        for t_s in w:
+            if math.isfinite(t_s) and t_s >= newest_s - self.radar_timeout_s and t_s < oldest_live_s:
+                oldest_live_s = t_s
+        if not math.isfinite(oldest_live_s):
             return -math.inf
-        return float(self.watermark_s[live].min()) - self.allowed_lateness_s
+        return oldest_live_s - self.allowed_lateness_s
 
     def pop_period(self, force: bool = False) -> tuple[int, float, PlotChunk] | None:
         """Close the oldest open period if the watermarks allow (or ``force``).
