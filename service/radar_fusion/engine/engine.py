@@ -592,19 +592,20 @@ class Engine:
         z_m, R_m2 = cl.z_m[matched], cl.R_m2[matched]
         init = tr.initiated[rows]
         if init.any():
-            # Only these rows are predicted to their cluster's time, and with the IMM only
-            # per model: the update replaces the rest (a second measurement's two-point
-            # initiation starts afresh, and the IMM's output is the combination after its
-            # update), so neither is computed to be thrown away.
+            # With the IMM, per model only: its output is the combination after the update,
+            # so the combined prediction at the cluster's time is not computed. Every
+            # matched row is predicted in one call, the two-point ones too (whose
+            # initiation below starts afresh): the Q series of singer_filter._g_all is one
+            # BLAS product over the rows, which rounds differently with their count.
             r = rows[init]
             if self.imm is not None:
-                prior = self.imm.predict(IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r]), dt_s[init])
-                st = self.imm.update(prior, z_m[init], R_m2[init])
+                prior = self.imm.predict(IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows]), dt_s)
+                st = self.imm.update(prior.select(init), z_m[init], R_m2[init])
                 tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
                 x_c[init], P_c[init] = self.imm.combine(st)
             else:
-                x, P = self.manoeuvres.predict(self.filter, tr.x[r], tr.P[r], dt_s[init], tr.manoeuvre[r])
-                x, P, nu, S = self.filter.update(x, P, z_m[init], R_m2[init])
+                x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
+                x, P, nu, S = self.filter.update(x[init], P[init], z_m[init], R_m2[init])
                 x_c[init], P_c[init] = x, P
                 tr.nis_avg[r], tr.manoeuvre[r] = self.manoeuvres.detect(tr.nis_avg[r], tr.manoeuvre[r], nu, S)
         two = ~init
