@@ -144,10 +144,8 @@ def consensus_outliers(
     if not beyond_gate.any() or not inside.any():
         return out
     W = inv_2x2(R_m2[inside])
-    info = np.zeros((n_clusters, 2, 2))
-    np.add.at(info, labels[inside], W)
-    info_z = np.zeros((n_clusters, 2))
-    np.add.at(info_z, labels[inside], np.einsum("kij,kj->ki", W, z_m[inside]))
+    info = _cluster_sum(labels[inside], W, n_clusters)
+    info_z = _cluster_sum(labels[inside], np.einsum("kij,kj->ki", W, z_m[inside]), n_clusters)
     has = np.bincount(labels[inside], minlength=n_clusters) > 0
     cand = np.flatnonzero(beyond_gate & has[labels])
     if not cand.size:
