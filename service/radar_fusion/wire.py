@@ -118,8 +118,8 @@ class Track(BaseModel):
         None,
         ge=0,
         le=1,
-        description="probability that the track manoeuvres (the IMM's manoeuvre model); absent with the "
-        "single-model Singer filter",
+        description="probability that the track manoeuvres (the IMM's models other than the quiet one: "
+        "turns, speed changes); absent with the single-model Singer filter",
     )
 
 
