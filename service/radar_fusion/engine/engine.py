@@ -65,7 +65,7 @@ from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
 from ..tracking.registration import RadarRegistration
-from ..tracking.singer_filter import AltitudeFilter, SingerFilter
+from ..tracking.singer_filter import POS_IDX, AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
     TENTATIVE,
@@ -376,17 +376,21 @@ class Engine:
         return Prediction(x, P, alt_x, alt_P)
 
     # ------------------------------------------------------------- associate
-    def _gate_cov_m2(self, pred: Prediction) -> np.ndarray:
-        """Position covariance of each track's gate: with the IMM, an established track's
-        (confirmed or coasting) is its widest model's (imm.py, "Gating"), so that the second
-        scan into a turn still joins it; a tentative track keeps the combined covariance,
-        so that clutter does not confirm it (with the widest model's on every track, the
-        primary-high scenario confirmed a clutter track in 2 of its 3 test seeds)."""
-        cov = cov_pos_m2(pred.P)
-        if pred.imm is not None:
-            est = np.flatnonzero(self.tracks.status != TENTATIVE)
-            cov[est] = IMMFilter.gate_covariance(pred.imm.select(est), pred.x[est])
-        return cov
+    def _gate_models(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray] | None:
+        """With the IMM, each track's model-conditioned predicted positions and covariances
+        for the gate (imm.py, "Gating"): an established track (confirmed or coasting) takes
+        a plot that any of its models expects, so that the second scan into a turn still
+        joins it; a tentative track gates on its combined prediction only, so that clutter
+        does not confirm it (with every track's models, the primary-high scenario confirmed
+        a clutter track in 2 of its 3 test seeds)."""
+        if pred.imm is None:
+            return None
+        xy = pred.imm.x_models[:, :, POS_IDX]
+        cov = pred.imm.P_models[:, :, POS_IDX[:, None], POS_IDX[None, :]]
+        young = np.flatnonzero(self.tracks.status == TENTATIVE)
+        xy[young] = position_m(pred.x[young])[:, None, :]
+        cov[young] = cov_pos_m2(pred.P[young])[:, None]
+        return xy, cov
 
     def _associate(self, plots: ConvertedPlots, pred: Prediction, t_ref_s: float) -> ClusterResult:
         """Time alignment and k-means clustering seeded by the tracks (Shu §2); a plot with a
@@ -401,7 +405,7 @@ class Engine:
             plots.mode3a,
             position_m(pred.x),
             velocity_mps(pred.x),
-            self._gate_cov_m2(pred),
+            cov_pos_m2(pred.P),
             cov_vel(pred.P),
             tr.mode_s,
             tr.mode3a,
@@ -411,6 +415,7 @@ class Engine:
             track_last_cov_m2=cov_pos_m2(tr.P),
             track_last_t_s=tr.t_state_s,
             track_velocity_known=tr.updates >= 2,
+            track_models=self._gate_models(pred),
         )
         self.counters["plots_redundant"] += int(res.redundant.sum())
         self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())

@@ -26,12 +26,15 @@ would need) and the per-model measurement update is one vectorised Kalman update
 N·M rows.
 
 Gating.  At a turn's onset the quiet model still holds almost all the probability, and
-the combined covariance (8) is the quiet model's: the plots of the second scan into a
-rate-one turn fall 250-300 m off it, outside a 99.9 % gate, and would start a new
-track, so the IMM never sees the turn.  The gate therefore uses the widest model's
-innovation covariance (Bar-Shalom, Li & Kirubarajan 2001, §11.6.6, remark on IMM
-validation: "the largest of the model-conditioned innovation covariances"), about the
-combined prediction (:meth:`IMMFilter.gate_covariance`).
+the combined prediction (7-8) is the quiet model's: the plots of the second scan into a
+rate-one turn fall 250-300 m off it, outside a 99.9 % gate, and would start a new track,
+so the IMM never sees the turn.  An established track therefore gates on every model's
+prediction: a plot is in its gate when it is in any model-conditioned gate, d² =
+min_j ν_jᵀ S_j⁻¹ ν_j (association.gated_pairs; Bar-Shalom, Li & Kirubarajan 2001,
+§11.6.6 discuss validation with the model-conditioned innovation covariances).  A
+single envelope of all models about the combined prediction was tried first: left and
+right turn models make it an ellipse hundreds of metres wide, which took other
+aircraft's primary plots in the primary-high scenario and broke tracks.
 
 The mode switches follow a Markov chain whose per-period transition matrix depends on
 the period dt (tracks are predicted over different dt: radars of different rotation
@@ -342,16 +345,6 @@ class IMMFilter:
         w = np.exp(log_w)
         mu = w / w.sum(axis=1, keepdims=True)  # eq. 6
         return IMMState(x.reshape(n, m, STATE_DIM), P.reshape(n, m, STATE_DIM, STATE_DIM), mu)
-
-    @staticmethod
-    def gate_covariance(state: IMMState, x: Float) -> Float:
-        """Position covariance (N, 2, 2) for the gate (module docstring, "Gating"): of the
-        model-conditioned predictions about the combined x (N, 6), the widest one,
-        max over j by determinant of P_j,pos + (x_j,pos − x_pos)(x_j,pos − x_pos)ᵀ."""
-        d = state.x_models[:, :, POS_IDX] - x[:, None, POS_IDX]
-        C = state.P_models[:, :, POS_IDX[:, None], POS_IDX[None, :]] + d[:, :, :, None] * d[:, :, None, :]
-        det = C[:, :, 0, 0] * C[:, :, 1, 1] - C[:, :, 0, 1] * C[:, :, 1, 0]
-        return np.asarray(C[np.arange(len(state)), det.argmax(axis=1)])
 
     @staticmethod
     def combine(state: IMMState) -> tuple[Float, Float]:
