@@ -453,20 +453,24 @@ class Engine:
         v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
         z_plot = plots.xy_m[used] + v * dt_p[:, None]
         R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
-        # A plot that joined by its Mode S address from outside the gate and that the
-        # cluster's in-gate radars contradict is a wild plot, not a manoeuvre: dropped and
-        # counted (fusion.consensus_outliers).
+        # A plot that joined from outside the gate of the track's combined prediction (by
+        # its Mode S address, or inside an IMM turn model's gate) and that the cluster's
+        # in-gate radars contradict is a wild plot, not a manoeuvre: dropped and counted
+        # (fusion.consensus_outliers), by address or by model gate.
         outlier = consensus_outliers(
             lab, z_plot, R_plot, res.plot_d2[used] > self.clustering.gate_chi2, n_clusters, self.clustering.gate_chi2
         )
         if outlier.any():
-            self.counters["plots_identity_outliers"] += int(outlier.sum())
+            by_address = int((plots.mode_s[used][outlier] >= 0).sum())
+            self.counters["plots_identity_outliers"] += by_address
+            self.counters["plots_model_gate_outliers"] += int(outlier.sum()) - by_address
             keep = ~outlier
             used[np.flatnonzero(used)[outlier]] = False
             lab, row_of_plot, v, z_plot, R_plot = lab[keep], row_of_plot[keep], v[keep], z_plot[keep], R_plot[keep]
             n_in = np.bincount(lab, minlength=n_clusters)
-        # A plot that joined its track by its Mode S address from outside the χ² gate counts
-        # as if it lay on the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
+        # A plot that joined its track from outside the χ² gate of its combined prediction
+        # (by its Mode S address, or inside an IMM turn model's gate) counts as if it lay on
+        # the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
         # plot moves the track no more than a plot at the gate's edge would, while a genuine
         # manoeuvre pulls it scan after scan, and its NIS switches manoeuvre noise on.
         self._register(plots, res, used, lab, row_of_plot, z_plot, R_plot, v, t_ref_s)

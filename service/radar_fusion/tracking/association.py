@@ -448,11 +448,14 @@ def gated_pairs(
     falling within each other's prior, nor make it fly at Mach 5.
 
     ``models``: the IMM's model-conditioned predicted positions (N, M, 2) and covariances
-    (N, M, 2, 2) (imm.py, "Gating"). With them, d² of a pair is the smallest over the
-    combined prediction and every model's, so a plot joins a track when any of its models
-    expects it there: the second scan into a turn, far from the quiet model's prediction
-    but where a turn model put it. For a track whose models should not widen its gate,
-    pass its combined prediction as every model's.
+    (N, M, 2, 2) (imm.py, "Gating"). With them, the gate and the assignment cost take the
+    smallest d² over the combined prediction and every model's, so a plot joins a track
+    when any of its models expects it there: the second scan into a turn, far from the
+    quiet model's prediction but where a turn model put it. The d² returned stays the
+    combined prediction's: a plot beyond that gate is weighed and checked against the
+    other radars as a plot beyond the gate (fusion.consensus_outliers), since a wild plot
+    can fall where a turn model expects the aircraft. For a track whose models should not
+    widen its gate, pass its combined prediction as every model's.
     """
     radius_cp = track_cp
     if models is not None:
@@ -474,11 +477,12 @@ def gated_pairs(
     )
     resid = pair_xy - track_xy[pair_track]
     d2 = mahalanobis2_2x2(resid, track_cp[pair_track] + pair_cov)
+    d2_gate = d2  # the smallest d² over the combined prediction and each model's
     if models is not None:
         for j in range(models[0].shape[1]):
             d2_j = mahalanobis2_2x2(pair_xy - models[0][pair_track, j], models[1][pair_track, j] + pair_cov)
-            d2 = np.minimum(d2, d2_j)
-    gated = d2 <= params.gate_chi2
+            d2_gate = np.minimum(d2_gate, d2_j)
+    gated = d2_gate <= params.gate_chi2
     if params.max_gate_m is not None:
         gated &= np.hypot(resid[:, 0], resid[:, 1]) <= params.max_gate_m
     gated &= identity_compatible(
@@ -501,6 +505,7 @@ def gated_pairs(
     pair_xy = pair_xy[gated]
     pair_cov = pair_cov[gated]
     d2 = d2[gated]
+    d2_gate = d2_gate[gated]
     if last is not None and params.identity_association:
         id_plot, id_track = identity_pairs(
             plot_ms, plot_ok, plot_xy, plot_cov, plot_t, track_ms, track_ok, *last, params.max_speed_mps
@@ -519,6 +524,7 @@ def gated_pairs(
         pair_xy = np.concatenate([pair_xy[keep], add_xy])
         pair_cov = np.concatenate([pair_cov[keep], add_cov])
         d2 = np.concatenate([d2[keep], add_d2])
+        d2_gate = np.concatenate([d2_gate[keep], add_d2])
     own = (plot_ms[pair_plot] >= 0) & (plot_ms[pair_plot] == track_ms[pair_track])
-    cost = np.where(own, d2 * IDENTITY_COST_FACTOR, d2)
+    cost = np.where(own, d2_gate * IDENTITY_COST_FACTOR, d2_gate)
     return pair_plot, pair_track, pair_xy, pair_cov, d2, cost
