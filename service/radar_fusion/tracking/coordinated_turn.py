@@ -54,14 +54,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["CoordinatedTurnModel", "ct_transition"]
+__all__ = ["CoordinatedTurnModel", "ct_noise_4d", "ct_transition", "ct_transition_4d", "lift_cov", "lift_rows"]
 
 #: the 4-D sub-state [x, vx, y, vy] of the Singer state [x, vx, ax, y, vy, ay]
 _SUB = np.array([0, 1, 3, 4])
 
 
-def ct_transition(dt_s: ArrayLike, turn_rate_rad_s: float) -> np.ndarray:
-    """Φ = M·F·S of eq. (4) on the 6-D Singer state, (N, 6, 6), for dt_s (N,)."""
+def ct_transition_4d(dt_s: ArrayLike, turn_rate_rad_s: float) -> np.ndarray:
+    """F of eq. (2) on [x, vx, y, vy], (N, 4, 4), for dt_s (N,)."""
     dt = np.atleast_1d(np.asarray(dt_s, dtype=float))
     w = float(turn_rate_rad_s)
     wt = w * dt
@@ -70,25 +70,58 @@ def ct_transition(dt_s: ArrayLike, turn_rate_rad_s: float) -> np.ndarray:
         s_w, c_w = s / w, 2.0 * np.sin(0.5 * wt) ** 2 / w  # (1 − cos ωT)/ω without cancellation
     else:  # ω → 0: the constant-velocity limit of eq. (2)
         s_w, c_w = dt.copy(), np.zeros_like(dt)
-    F = np.zeros((dt.size, 4, 4))  # eq. (2) on [x, vx, y, vy]
+    F = np.zeros((dt.size, 4, 4))
     F[:, 0, 0] = F[:, 2, 2] = 1.0
     F[:, 0, 1], F[:, 0, 3] = s_w, -c_w
     F[:, 1, 1], F[:, 1, 3] = c, -s
     F[:, 2, 1], F[:, 2, 3] = c_w, s_w
     F[:, 3, 1], F[:, 3, 3] = s, c
-    phi = np.zeros((dt.size, 6, 6))
-    phi[:, _SUB[:, None], _SUB[None, :]] = F  # M·F·S for the rows x, vx, y, vy
-    phi[:, 2, :] = -w * phi[:, 4, :]  # ax = −ω·vy   (eq. 1, 4)
-    phi[:, 5, :] = w * phi[:, 1, :]  # ay = ω·vx
+    return F
+
+
+def ct_noise_4d(dt_s: ArrayLike, turn_rate_rad_s: float, q_m2_s3: float) -> np.ndarray:
+    """Q of eq. (3) on [x, vx, y, vy], (N, 4, 4), for dt_s (N,)."""
+    t = np.atleast_1d(np.asarray(dt_s, dtype=float))
+    w = float(turn_rate_rad_s)
+    wt = w * t
+    small = np.abs(wt) < 1e-2  # and ω = 0: the series are exact there
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # eq. (3)'s three functions of T: 2(T − sin ωT/ω)/ω², (1 − cos ωT)/ω², (T − sin ωT/ω)/ω
+        f_pp = np.where(small, t**3 / 3.0 - w**2 * t**5 / 60.0, 2.0 * (t - np.sin(wt) / w) / w**2)
+        f_pv = np.where(small, t**2 / 2.0 - w**2 * t**4 / 24.0, (1.0 - np.cos(wt)) / w**2)
+        f_po = np.where(small, w * t**3 / 6.0 - w**3 * t**5 / 120.0, (t - np.sin(wt) / w) / w)
+    Q = np.zeros((t.size, 4, 4))
+    Q[:, 0, 0] = Q[:, 2, 2] = q_m2_s3 * f_pp
+    Q[:, 1, 1] = Q[:, 3, 3] = q_m2_s3 * t
+    Q[:, 0, 1] = Q[:, 1, 0] = Q[:, 2, 3] = Q[:, 3, 2] = q_m2_s3 * f_pv
+    Q[:, 0, 3] = Q[:, 3, 0] = q_m2_s3 * f_po  # Q_pv[x, vy]
+    Q[:, 2, 1] = Q[:, 1, 2] = -q_m2_s3 * f_po  # Q_pv[y, vx]
+    return Q
+
+
+def lift_rows(a4: np.ndarray, turn_rate_rad_s: float) -> np.ndarray:
+    """M·a of eq. (4): rows [x, vx, y, vy] (axis 1 of a4, (N, 4, ...)) to the Singer state's
+    six, with ax = −ω·vy and ay = ω·vx."""
+    w = float(turn_rate_rad_s)
+    out = np.empty((a4.shape[0], 6) + a4.shape[2:])
+    out[:, _SUB] = a4
+    out[:, 2] = -w * a4[:, 3]
+    out[:, 5] = w * a4[:, 1]
+    return out
+
+
+def lift_cov(P4: np.ndarray, turn_rate_rad_s: float) -> np.ndarray:
+    """M·P·Mᵀ of eq. (4) for (N, 4, 4) covariances: (N, 6, 6)."""
+    rows = lift_rows(P4, turn_rate_rad_s)  # (N, 6, 4)
+    return np.swapaxes(lift_rows(np.swapaxes(rows, 1, 2), turn_rate_rad_s), 1, 2)
+
+
+def ct_transition(dt_s: ArrayLike, turn_rate_rad_s: float) -> np.ndarray:
+    """Φ = M·F·S of eq. (4) on the 6-D Singer state, (N, 6, 6), for dt_s (N,)."""
+    F = ct_transition_4d(dt_s, turn_rate_rad_s)
+    phi = np.zeros((F.shape[0], 6, 6))
+    phi[:, :, _SUB] = lift_rows(F, turn_rate_rad_s)  # ·S: the columns ax, ay stay zero
     return phi
-
-
-def _M(w: float) -> np.ndarray:
-    """M of eq. (4), (6, 4): x, vx, y, vy as they are, ax = −ω·vy, ay = ω·vx."""
-    M = np.zeros((6, 4))
-    M[0, 0] = M[1, 1] = M[3, 2] = M[4, 3] = 1.0
-    M[2, 3], M[5, 1] = -w, w
-    return M
 
 
 @dataclass(frozen=True)
@@ -122,31 +155,17 @@ class CoordinatedTurnModel:
 
     def process_noise(self, dt_s: ArrayLike) -> np.ndarray:
         """Q₆ = M·Q·Mᵀ of eq. (3-4), (N, 6, 6)."""
-        t = np.atleast_1d(np.asarray(dt_s, dtype=float))
-        w = self.turn_rate_rad_s
-        q = self.q_m2_s3
-        wt = w * t
-        small = np.abs(wt) < 1e-2  # and ω = 0: the series are exact there
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # eq. (3)'s three functions of T: 2(T − sin ωT/ω)/ω², (1 − cos ωT)/ω², (T − sin ωT/ω)/ω
-            f_pp = np.where(small, t**3 / 3.0 - w**2 * t**5 / 60.0, 2.0 * (t - np.sin(wt) / w) / w**2)
-            q_pv_d = np.where(small, t**2 / 2.0 - w**2 * t**4 / 24.0, (1.0 - np.cos(wt)) / w**2)
-            q_pv_o = np.where(small, w * t**3 / 6.0 - w**3 * t**5 / 120.0, (t - np.sin(wt) / w) / w)
-        Q4 = np.zeros((t.size, 4, 4))  # [x, vx, y, vy]
-        Q4[:, 0, 0] = Q4[:, 2, 2] = f_pp
-        Q4[:, 1, 1] = Q4[:, 3, 3] = t
-        Q4[:, 0, 1] = Q4[:, 1, 0] = Q4[:, 2, 3] = Q4[:, 3, 2] = q_pv_d
-        Q4[:, 0, 3] = Q4[:, 3, 0] = q_pv_o  # Q_pv[x, vy]
-        Q4[:, 2, 1] = Q4[:, 1, 2] = -q_pv_o  # Q_pv[y, vx]
-        M = _M(w)
-        return np.asarray(q * (M @ Q4 @ M.T))
+        return lift_cov(ct_noise_4d(dt_s, self.turn_rate_rad_s, self.q_m2_s3), self.turn_rate_rad_s)
 
     def predict(self, x: ArrayLike, P: ArrayLike, dt_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """x(k+1|k) = Φ x, P(k+1|k) = Φ P Φᵀ + Q₆ over dt_s (scalar or (N,)), x (N,6), P (N,6,6)."""
+        """x(k+1|k) = Φ x, P(k+1|k) = Φ P Φᵀ + Q₆ over dt_s (scalar or (N,)), x (N,6), P (N,6,6),
+        computed on [x, vx, y, vy] (Φ = M·F·S: F·S P Sᵀ·Fᵀ + Q, then lifted by M)."""
         x = np.asarray(x, dtype=float)
         P = np.asarray(P, dtype=float)
         dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (x.shape[0],)))
-        phi = self.transition(dt)
-        x_pred = np.einsum("nij,nj->ni", phi, x)
-        P_pred = phi @ P @ np.swapaxes(phi, 1, 2) + self.process_noise(dt)
-        return x_pred, 0.5 * (P_pred + np.swapaxes(P_pred, 1, 2))
+        w = self.turn_rate_rad_s
+        F = ct_transition_4d(dt, w)
+        x4 = np.einsum("nij,nj->ni", F, x[:, _SUB])
+        P4 = F @ P[:, _SUB[:, None], _SUB[None, :]] @ np.swapaxes(F, 1, 2) + ct_noise_4d(dt, w, self.q_m2_s3)
+        P4 = 0.5 * (P4 + np.swapaxes(P4, 1, 2))
+        return lift_rows(x4[:, :, None], w)[:, :, 0], lift_cov(P4, w)

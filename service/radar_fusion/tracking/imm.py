@@ -296,9 +296,16 @@ class IMMFilter:
         w = np.where(unreachable[:, None, :], np.eye(m)[None], joint / np.where(unreachable, 1.0, c_bar)[:, None, :])
         wt = np.swapaxes(w, 1, 2)  # μ_{i|j} as (N, M_j, M_i)
         x0 = wt @ state.x_models  # eq. 3
-        P0 = (wt @ state.P_models.reshape(n, m, STATE_DIM * STATE_DIM)).reshape(state.P_models.shape)
-        d = state.x_models[:, None, :, :] - x0[:, :, None, :]  # x_i − x⁰_j, (N, M_j, M_i, 6)
-        P0 += np.swapaxes(wt[..., None] * d, 2, 3) @ d  # eq. 4: Σ_i μ_{i|j} (x_i − x⁰_j)(x_i − x⁰_j)ᵀ
+        # eq. 4 as Σ_i μ_{i|j} (P_i + e_i e_iᵀ) − e⁰_j e⁰_jᵀ with e_i = x_i − r, e⁰_j = x⁰_j − r
+        # (Σ_i μ_{i|j} = 1), for any r: one (M×M)·(M×36) product per track instead of M²
+        # outer products. r = model 0's state keeps the e small (metres, not the 10⁵ m of a
+        # position), so nothing cancels.
+        ref = state.x_models[:, :1, :]
+        e = state.x_models - ref
+        e0 = x0 - ref
+        second = state.P_models + e[:, :, :, None] * e[:, :, None, :]
+        P0 = (wt @ second.reshape(n, m, STATE_DIM * STATE_DIM)).reshape(state.P_models.shape)
+        P0 -= e0[:, :, :, None] * e0[:, :, None, :]
         return c_bar, x0, 0.5 * (P0 + np.swapaxes(P0, 2, 3))
 
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
