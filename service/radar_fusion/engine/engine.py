@@ -791,7 +791,21 @@ class Engine:
     # ---------------------------------------------------------------- output
     def _output(self, period: int, t_ref_s: float, ended: np.ndarray, out: Prediction) -> TrackColumns:
         tr = self.tracks
-        P = out.P
+        x, P, alt_x = out.x, out.P, out.alt_x
+        t_track_s = None
+        # A track of one update has no velocity yet (initiation.py: its velocity is the wide
+        # prior): it is reported where and when it was measured, velocity nil, not carried
+        # to t_ref at zero speed. Two radars or a Mode S address confirm it at once.
+        young = np.flatnonzero(tr.updates < 2)
+        if young.size:
+            x, P, alt_x = x.copy(), P.copy(), alt_x.copy()
+            x[young] = tr.x[young]
+            x[young[:, None], [1, 2, 4, 5]] = np.nan
+            P[young] = tr.P[young]
+            alt_x[young] = tr.alt_x[young]
+            alt_x[young, 1] = np.nan
+            t_track_s = np.full(len(tr), t_ref_s)
+            t_track_s[young] = tr.t_state_s[young]
         manoeuvre_prob = None
         if self.imm is not None:  # μ of the latest update predicted to t_ref (imm.py eq. 1), like x
             pi = self.imm.transition_matrix(t_ref_s - tr.t_state_s)
@@ -801,10 +815,10 @@ class Engine:
             t_s=t_ref_s,
             track_id=tr.track_id.copy(),
             status=tr.status.copy(),
-            x=out.x,
+            x=x,
             cov_xy=np.stack([P[:, 0, 0], P[:, 0, 3], P[:, 3, 3]], axis=1),
-            fl=out.alt_x[:, 0].copy(),
-            vrate_fpm=out.alt_x[:, 1] * FT_PER_FL * 60.0,
+            fl=alt_x[:, 0].copy(),
+            vrate_fpm=alt_x[:, 1] * FT_PER_FL * 60.0,
             sources=tr.sources.copy(),
             mode3a=tr.mode3a.copy(),
             mode_s=tr.mode_s.copy(),
@@ -813,6 +827,7 @@ class Engine:
             ended=ended,
             names=self._names,
             manoeuvre_prob=manoeuvre_prob,
+            t_track_s=t_track_s,
         )
 
     # ================================================================= health

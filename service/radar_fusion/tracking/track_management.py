@@ -75,10 +75,13 @@ class LifeCycle(BaseModel):
         "the transponder's reply, clutter has none",
     )
     confirm_agreed_updates: int = Field(
-        2,
+        1,
         ge=1,
-        description="... from this many updates on. Default 2: the second update is the two-point initiation "
-        "(Shu §4), the first with a velocity; a one-plot track shown confirmed would stand still on a display",
+        description="... from this many updates on. Default 1: confirmed in the period that starts it (issue 15 "
+        "item 5), shown where and when it was measured with its velocity nil until the second update, the "
+        "two-point initiation (Shu §4), gives it one. On the bench's 50x3 (120 s) the first period then shows "
+        "the aircraft two radars or an address agree on, instead of none: GOSPA over the run 713 -> 4xx m, "
+        "completeness 96.6 -> 100 %. 2 waits for the velocity, as before",
     )
     coast_after_scans: float = Field(
         1.5,
