@@ -377,8 +377,8 @@ def merge_same_address(
     the state of the most recently updated member that is itself established
     (``confirm_updates`` updates: the one that followed the aircraft), never a young
     one-point state that would throw away the old track's velocity; when no member is
-    established, the one whose latest update most radars agreed on, and among those the most
-    recently updated (a wild plot is one radar's; a first plot far from the address's later
+    established, among those with a velocity (two updates) if any, the one whose latest
+    update most radars agreed on, and among those the most recently updated (a wild plot is one radar's; a first plot far from the address's later
     plots, e.g. a wild one, is not kept: those plots could not reach it and started the
     younger tracks). It is confirmed when any member was. The other rows are removed.
     Rows of ``outputs`` (arrays row-aligned with the table) are copied the same way but not
@@ -401,10 +401,15 @@ def merge_same_address(
         if established.size:
             newest = established[np.argmax(table.t_state_s[established])]
         else:
-            # all young: the one most radars agreed on in its latest update, then the latest
-            # measurement (a wild plot is one radar's, and the oldest may be a wild first plot)
-            votes = radar_count(table.sources[members])
-            best = members[votes == votes.max()]
+            # all young: one with a velocity (two updates) before a one-plot state, then the one
+            # most radars agreed on in its latest update, then the latest measurement (a wild
+            # plot is one radar's, and the oldest may be a wild first plot). A plot too far for
+            # the address's two-update track to have flown there started a one-plot track:
+            # that is the wild one (50x3 with 3 % wild plots: kept, it put a track 7 km off).
+            with_v = members[table.updates[members] >= 2]
+            pool = with_v if with_v.size else members
+            votes = radar_count(table.sources[pool])
+            best = pool[votes == votes.max()]
             newest = best[np.argmax(table.t_state_s[best])]
         if newest != oldest:
             for name in _STATE_COLUMNS:
