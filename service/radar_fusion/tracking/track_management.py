@@ -378,12 +378,13 @@ def merge_same_address(
     (``confirm_updates`` updates: the one that followed the aircraft), never a young
     one-point state that would throw away the old track's velocity; when no member is
     established, among those with a velocity (two updates) if any, the one whose latest
-    update most radars agreed on, and among those the most recently updated (a wild plot is one radar's; a first plot far from the address's later
-    plots, e.g. a wild one, is not kept: those plots could not reach it and started the
-    younger tracks). It is confirmed when any member was. The other rows are removed.
-    Rows of ``outputs`` (arrays row-aligned with the table) are copied the same way but not
-    removed: the caller drops them with the returned mask. Returns (keep mask over the
-    table's former rows, merged-away ids).
+    update most radars agreed on, and among those the most recently updated (a wild plot
+    is one radar's; a first plot far from the address's later plots, e.g. a wild one, is
+    not kept: those plots could not reach it and started the younger tracks). It is
+    confirmed when any member was. The other rows are removed. Rows of ``outputs``
+    (arrays row-aligned with the table) are copied the same way but not removed: the
+    caller drops them with the returned mask. Returns (keep mask over the table's former
+    rows, merged-away ids).
     """
     rows = np.flatnonzero(table.mode_s >= 0)
     order = rows[np.lexsort((table.track_id[rows], table.mode_s[rows]))]  # by address, then oldest id first
