@@ -327,3 +327,22 @@ def test_merging_young_tracks_keeps_the_one_most_radars_agreed_on():
     tab = table([0b001, 0b010], [1.0, 2.0])  # one radar each: the latest
     merge_same_address(tab, confirm_updates=3)
     assert tab.x[0, 0] == 1_000.0 and tab.t_state_s[0] == 2.0
+
+
+def test_merging_young_tracks_keeps_the_one_with_a_velocity():
+    """An address's track of two updates (its velocity from the two-point initiation) got
+    no plot this period; a wild plot of the address, too far for the aircraft to have flown
+    there, started a one-plot track beside it. The merge keeps the two-update state (before
+    this rule the one-plot track won on this period's radar count: 7 km off, speed zero)."""
+    from radar_fusion.tracking.track_management import merge_same_address
+
+    tab = TrackTable()
+    rows = tab.append(2)
+    tab.mode_s[rows] = 0x3A7C42
+    tab.updates[rows] = [2, 1]
+    tab.sources[rows] = np.array([0, 0b001], dtype=np.uint64)  # only the wild one has a plot now
+    tab.t_state_s[rows] = [8.0, 11.0]
+    tab.x[rows] = [[-113_329.0, -32.0, 0.0, 24_689.0, -128.0, 0.0], [-120_827.0, 0.0, 0.0, 24_635.0, 0.0, 0.0]]
+    _, merged = merge_same_address(tab, confirm_updates=3)
+    assert len(tab) == 1 and tab.track_id[0] == 1 and merged.tolist() == [2]
+    assert tab.x[0, 0] == -113_329.0 and tab.x[0, 1] == -32.0 and tab.t_state_s[0] == 8.0 and tab.updates[0] == 2

@@ -54,7 +54,7 @@ from ..geo.unknown_height import unknown_height_plots
 from ..safety_nets import SafetyNets
 from ..tracking.clustering import ClusterResult, cluster_plots
 from ..tracking.fusion import consensus_outliers, fuse_clusters
-from ..tracking.imm import MANOEUVRE, IMMFilter, IMMState
+from ..tracking.imm import QUIET, IMMFilter, IMMState
 from ..tracking.initiation import (
     floor_covariance,
     one_point_initiation,
@@ -65,7 +65,7 @@ from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
 from ..tracking.registration import RadarRegistration
-from ..tracking.singer_filter import AltitudeFilter, SingerFilter
+from ..tracking.singer_filter import POS_IDX, AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
     TENTATIVE,
@@ -376,6 +376,22 @@ class Engine:
         return Prediction(x, P, alt_x, alt_P)
 
     # ------------------------------------------------------------- associate
+    def _gate_models(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray] | None:
+        """With the IMM, each track's model-conditioned predicted positions and covariances
+        for the gate (imm.py, "Gating"): an established track (confirmed or coasting) takes
+        a plot that any of its models expects, so that the second scan into a turn still
+        joins it; a tentative track gates on its combined prediction only, so that clutter
+        does not confirm it (with every track's models, the primary-high scenario confirmed
+        a clutter track in 2 of its 3 test seeds)."""
+        if pred.imm is None:
+            return None
+        xy = pred.imm.x_models[:, :, POS_IDX]
+        cov = pred.imm.P_models[:, :, POS_IDX[:, None], POS_IDX[None, :]]
+        young = np.flatnonzero(self.tracks.status == TENTATIVE)
+        xy[young] = position_m(pred.x[young])[:, None, :]
+        cov[young] = cov_pos_m2(pred.P[young])[:, None]
+        return xy, cov
+
     def _associate(self, plots: ConvertedPlots, pred: Prediction, t_ref_s: float) -> ClusterResult:
         """Time alignment and k-means clustering seeded by the tracks (Shu §2); a plot with a
         live track's Mode S address goes to that track (association.identity_pairs)."""
@@ -399,6 +415,7 @@ class Engine:
             track_last_cov_m2=cov_pos_m2(tr.P),
             track_last_t_s=tr.t_state_s,
             track_velocity_known=tr.updates >= 2,
+            track_models=self._gate_models(pred),
         )
         self.counters["plots_redundant"] += int(res.redundant.sum())
         self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())
@@ -436,20 +453,24 @@ class Engine:
         v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
         z_plot = plots.xy_m[used] + v * dt_p[:, None]
         R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
-        # A plot that joined by its Mode S address from outside the gate and that the
-        # cluster's in-gate radars contradict is a wild plot, not a manoeuvre: dropped and
-        # counted (fusion.consensus_outliers).
+        # A plot that joined from outside the gate of the track's combined prediction (by
+        # its Mode S address, or inside an IMM turn model's gate) and that the cluster's
+        # in-gate radars contradict is a wild plot, not a manoeuvre: dropped and counted
+        # (fusion.consensus_outliers), by address or by model gate.
         outlier = consensus_outliers(
             lab, z_plot, R_plot, res.plot_d2[used] > self.clustering.gate_chi2, n_clusters, self.clustering.gate_chi2
         )
         if outlier.any():
-            self.counters["plots_identity_outliers"] += int(outlier.sum())
+            by_address = int((plots.mode_s[used][outlier] >= 0).sum())
+            self.counters["plots_identity_outliers"] += by_address
+            self.counters["plots_model_gate_outliers"] += int(outlier.sum()) - by_address
             keep = ~outlier
             used[np.flatnonzero(used)[outlier]] = False
             lab, row_of_plot, v, z_plot, R_plot = lab[keep], row_of_plot[keep], v[keep], z_plot[keep], R_plot[keep]
             n_in = np.bincount(lab, minlength=n_clusters)
-        # A plot that joined its track by its Mode S address from outside the χ² gate counts
-        # as if it lay on the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
+        # A plot that joined its track from outside the χ² gate of its combined prediction
+        # (by its Mode S address, or inside an IMM turn model's gate) counts as if it lay on
+        # the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
         # plot moves the track no more than a plot at the gate's edge would, while a genuine
         # manoeuvre pulls it scan after scan, and its NIS switches manoeuvre noise on.
         self._register(plots, res, used, lab, row_of_plot, z_plot, R_plot, v, t_ref_s)
@@ -779,20 +800,34 @@ class Engine:
     # ---------------------------------------------------------------- output
     def _output(self, period: int, t_ref_s: float, ended: np.ndarray, out: Prediction) -> TrackColumns:
         tr = self.tracks
-        P = out.P
+        x, P, alt_x = out.x, out.P, out.alt_x
+        t_track_s = None
+        # A track of one update has no velocity yet (initiation.py: its velocity is the wide
+        # prior): it is reported where and when it was measured, velocity nil, not carried
+        # to t_ref at zero speed. Two radars or a Mode S address confirm it at once.
+        young = np.flatnonzero(tr.updates < 2)
+        if young.size:
+            x, P, alt_x = x.copy(), P.copy(), alt_x.copy()
+            x[young] = tr.x[young]
+            x[young[:, None], [1, 2, 4, 5]] = np.nan
+            P[young] = tr.P[young]
+            alt_x[young] = tr.alt_x[young]
+            alt_x[young, 1] = np.nan
+            t_track_s = np.full(len(tr), t_ref_s)
+            t_track_s[young] = tr.t_state_s[young]
         manoeuvre_prob = None
         if self.imm is not None:  # μ of the latest update predicted to t_ref (imm.py eq. 1), like x
             pi = self.imm.transition_matrix(t_ref_s - tr.t_state_s)
-            manoeuvre_prob = np.einsum("ni,nij->nj", tr.mu, pi)[:, MANOEUVRE]
+            manoeuvre_prob = 1.0 - np.einsum("ni,nij->nj", tr.mu, pi)[:, QUIET]
         return TrackColumns(
             period=period,
             t_s=t_ref_s,
             track_id=tr.track_id.copy(),
             status=tr.status.copy(),
-            x=out.x,
+            x=x,
             cov_xy=np.stack([P[:, 0, 0], P[:, 0, 3], P[:, 3, 3]], axis=1),
-            fl=out.alt_x[:, 0].copy(),
-            vrate_fpm=out.alt_x[:, 1] * FT_PER_FL * 60.0,
+            fl=alt_x[:, 0].copy(),
+            vrate_fpm=alt_x[:, 1] * FT_PER_FL * 60.0,
             sources=tr.sources.copy(),
             mode3a=tr.mode3a.copy(),
             mode_s=tr.mode_s.copy(),
@@ -801,6 +836,7 @@ class Engine:
             ended=ended,
             names=self._names,
             manoeuvre_prob=manoeuvre_prob,
+            t_track_s=t_track_s,
         )
 
     # ================================================================= health
