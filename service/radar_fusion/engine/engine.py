@@ -621,7 +621,7 @@ class Engine:
             r = rows[init]
             if self.imm is not None:
                 prior = self.imm.predict(IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows]), dt_s)
-                st = self.imm.update(prior.select(init), z_m[init], R_m2[init])
+                st = self.imm.update(prior if init.all() else prior.select(init), z_m[init], R_m2[init])
                 tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
                 x_c[init], P_c[init] = self.imm.combine(st)
             else:
