@@ -445,6 +445,18 @@ class Engine:
         lab = res.labels[used]
         n_in = np.bincount(lab, minlength=n_clusters)
         t_c = np.bincount(lab, weights=plots.t_s[used], minlength=n_clusters) / np.maximum(n_in, 1)
+        # Without a velocity (a new target, or a track of one update) the plots are fused at
+        # zero speed, so the fused position is where the aircraft was at the plots' mean time
+        # weighted as the fusion weighs them (1/trace R): at their plain mean time instead,
+        # a precise plot early and a coarse one late put it up to a second of flight off.
+        no_v = np.ones(n_clusters, bool)
+        has_track = res.cluster_track >= 0
+        no_v[has_track] = self.tracks.updates[res.cluster_track[has_track]] < 2
+        if no_v.any():
+            w = 1.0 / np.trace(plots.cov_m2[used], axis1=1, axis2=2)
+            w_sum = np.bincount(lab, weights=w, minlength=n_clusters)
+            t_w = np.bincount(lab, weights=w * plots.t_s[used], minlength=n_clusters) / np.where(w_sum > 0, w_sum, 1.0)
+            t_c = np.where(no_v & (w_sum > 0), t_w, t_c)
         row_of_plot = res.cluster_track[lab]
         dt_p = t_c[lab] - plots.t_s[used]
         # a padding row (-1) stands for "no track": zero velocity, wide velocity prior
