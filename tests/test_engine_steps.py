@@ -668,3 +668,24 @@ def test_a_new_targets_primary_plot_beside_an_ssr_plot_is_left_out_of_its_fusion
     assert eng.tracks.t_state_s[0] == pytest.approx(T0 + 1.0)
     assert np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(T0 + 1.0))) < 20.0
     assert eng.tracks.alt_x[0, 0] == pytest.approx(FL)
+
+
+def test_a_new_target_is_reported_at_the_time_its_fused_position_belongs_to():
+    """A new target's plots are fused at zero speed, so the fused position is where the
+    aircraft was at the plots' time weighted as the fusion weighs them, not at their plain
+    mean: radar a (precise) sees it at t0 + 1 s, radar b (coarse) at t0 + 3 s. Reported at
+    the plain mean time t0 + 2 s the noise-free fused position is most of a second of flight
+    (~200 m) off the truth; at the weighted time it is within a few metres."""
+    raw = settings().model_dump()
+    raw["radars"][0].update(sigma_range_m=20, sigma_azimuth_deg=0.02)
+    raw["radars"][1].update(sigma_range_m=200, sigma_azimuth_deg=0.3)
+    eng = Engine(settings_from_dict(raw))
+    [out] = closed(eng, 1)
+    cols = out.track_columns
+    assert cols.t_track_s is not None
+    t_rep = float(cols.t_track_s[0])
+    assert T0 + 1.0 < t_rep < T0 + 1.5  # close to the precise plot's time
+    xy = cols.x[0, [0, 3]]
+    err_reported_m = float(np.hypot(*(xy - truth_xy(t_rep))))
+    err_plain_mean_m = float(np.hypot(*(xy - truth_xy(T0 + 2.0))))
+    assert err_plain_mean_m > 150.0 and err_reported_m < 20.0, (err_reported_m, err_plain_mean_m)

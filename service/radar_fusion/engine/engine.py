@@ -53,7 +53,7 @@ from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
 from ..geo.unknown_height import unknown_height_plots
 from ..safety_nets import SafetyNets
 from ..tracking.clustering import ClusterResult, cluster_plots
-from ..tracking.fusion import consensus_outliers, fuse_clusters
+from ..tracking.fusion import consensus_outliers, fuse_clusters, leave_one_out_outliers
 from ..tracking.imm import QUIET, IMMFilter, IMMState
 from ..tracking.initiation import (
     floor_covariance,
@@ -442,17 +442,44 @@ class Engine:
             if drop.any():
                 used = used & ~drop
                 self.counters["plots_primary_left_out"] += int(drop.sum())
-        lab = res.labels[used]
-        n_in = np.bincount(lab, minlength=n_clusters)
-        t_c = np.bincount(lab, weights=plots.t_s[used], minlength=n_clusters) / np.maximum(n_in, 1)
-        row_of_plot = res.cluster_track[lab]
-        dt_p = t_c[lab] - plots.t_s[used]
+        # Without a velocity (a new target, or a track of one update) the plots are fused at
+        # zero speed, so the fused position is where the aircraft was at the plots' mean time
+        # weighted as the fusion weighs them (1/trace R): at their plain mean time instead,
+        # a precise plot early and a coarse one late put it up to a second of flight off.
+        no_v = np.ones(n_clusters, bool)
+        has_track = res.cluster_track >= 0
+        no_v[has_track] = self.tracks.updates[res.cluster_track[has_track]] < 2
         # a padding row (-1) stands for "no track": zero velocity, wide velocity prior
         v_pad = np.concatenate([velocity_mps(pred.x), np.zeros((1, 2))])
         pvv_pad = np.concatenate([cov_vel(pred.P), self.one_plot_vel_var_m2ps2 * np.eye(2)[None]])
-        v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
-        z_plot = plots.xy_m[used] + v * dt_p[:, None]
-        R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
+
+        def align(used: np.ndarray) -> tuple[np.ndarray, ...]:
+            lab = res.labels[used]
+            n_in = np.bincount(lab, minlength=n_clusters)
+            t_c = np.bincount(lab, weights=plots.t_s[used], minlength=n_clusters) / np.maximum(n_in, 1)
+            if no_v.any():
+                w = 1.0 / np.trace(plots.cov_m2[used], axis1=1, axis2=2)
+                w_sum = np.bincount(lab, weights=w, minlength=n_clusters)
+                t_w = np.bincount(lab, weights=w * plots.t_s[used], minlength=n_clusters) / np.where(
+                    w_sum > 0, w_sum, 1
+                )
+                t_c = np.where(no_v & (w_sum > 0), t_w, t_c)
+            row_of_plot = res.cluster_track[lab]
+            dt_p = t_c[lab] - plots.t_s[used]
+            v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
+            z_plot = plots.xy_m[used] + v * dt_p[:, None]
+            R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
+            return lab, n_in, t_c, row_of_plot, v, z_plot, R_plot
+
+        lab, n_in, t_c, row_of_plot, v, z_plot, R_plot = align(used)
+        # A cluster without a velocity has no prediction to gate its plots: of three plots or
+        # more, the one the others contradict beyond the gate is a wild plot, dropped and
+        # counted (fusion.leave_one_out_outliers); the rest are aligned again without it.
+        wild = leave_one_out_outliers(lab, z_plot, R_plot, no_v, n_clusters, self.clustering.gate_chi2)
+        if wild.any():
+            self.counters["plots_new_target_outliers"] += int(wild.sum())
+            used[np.flatnonzero(used)[wild]] = False
+            lab, n_in, t_c, row_of_plot, v, z_plot, R_plot = align(used)
         # A plot that joined from outside the gate of the track's combined prediction (by
         # its Mode S address, or inside an IMM turn model's gate) and that the cluster's
         # in-gate radars contradict is a wild plot, not a manoeuvre: dropped and counted
