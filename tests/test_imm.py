@@ -464,3 +464,14 @@ def test_print_cost_at_4000_tracks() -> None:
     # what was timed is a valid result (not asserted on time)
     assert np.isfinite(out.P_models).all()
     np.testing.assert_allclose(out.mu.sum(axis=1), 1.0, rtol=1e-12)
+
+
+def test_mixed_covariances_are_exactly_symmetric() -> None:
+    """mix() leaves out a symmetrisation: eq. 4 as formed there is symmetric to the bit when
+    the model covariances are (every (k, l) and (l, k) term is computed the same way)."""
+    imm = IMMFilter()
+    st = _random_state(imm, 300, np.random.default_rng(12))
+    st.x_models *= 30.0  # model states far apart, positions of 10⁵ m
+    _, _, P0 = imm.mix(st, np.random.default_rng(1).uniform(0.0, 12.0, 300))
+    np.testing.assert_array_equal(P0, np.swapaxes(P0, 2, 3))
+    assert (np.linalg.eigvalsh(P0) > 0).all()

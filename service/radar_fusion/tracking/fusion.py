@@ -151,13 +151,18 @@ def consensus_outliers(
     if not cand.size:
         return out
     c = labels[cand]
-    R_in = inv_2x2(info[c])
-    z_in = np.einsum("kij,kj->ki", R_in, info_z[c])
-    y = z_m[cand] - z_in
-    S_inv = inv_2x2(R_m2[cand] + R_in)
-    d2 = np.einsum("ki,kij,kj->k", y, S_inv, y)
-    out[cand] = d2 > gate_chi2
+    out[cand] = _d2_against(z_m[cand], R_m2[cand], info[c], info_z[c]) > gate_chi2
     return out
+
+
+def _d2_against(
+    z: NDArray[np.float64], R: NDArray[np.float64], info: NDArray[np.float64], info_z: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """d² = (z − z_f)ᵀ (R + R_f)⁻¹ (z − z_f) of plots (z, R) against the fusion of others
+    given in information form (Σ R⁻¹, Σ R⁻¹ z): R_f = info⁻¹, z_f = R_f info_z."""
+    R_f = inv_2x2(info)
+    y = z - np.einsum("kij,kj->ki", R_f, info_z)
+    return np.asarray(np.einsum("ki,kij,kj->k", y, inv_2x2(R + R_f), y))
 
 
 def leave_one_out_outliers(
@@ -190,13 +195,11 @@ def leave_one_out_outliers(
     if not cand.size:
         return out
     W = inv_2x2(R_m2)
+    Wz = np.einsum("pij,pj->pi", W, z_m)
     info = _cluster_sum(labels, W, n_clusters)
-    info_z = _cluster_sum(labels, np.einsum("pij,pj->pi", W, z_m), n_clusters)
+    info_z = _cluster_sum(labels, Wz, n_clusters)
     c = labels[cand]
-    R_rest = inv_2x2(info[c] - W[cand])
-    z_rest = np.einsum("kij,kj->ki", R_rest, info_z[c] - np.einsum("kij,kj->ki", W[cand], z_m[cand]))
-    y = z_m[cand] - z_rest
-    d2 = np.einsum("ki,kij,kj->k", y, inv_2x2(R_m2[cand] + R_rest), y)
+    d2 = _d2_against(z_m[cand], R_m2[cand], info[c] - W[cand], info_z[c] - Wz[cand])  # the others' fusion
     worst = np.full(n_clusters, -np.inf)
     np.maximum.at(worst, c, d2)
     flagged = np.flatnonzero((d2 == worst[c]) & (d2 > gate_chi2))

@@ -306,7 +306,9 @@ class IMMFilter:
         second = state.P_models + e[:, :, :, None] * e[:, :, None, :]
         P0 = (wt @ second.reshape(n, m, STATE_DIM * STATE_DIM)).reshape(state.P_models.shape)
         P0 -= e0[:, :, :, None] * e0[:, :, None, :]
-        return c_bar, x0, 0.5 * (P0 + np.swapaxes(P0, 2, 3))
+        # exactly symmetric as it stands (the P_i are, and every term is formed the same way
+        # for (k, l) and (l, k)): no symmetrisation needed
+        return c_bar, x0, P0
 
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
         """Steps 1-2: mixing (eq. 1-4) and each model's Singer prediction (Shu eq. 8, 11)

@@ -464,6 +464,15 @@ class AddressMemory:
                 float(t_s[k]),
             )
 
+    def entries(self) -> list[tuple[int, int, np.ndarray, np.ndarray, float]]:
+        """(address, id, last xy, its covariance, last time) of every entry (engine/state.py)."""
+        return [(a, *e) for a, e in self._by_address.items()]
+
+    def load(self, entries: list[tuple[int, int, np.ndarray, np.ndarray, float]]) -> None:
+        """Add the entries of :meth:`entries` (a restart from state)."""
+        for a, track_id, xy, cov, t_s in entries:
+            self._by_address[int(a)] = (int(track_id), np.asarray(xy, float), np.asarray(cov, float), float(t_s))
+
     def forget_older_than(self, t_s: float) -> None:
         """Drop the entries whose last plot is before ``t_s``."""
         for a in [a for a, e in self._by_address.items() if e[3] < t_s]:
