@@ -107,6 +107,24 @@ def test_pcrb_is_a_floor_that_falls_with_more_radars():
     # plot's error; three radars' plots bring the floor well below it.
     assert floors[3]["pcrb_pos_rms_m"] < 0.8 * floors[3]["noise_model_rms_m"]
     assert floors[3]["pcrb_pos_rms_m"] < 0.8 * floors[1]["pcrb_pos_rms_m"]
+    # the model of the bound is the filter's straight-flight model: with the IMM its quiet
+    # model, the same bound as a single Singer filter of the quiet model's α and σ_m
+    assert settings.tracking.filter == "imm"
+    imm = settings.tracking.imm
+    singer = settings.model_copy(
+        update={
+            "tracking": settings.tracking.model_copy(
+                update={
+                    "filter": "singer",
+                    "alpha_per_s": imm.quiet_alpha_per_s,
+                    "sigma_m_mps2": imm.quiet_sigma_m_mps2,
+                }
+            )
+        }
+    )
+    same = compare.measurement_floor(sim, singer, settle_s=20.0)
+    assert same["pcrb_pos_rms_m"] == floors[3]["pcrb_pos_rms_m"]
+    assert 0.0 < floors[3]["pcrb_straight_pos_rms_m"] < floors[3]["noise_model_rms_m"]
 
 
 def test_accuracy_job_scores_ours_and_each_radar_alone(tmp_path):

@@ -127,7 +127,10 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     J_{k+1} = D22 − D21 (J_k + D11)⁻¹ D12 (D11 = ΦᵀQ⁻¹Φ, D12 = −ΦᵀQ⁻¹, D22 = Q⁻¹ + HᵀR⁻¹H)
     is, by the matrix inversion lemma, J_{k+1} = (Φ J_k⁻¹ Φᵀ + Q)⁻¹ + HᵀR_{k+1}⁻¹H, which is
     evaluated in that covariance form (Q is nearly singular for plots a few ms apart). Model:
-    the engine's Singer model (its α and σ_m, Φ and Q from ``singer_filter``); measurements:
+    the filter's model of straight flight, a Singer model (Φ and Q from ``singer_filter``):
+    with the IMM its quiet model (``[tracking.imm] quiet_*``), with the Singer filter its α and
+    σ_m. A bound for that model, it is a floor for straight flight, where the truth follows it;
+    in turns no single model's bound applies. Measurements:
     every such plot of the aircraft, from all radars, at its own time with its own 2×2
     covariance R (sequential processing is the exact fused-measurement information);
     prior at the first plot (and again after a gap of more than 60 s without plots, when a
@@ -136,7 +139,9 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     association, no false or wild plots and no radar bias,
     so it is a floor. It is evaluated at the period times (as the tracks are scored) while
     the aircraft is detectable, from ``settle_s`` after its first plot on, and reported as
-    sqrt(mean(P_xx + P_yy)), comparable with the settled position RMS.
+    sqrt(mean(P_xx + P_yy)), comparable with the settled position RMS; and over the times in
+    straight flight alone (truth turn rate below 0.3°/s, as ``evaluate`` splits them),
+    comparable with the settled straight-flight RMS.
     """
     import numpy as np
 
@@ -174,8 +179,10 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
 
     trk = settings.tracking
     gap_s = 60.0
-    alpha = trk.alpha_per_s
-    sigma_m = trk.sigma_m_mps2
+    if trk.filter == "imm":
+        alpha, sigma_m = trk.imm.quiet_alpha_per_s, trk.imm.quiet_sigma_m_mps2
+    else:
+        alpha, sigma_m = trk.alpha_per_s, trk.sigma_m_mps2
     order = np.lexsort((t, tgt))
     t, cov, tgt = t[order], cov[order], tgt[order]
     n = t.size
@@ -218,6 +225,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     times = times * period_s
     tr = sim.truth
     var_sum, count = 0.0, 0
+    straight_sum, straight_count = 0.0, 0
     for k, s in enumerate(start.tolist()):
         e = start[k + 1] if k + 1 < start.size else n
         target = int(tgt[s])
@@ -228,24 +236,32 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         tt, det = tr.t_s[rows], tr.detectable[rows]
         if tt.size == 0:
             continue
+        heading = np.unwrap(np.arctan2(tr.vx_mps[rows], tr.vy_mps[rows]))
+        rate_deg_s = np.abs(np.degrees(np.gradient(heading, tt))) if tt.size > 1 else np.zeros(tt.size)
         ok = (q >= tt[0]) & (q <= tt[-1])
         q = q[ok]
         lo = np.clip(np.searchsorted(tt, q, side="right") - 1, 0, tt.size - 1)
         hi = np.clip(lo + 1, 0, tt.size - 1)
-        q = q[det[lo] & det[hi]]
+        seen = det[lo] & det[hi]
+        q, straight = q[seen], np.maximum(rate_deg_s[lo], rate_deg_s[hi])[seen] < 0.3
         if q.size == 0:
             continue
         j = s + np.searchsorted(t[s:e], q, side="right") - 1
-        q, j = q[q - t[j] <= gap_s], j[q - t[j] <= gap_s]  # no plot for longer: no track to bound
+        near = q - t[j] <= gap_s  # no plot for longer: no track to bound
+        q, j, straight = q[near], j[near], straight[near]
         if q.size == 0:
             continue
         dt = q - t[j]
         F = singer_transition(dt, alpha)
         Pq = F @ P[j] @ np.swapaxes(F, 1, 2) + singer_process_noise(dt, alpha, sigma_m)
-        var_sum += float(np.sum(Pq[:, 0, 0] + Pq[:, 3, 3]))
+        v = Pq[:, 0, 0] + Pq[:, 3, 3]
+        var_sum += float(np.sum(v))
         count += q.size
+        straight_sum += float(np.sum(v[straight]))
+        straight_count += int(straight.sum())
     out["pcrb_pos_rms_m"] = math.sqrt(var_sum / count) if count else math.nan
     out["pcrb_points"] = count
+    out["pcrb_straight_pos_rms_m"] = math.sqrt(straight_sum / straight_count) if straight_count else math.nan
     return out
 
 
@@ -660,7 +676,8 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
             print(
                 f"  accuracy: ours pos RMS {o['pos_rms_m']:.0f} m (settled {o['pos_rms_settled_m']:.0f}), GOSPA "
                 f"{o['gospa_mean_m']:.0f} m; best single radar {acc['best_single_radar']}; plot noise "
-                f"{sim['noise_rms_m']:.0f} m, PCRB {sim['pcrb_pos_rms_m']:.0f} m",
+                f"{sim['noise_rms_m']:.0f} m, PCRB {sim['pcrb_pos_rms_m']:.0f} m "
+                f"(straight flight {sim.get('pcrb_straight_pos_rms_m', math.nan):.0f} m)",
                 flush=True,
             )
         rows.append(row)

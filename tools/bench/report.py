@@ -301,7 +301,10 @@ def compare_tables(rows: list[dict[str, Any]], args: argparse.Namespace) -> tupl
             f"| {row['label']} | measurement noise (plot RMS; model) | {_f(sim['noise_rms_m'])} "
             f"| {_f(sim['noise_model_rms_m'])} | {blank} |"
         )
-        lines.append(f"| {row['label']} | PCRB floor (Singer, settled) | - | {_f(sim['pcrb_pos_rms_m'])} | {blank} |")
+        lines.append(
+            f"| {row['label']} | PCRB floor (straight-flight model, settled; straight flight "
+            f"{_f(sim.get('pcrb_straight_pos_rms_m', math.nan))}) | - | {_f(sim['pcrb_pos_rms_m'])} | {blank} |"
+        )
     acc_md = "\n".join(lines)
     return speed_md, acc_md, goal_lines_compare(rows)
 
