@@ -36,6 +36,8 @@ from .config import BusConfig, Settings
 from .engine import Engine, PeriodOutput
 from .metrics import DaemonMetrics
 from .safety_nets import SafetyNets
+from .safety_nets.process import health_key
+from .safety_nets.supervisor import SafetyNetsChild
 from .wire import RadarStatus, Rejection, decode_message, decode_plot_batch
 
 log = logging.getLogger("radar_fusion.bus")
@@ -128,7 +130,10 @@ class RateLimitedLog:
 
 
 class FusionDaemon:
-    """The fusion daemon: one Zenoh session, one engine, a processing and a publishing thread."""
+    """The fusion daemon: one Zenoh session, one engine, a processing and a publishing thread,
+    and by default the safety nets as a supervised child process (``safety_nets``)."""
+
+    safety_nets_ready_timeout_s = 30.0  # a fresh interpreter's imports take ~3 s on 2 shared cores
 
     def __init__(
         self,
@@ -137,11 +142,24 @@ class FusionDaemon:
         idle_flush_s: float | None = None,
         base_dir: Path | None = None,
         outbox_size: int = 1024,
+        safety_nets: str | None = None,
+        log_format: str = "text",
     ):
         self.settings = settings
         self.prefix = settings.bus.prefix
+        # Where the safety nets run: "child" (their own process, started here), "in_process"
+        # (on the processing thread) or "external" (none here); default [safety_nets] process.
+        self.safety_nets_mode = (safety_nets or settings.safety_nets.process).replace("-", "_")
+        if self.safety_nets_mode not in ("child", "in_process", "external"):
+            raise ValueError(f"safety_nets must be child, in_process or external, not {safety_nets!r}")
         # base_dir: where the config file lives; relative areas/MSA file paths resolve there
-        self.engine = Engine(settings, safety_nets=SafetyNets.from_settings(settings, base_dir=base_dir))
+        in_process = self.safety_nets_mode == "in_process"
+        self.engine = Engine(settings, safety_nets=SafetyNets.from_settings(settings, base_dir) if in_process else None)
+        self.safety_nets_child: SafetyNetsChild | None = None
+        if self.safety_nets_mode == "child":
+            self.safety_nets_child = SafetyNetsChild(settings, base_dir, log_format=log_format)
+        self.safety_nets_health: dict[str, Any] | None = None  # the newest from our child
+        self._safety_nets_ready = threading.Event()
         self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self.stop_event = threading.Event()
         self.stopped = threading.Event()
@@ -177,13 +195,27 @@ class FusionDaemon:
         self.metrics.start()
         self._session = open_session(cfg)
         p = self.prefix
-        # One subscriber for plots and status: its callback sees a sender's messages in
-        # the order they were sent, so a north marker never overtakes the plots before it.
-        self._subs = [self._session.declare_subscriber(f"{p}/radar/*/*", self._on_sample)]
         self._pubs["tracks"] = reliable_publisher(self._session, f"{p}/fusion/tracks")
         self._pubs["health"] = self._session.declare_publisher(f"{p}/fusion/health")
-        for kind in ("stca", "apw", "msaw"):
-            self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
+        if self.safety_nets_mode == "in_process":
+            for kind in ("stca", "apw", "msaw"):
+                self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
+        elif self.safety_nets_child is not None:
+            # The child joins this session's router (or the routers it connects to), then
+            # says it is ready with its first health. The radars' plots are taken only
+            # then (bounded wait), so that it judges the first periods too.
+            self._subs.append(self._session.declare_subscriber(health_key(p), self._on_safety_nets_health))
+            self.safety_nets_child.start()
+            if not self._safety_nets_ready.wait(self.safety_nets_ready_timeout_s):
+                log.error(
+                    "safety-nets child not ready after %.0f s: the tracks go on without it for now",
+                    self.safety_nets_ready_timeout_s,
+                )
+        else:
+            log.warning("safety nets: external; this daemon runs none (a radar-fusion safety-nets must run elsewhere)")
+        # One subscriber for plots and status: its callback sees a sender's messages in
+        # the order they were sent, so a north marker never overtakes the plots before it.
+        self._subs.append(self._session.declare_subscriber(f"{p}/radar/*/*", self._on_sample))
         self._publisher = threading.Thread(target=self._publish_loop, name="fusion-publish", daemon=True)
         self._publisher.start()
         self._thread = threading.Thread(target=self._run, name="fusion-engine", daemon=True)
@@ -202,6 +234,8 @@ class FusionDaemon:
             except queue.Full:
                 log.error("publishing thread stuck; %d outputs not sent", self.outbox.qsize())
             self._publisher.join(timeout_s)
+        if self.safety_nets_child is not None:  # after the last batches: it judges them, then exits
+            self.safety_nets_child.stop()
         for sub in self._subs:
             sub.undeclare()
         self._subs = []
@@ -219,6 +253,18 @@ class FusionDaemon:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def _on_safety_nets_health(self, sample: zenoh.Sample) -> None:
+        """The child's health (Zenoh's thread): kept for this daemon's health; the first says it is ready."""
+        child = self.safety_nets_child
+        try:
+            health = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
+            if child is None or not isinstance(health, dict) or health.get("pid") != child.pid:
+                return  # another safety-nets process on the bus
+        except Exception:
+            return
+        self.safety_nets_health = health
+        self._safety_nets_ready.set()
 
     # ------------------------------------------------------------------ input
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -399,7 +445,37 @@ class FusionDaemon:
             outputs_dropped=self.outputs_dropped,
             publish_errors=self.publish_errors,
         )
-        return {"v": 1, "t": now, "uptime_s": now - self.started_wall, **h, "lag_s": (now - newest) if newest else None}
+        health = {
+            "v": 1,
+            "t": now,
+            "uptime_s": now - self.started_wall,
+            **h,
+            "lag_s": (now - newest) if newest else None,
+        }
+        health["safety_nets"] = self.safety_nets_status()
+        child = self.safety_nets_child
+        if child is not None:
+            counters = h["counters"]
+            counters["safety_nets_process_restarts"] = child.restarts
+            relayed = self.safety_nets_health
+            if relayed is not None and isinstance(relayed.get("counters"), dict):
+                # the child's event counts, under the names they had in process (safety_nets_<name>)
+                counters.update(
+                    {k: v for k, v in relayed["counters"].items() if k.startswith("safety_nets_") and type(v) is int}
+                )
+        return health
+
+    def safety_nets_status(self) -> dict[str, Any]:
+        """Where the safety nets run and, for a child, whether it runs (health ``safety_nets``)."""
+        status: dict[str, Any] = {"process": self.safety_nets_mode}
+        child = self.safety_nets_child
+        if child is not None:
+            status.update(child.status())
+            relayed = self.safety_nets_health
+            status["health_age_s"] = (
+                (time.time() - relayed["t"]) if relayed and type(relayed.get("t")) is float else None
+            )
+        return status
 
     def publish_health(self, health: dict[str, Any] | None = None) -> None:
         """Publish a health message: ``health`` (a snapshot), or one built now. Its
