@@ -202,15 +202,11 @@ class FusionDaemon:
                 self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
         elif self.safety_nets_child is not None:
             # The child joins this session's router (or the routers it connects to), then
-            # says it is ready with its first health. The radars' plots are taken only
-            # then (bounded wait), so that it judges the first periods too.
+            # says it is ready with its first health; the processing thread waits for that
+            # (bounded) before its first period, so that the child judges the first periods
+            # too. Plots received meanwhile wait in the input queue.
             self._subs.append(self._session.declare_subscriber(health_key(p), self._on_safety_nets_health))
             self.safety_nets_child.start()
-            if not self._safety_nets_ready.wait(self.safety_nets_ready_timeout_s):
-                log.error(
-                    "safety-nets child not ready after %.0f s: the tracks go on without it for now",
-                    self.safety_nets_ready_timeout_s,
-                )
         else:
             log.warning("safety nets: external; this daemon runs none (a radar-fusion safety-nets must run elsewhere)")
         # One subscriber for plots and status: its callback sees a sender's messages in
@@ -319,6 +315,15 @@ class FusionDaemon:
 
     # ------------------------------------------------------------- processing
     def _run(self) -> None:
+        deadline = time.monotonic() + self.safety_nets_ready_timeout_s
+        while self.safety_nets_child is not None and not self._safety_nets_ready.wait(0.05):
+            if self.stop_event.is_set() or time.monotonic() > deadline:
+                break
+        if self.safety_nets_child is not None and not self._safety_nets_ready.is_set():
+            log.error(
+                "safety-nets child not ready after %.0f s: the tracks go on without it for now",
+                self.safety_nets_ready_timeout_s,
+            )
         last_health = 0.0
         processed_at_flush = 0  # messages_processed when the open periods were last flushed
         while True:
