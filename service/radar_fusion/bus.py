@@ -221,6 +221,8 @@ class FusionDaemon:
 
     def stop(self, timeout_s: float = 30.0) -> None:
         """Drain what was received, flush the open periods, publish them, close the session."""
+        if self.safety_nets_child is not None:
+            self.safety_nets_child.no_more_restarts()  # it judges the last periods, then stops
         self.stop_event.set()
         if self._thread is not None:
             self._thread.join(timeout_s)

@@ -45,7 +45,7 @@ def child_settings_json(settings: Settings, base_dir: Path | None) -> str:
     """The settings as the child reads them: one JSON line, file paths absolute."""
     data = settings.model_dump(mode="json")
     nets = data["safety_nets"]
-    for key in ("areas_file", "msa_file"):
+    for key in ("areas_file", "msa_file", "zenoh_config_file"):
         if nets.get(key):
             p = Path(nets[key])
             nets[key] = str(p if p.is_absolute() or base_dir is None else (Path(base_dir) / p).resolve())
@@ -137,6 +137,11 @@ class SafetyNetsChild:
                 self._spawn()
             except OSError:
                 log.exception("starting the safety-nets child failed")
+
+    def no_more_restarts(self) -> None:
+        """serve is stopping: a child that exits now (e.g. SIGTERM from a service manager that
+        signals the whole group) is not started again; a running one goes on until :meth:`stop`."""
+        self._stopping.set()
 
     def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int | None:
         """Close the child's stdin (its clean stop), wait; SIGTERM, then SIGKILL. Returns its exit code."""
