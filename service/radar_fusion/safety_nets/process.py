@@ -122,12 +122,16 @@ class SafetyNetsProcess:
     def start(self) -> SafetyNetsProcess:
         from ..bus import client_config_for, open_session, reliable_publisher, zenoh_config
 
-        bus = self.settings.bus
-        cfg = (
-            zenoh_config("client", connect=self.connect, config_file=bus.zenoh_config_file)
-            if self.connect
-            else client_config_for(bus)
-        )
+        bus, own = self.settings.bus, self.settings.safety_nets
+        connect = self.connect or own.connect
+        config_file = own.zenoh_config_file or bus.zenoh_config_file
+        if connect:
+            cfg = zenoh_config("client", connect=list(connect), config_file=config_file)
+        elif own.zenoh_config_file:
+            endpoints = bus.connect if bus.mode == "client" else bus.listen
+            cfg = zenoh_config("client", connect=list(endpoints), config_file=config_file)
+        else:
+            cfg = client_config_for(bus)
         self._session = open_session(cfg)
         p = self.prefix
         for kind in ALERT_KINDS:
@@ -309,8 +313,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="append",
         default=None,
         metavar="ENDPOINT",
-        help="Zenoh endpoint to join, e.g. tcp/fusion-host:7447 (repeatable; default: the configuration's "
-        "[bus] connect endpoints, or its listen endpoints when the daemon embeds the router)",
+        help="Zenoh endpoint to join, e.g. tcp/fusion-host:7447 (repeatable; default: [safety_nets] connect, "
+        "else the configuration's [bus] connect endpoints, or its listen endpoints when the daemon embeds the "
+        "router)",
     )
     p.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR (default INFO)")
     p.add_argument("--log-format", choices=("text", "json"), default="text", help="text (default) or json")
