@@ -688,3 +688,26 @@ def test_bridges_over_zenoh(tmp_path):
     finally:
         sub.undeclare()
         router.close()
+
+
+def test_cat062_track_without_velocity_yet_leaves_out_i062_185():
+    """A track of one update has no velocity (nil) and its own measurement time: the
+    record has no I062/185 and carries that time in I062/070; libasterix decodes it."""
+    t_meas = 1_700_000_121.0
+    batch = TrackBatch.model_validate(
+        {
+            "t": 1_700_000_123.4,
+            "period": 9,
+            "ended": [],
+            "tracks": [track(t=t_meas, vx_mps=None, vy_mps=None, updates=1)],
+        }
+    )
+    block = Cat062Encoder(sac=25, sic=200).encode(batch)[0]
+    raw = RawDatablock.parse(Bits.from_bytes(block))
+    recs = gen.manifest["CATS"][62][-1].cv_uap.parse(raw[0].get_raw_records())
+    assert not isinstance(recs, ValueError) and len(recs) == 1
+    assert recs[0].get_item("185") is None
+    assert recs[0].get_item("070").variation.content.as_quantity("s") == pytest.approx(t_meas % 86_400, abs=1 / 128)
+    [a] = decode_cat062_block(block)
+    assert a.vx_mps is None and a.vy_mps is None
+    assert a.x_m == pytest.approx(-12_345.6, abs=0.25)

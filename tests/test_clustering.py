@@ -587,3 +587,24 @@ def test_a_plot_with_an_address_goes_to_its_track_not_to_a_nearer_anonymous_one(
     plots = make_plots([[10.0, 0.0], [20.0, 0.0]], [0, 1], mode_s=[0x4B1234, -1])
     res = run_last(plots, tracks, [[0.0, 0.0], [600.0, 0.0]], [T_REF - 4.0, T_REF - 4.0])
     assert [int(res.cluster_track[lab]) for lab in res.labels] == [1, 0]
+
+
+def test_a_plot_a_turn_model_expects_joins_outside_the_combined_gate():
+    """IMM gating (imm.py, "Gating"): the combined prediction (the quiet model's, σ 150 m)
+    is at the origin; a right-turn model predicts the aircraft 600 m north, σ 150 m. A
+    plot 900 m north (σ 100 m) is d² = 900²/(150² + 100²) ≈ 24.9 from the combined
+    prediction, outside its 99.9 % gate (13.8), and d² ≈ 2.8 from the turn model's."""
+    tracks = make_tracks([[0.0, 0.0]], sigma_pos_m=150.0)
+    plot = make_plots([[0.0, 900.0]], [0])
+    s2 = 150.0**2 + 100.0**2
+    plain = run(plot, tracks)
+    assert plain.cluster_track.tolist() == [-1]  # combined gate only: a new target
+    models_xy = np.array([[[0.0, 0.0], [0.0, 600.0], [0.0, -600.0]]])  # quiet, right, left
+    models_cov = np.tile(150.0**2 * np.eye(2), (1, 3, 1, 1))
+    res = cluster_plots(*plot, *tracks, T_REF, None, track_models=(models_xy, models_cov))
+    assert res.cluster_track.tolist() == [0] and res.labels.tolist() == [0]
+    # the d² reported is the combined prediction's (beyond the gate: weighed and checked as such)
+    assert res.plot_d2[0] == pytest.approx(900.0**2 / s2) and res.plot_d2[0] > CHI2_2DOF_P999
+    # a plot no model expects stays out
+    far = cluster_plots(*make_plots([[900.0, 0.0]], [0]), *tracks, T_REF, None, track_models=(models_xy, models_cov))
+    assert far.cluster_track.tolist() == [-1]

@@ -67,9 +67,12 @@ def test_crossing_and_parallel_aircraft_keep_their_ids_and_turns_are_not_lost(de
     for tid in CROSSING + PARALLEL:
         assert targets[tid].swaps_involved == 0, tid
         assert targets[tid].n_track_ids == 1, (tid, targets[tid].track_ids)
-    for tid in TURNING:
+    # the IMM's turn models and their gates keep every turning aircraft on one track, the
+    # primary-only turner T13 too (gated on the combined prediction alone, the second scan
+    # of its 1.5°/s turn fell outside the gate and started a second track)
+    for tid in TURNING + ["T13"]:
         assert targets[tid].completeness > 0.9, (tid, targets[tid].completeness)
-        assert targets[tid].n_track_ids <= 2, (tid, targets[tid].track_ids)
+        assert targets[tid].n_track_ids == 1, (tid, targets[tid].track_ids)
 
 
 def test_a_radar_dropping_out_only_degrades_accuracy(demo):

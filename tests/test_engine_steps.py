@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from radar_fusion import wire
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
 from radar_fusion.engine.admission import ClockCheck
@@ -98,11 +99,20 @@ def closed(engine, periods):
 
 
 # ------------------------------------------------------------------ the steps on one aircraft
-def test_first_period_initiates_one_tentative_track_from_the_fused_pair():
+def test_first_period_initiates_one_track_from_the_fused_pair_confirmed_without_velocity():
+    """Two radars and a Mode S address agree: the track is confirmed in its first period
+    (life_cycle.confirm_agreed_updates = 1), reported where and when it was measured, with
+    no velocity (nil on the wire) until its second update."""
     eng = Engine(settings())
     [out] = closed(eng, 1)
     cols = out.track_columns
-    assert len(cols) == 1 and cols.status[0] == TENTATIVE and eng.counters["tracks_initiated"] == 1
+    assert len(cols) == 1 and cols.status[0] == CONFIRMED and eng.counters["tracks_initiated"] == 1
+    assert cols.t_track_s is not None and cols.t_track_s[0] == pytest.approx(T0 + 2.0) and cols.t_track_s[0] < cols.t_s
+    np.testing.assert_array_equal(cols.x[0, [0, 3]], eng.tracks.x[0, [0, 3]])  # not extrapolated
+    assert np.isnan(cols.x[0, [1, 2, 4, 5]]).all() and np.isnan(cols.vrate_fpm[0])
+    [track] = out.track_batch["tracks"]
+    assert track["vx_mps"] is None and track["vy_mps"] is None and track["t"] == pytest.approx(T0 + 2.0)
+    wire.TrackBatch.model_validate(out.track_batch)
     # fuse: both plots of the period in one cluster, aligned to their mean time (t0 + 2 s)
     # with zero velocity and the one-plot velocity prior; the fused position is the
     # information-weighted mean, within the alignment error of ±1 s of flight
@@ -115,14 +125,17 @@ def test_first_period_initiates_one_tentative_track_from_the_fused_pair():
     assert eng.tracks.mode_s[0] == 0x4B1234 and bin(int(cols.sources[0])).count("1") == 2
 
 
-def test_second_period_is_the_two_point_initiation_and_two_radars_confirm_it():
-    """Two radars (and a Mode S address) agree: the track is confirmed at its second
-    update, the first with a velocity (life_cycle.confirm_radars, confirm_agreed_updates)."""
+def test_second_period_is_the_two_point_initiation_and_gives_the_velocity():
+    """The second update, the two-point initiation, gives the track its velocity and puts
+    it at the period's time; with confirm_agreed_updates = 2 it would have waited for it."""
     eng = Engine(settings())
     outs = closed(eng, 3)
     assert [len(o.track_columns) for o in outs] == [1, 1, 1]
     assert eng.counters["tracks_initiated"] == 1  # one track for the whole run
-    assert [int(o.track_columns.status[0]) for o in outs] == [TENTATIVE, CONFIRMED, CONFIRMED]
+    assert [int(o.track_columns.status[0]) for o in outs] == [CONFIRMED, CONFIRMED, CONFIRMED]
+    assert [o.track_columns.t_track_s is None for o in outs] == [False, True, True]
+    waits = Engine(settings_from_dict({**settings().model_dump(), "life_cycle": {"confirm_agreed_updates": 2}}))
+    assert [int(o.track_columns.status[0]) for o in closed(waits, 2)] == [TENTATIVE, CONFIRMED]
     assert len({int(o.track_columns.track_id[0]) for o in outs}) == 1
     # the velocity after three updates of noise-free plots: the true velocity, up to the
     # earth-curvature error of the alignment (a few m/s at most)
@@ -655,3 +668,24 @@ def test_a_new_targets_primary_plot_beside_an_ssr_plot_is_left_out_of_its_fusion
     assert eng.tracks.t_state_s[0] == pytest.approx(T0 + 1.0)
     assert np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(T0 + 1.0))) < 20.0
     assert eng.tracks.alt_x[0, 0] == pytest.approx(FL)
+
+
+def test_a_new_target_is_reported_at_the_time_its_fused_position_belongs_to():
+    """A new target's plots are fused at zero speed, so the fused position is where the
+    aircraft was at the plots' time weighted as the fusion weighs them, not at their plain
+    mean: radar a (precise) sees it at t0 + 1 s, radar b (coarse) at t0 + 3 s. Reported at
+    the plain mean time t0 + 2 s the noise-free fused position is most of a second of flight
+    (~200 m) off the truth; at the weighted time it is within a few metres."""
+    raw = settings().model_dump()
+    raw["radars"][0].update(sigma_range_m=20, sigma_azimuth_deg=0.02)
+    raw["radars"][1].update(sigma_range_m=200, sigma_azimuth_deg=0.3)
+    eng = Engine(settings_from_dict(raw))
+    [out] = closed(eng, 1)
+    cols = out.track_columns
+    assert cols.t_track_s is not None
+    t_rep = float(cols.t_track_s[0])
+    assert T0 + 1.0 < t_rep < T0 + 1.5  # close to the precise plot's time
+    xy = cols.x[0, [0, 3]]
+    err_reported_m = float(np.hypot(*(xy - truth_xy(t_rep))))
+    err_plain_mean_m = float(np.hypot(*(xy - truth_xy(T0 + 2.0))))
+    assert err_plain_mean_m > 150.0 and err_reported_m < 20.0, (err_reported_m, err_plain_mean_m)

@@ -436,3 +436,27 @@ def test_truth_turn_rate_is_the_analytic_rate_of_a_circle_across_north():
     # too slow for a heading: no rate
     slow = ev.truth_turn_rate_deg_s(np.full((1, 5), 1.0), np.full((1, 5), 1.0), np.arange(5.0))
     assert np.isnan(slow).all()
+
+
+def test_a_track_at_its_own_earlier_time_is_scored_against_the_truth_then():
+    """A track of one update is sent where and when it was measured (its ``t`` before the
+    batch's, velocity nil). Exactly on the truth at its own time, it scores no error, though
+    the aircraft has flown 600 m since; 50 m off it scores 50 m. Its nil velocity is left
+    out of the velocity RMS, and it counts for GOSPA and completeness like any track."""
+    targets = {"A": (0.0, 0.0, 200.0, 0.0), "B": (0.0, 20_000.0, 0.0, -150.0)}
+    truth = straight_truth(targets, SECONDS)
+    t_b = BATCH_TIMES[3]
+    t_a, t_bb = t_b - 3.0, t_b - 1.5  # measured 3 s and 1.5 s before the batch time
+    a = track(1, t_a, *truth_pos(targets, "A", t_a))
+    a["vx_mps"] = a["vy_mps"] = None
+    bx, by = truth_pos(targets, "B", t_bb)
+    b = track(2, t_bb, bx + 30.0, by + 40.0)  # 50 m off the truth at its own time
+    b["vx_mps"] = b["vy_mps"] = None
+    s = ev.evaluate([batch(t_b, [a, b])], truth, ev.EvalParams(settle_s=0.0))
+    assert s.n_pairs == 2 and s.track_ids_per_target_mean == 1.0 and s.completeness_mean == 1.0
+    assert s.pos_rms_m == pytest.approx(math.sqrt((0.0 + 50.0**2) / 2), rel=1e-9)
+    assert math.isnan(s.vel_rms_mps)  # no velocity to score
+    # the same tracks stamped with the batch's time are 600 m and 225 m off: the own time counts
+    a2, b2 = dict(a, t=t_b), dict(b, t=t_b)
+    s2 = ev.evaluate([batch(t_b, [a2, b2])], truth, ev.EvalParams(settle_s=0.0))
+    assert s2.pos_rms_m > 300.0

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from radar_fusion.tracking.fusion import fuse_clusters
+from radar_fusion.tracking.fusion import fuse_clusters, leave_one_out_outliers
 
 
 def polar_cov(range_m, az_rad, sigma_r_m, sigma_az_rad):
@@ -179,3 +179,43 @@ def test_single_plot_cluster_passes_through_and_bad_input_rejected():
         fuse_clusters([1], [[0.0, 0.0]], R, 1)
     zf, Rf, n = fuse_clusters(np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2, 2)), 2)
     assert zf.shape == (2, 2) and np.all(np.isnan(zf)) and np.all(n == 0)
+
+
+def _loo_reference(z, R, gate):
+    """Leave-one-out by hand for one cluster: per plot, the others fused with np.linalg.inv,
+    d² against the plot; the largest flagged if above the gate."""
+    d2 = []
+    for i in range(len(z)):
+        others = [j for j in range(len(z)) if j != i]
+        info = sum(np.linalg.inv(R[j]) for j in others)
+        R_o = np.linalg.inv(info)
+        z_o = R_o @ sum(np.linalg.inv(R[j]) @ z[j] for j in others)
+        y = z[i] - z_o
+        d2.append(float(y @ np.linalg.inv(R[i] + R_o) @ y))
+    out = np.zeros(len(z), bool)
+    k = int(np.argmax(d2))
+    out[k] = d2[k] > gate
+    return out, d2
+
+
+def test_leave_one_out_flags_the_wild_plot_of_a_new_target_as_a_loop_by_hand():
+    rng = np.random.default_rng(3)
+    gate = 13.8155
+    for trial in range(200):
+        n = int(rng.integers(3, 6))
+        z = rng.normal(0.0, 150.0, (n, 2))
+        a = rng.normal(size=(n, 2, 2)) * 120.0
+        R = a @ np.swapaxes(a, 1, 2) + 50.0**2 * np.eye(2)
+        if trial % 2:
+            z[int(rng.integers(n))] += rng.uniform(1_000.0, 3_000.0) * np.array([np.cos(trial), np.sin(trial)])
+        got = leave_one_out_outliers(np.zeros(n, np.intp), z, R, np.array([True]), 1, gate)
+        want, d2 = _loo_reference(z, R, gate)
+        np.testing.assert_array_equal(got, want, err_msg=str(d2))
+    # several clusters at once: one of two plots is never judged, unchecked clusters neither
+    z = np.array(
+        [[0.0, 0.0], [50.0, 0.0], [2_500.0, 0.0], [0.0, 0.0], [3_000.0, 0.0], [0.0, 0.0], [0.0, 10.0], [5e3, 0]]
+    )
+    R = np.broadcast_to(100.0**2 * np.eye(2), (8, 2, 2)).copy()
+    labels = np.array([0, 0, 0, 1, 1, 2, 2, 2])
+    got = leave_one_out_outliers(labels, z, R, np.array([True, True, False]), 3, gate)
+    assert got.tolist() == [False, False, True, False, False, False, False, False]

@@ -2,7 +2,8 @@
 
 * a hand computation of the IMM cycle (Blom & Bar-Shalom 1988) for one track, written
   with per-model loops, np.linalg.inv and Φ, Q from Van Loan's method (scipy expm of the
-  continuous Singer model), not from singer_filter.py;
+  continuous Singer and coordinated-turn models), not from singer_filter.py or
+  coordinated_turn.py;
 * filterpy's IMMEstimator with filterpy KalmanFilter objects carrying the same F, Q, H, R
   (skipped when filterpy is not installed);
 * Monte Carlo consistency (NEES) on straight flight, a rate-one turn against the
@@ -46,11 +47,48 @@ def van_loan(dt_s: float, alpha_per_s: float, sigma_m_mps2: float) -> tuple[np.n
     return phi, 0.5 * (q + q.T)
 
 
+def van_loan_turn(dt_s: float, rate_deg_s: float, q_m2_s3: float) -> tuple[np.ndarray, np.ndarray]:
+    """Φ and Q (6×6) of a coordinated turn at rate_deg_s (right positive: clockwise in
+    (east, north)) by Van Loan's method on [x, vx, y, vy], lifted to the Singer state with
+    the turn's centripetal acceleration ax = −ω vy, ay = ω vx."""
+    w = -math.radians(rate_deg_s)
+    a = np.zeros((4, 4))
+    a[0, 1] = a[2, 3] = 1.0
+    a[1, 3], a[3, 1] = -w, w
+    big = np.zeros((8, 8))
+    big[:4, :4], big[:4, 4:], big[4:, 4:] = -a, np.diag([0.0, q_m2_s3, 0.0, q_m2_s3]), a.T
+    e = expm(big * dt_s)
+    f4 = e[4:, 4:].T
+    q4 = f4 @ e[:4, 4:]
+    lift = np.zeros((6, 4))  # rows x, vx, ax, y, vy, ay from [x, vx, y, vy]
+    lift[0, 0] = lift[1, 1] = lift[3, 2] = lift[4, 3] = 1.0
+    lift[2, 3], lift[5, 1] = -w, w
+    pick = np.zeros((4, 6))
+    pick[0, 0] = pick[1, 1] = pick[2, 3] = pick[3, 4] = 1.0
+    return lift @ f4 @ pick, lift @ (0.5 * (q4 + q4.T)) @ lift.T
+
+
 def model_fq(params: IMMParams, dt_s: float) -> list[tuple[np.ndarray, np.ndarray]]:
-    return [
+    """Φ, Q of every model in mode order: quiet, manoeuvre, then a right and a left turn per rate."""
+    out = [
         van_loan(dt_s, params.quiet_alpha_per_s, params.quiet_sigma_m_mps2),
         van_loan(dt_s, params.manoeuvre_alpha_per_s, params.manoeuvre_sigma_m_mps2),
     ]
+    for rate in params.turn_rates_deg_s:
+        out += [van_loan_turn(dt_s, rate, params.turn_q_m2_s3), van_loan_turn(dt_s, -rate, params.turn_q_m2_s3)]
+    return out
+
+
+def hand_markov(params: IMMParams, dt_s: float) -> np.ndarray:
+    """p_ij (eq. 0): stay exp(−dt/τ_i), leave to each other mode equally."""
+    tau = [params.quiet_dwell_s, params.manoeuvre_dwell_s] + [params.turn_dwell_s] * (2 * len(params.turn_rates_deg_s))
+    m = len(tau)
+    p = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            stay = math.exp(-dt_s / tau[i])
+            p[i, j] = stay if i == j else (1.0 - stay) / (m - 1)
+    return p
 
 
 def hand_cycle(
@@ -62,19 +100,16 @@ def hand_cycle(
     z: np.ndarray,
     R: np.ndarray,
 ) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
-    """One IMM cycle for one track, two models, written out term by term."""
-    tau = [params.quiet_dwell_s, params.manoeuvre_dwell_s]
-    p = np.empty((2, 2))
-    for i in range(2):
-        p[i, i] = math.exp(-dt_s / tau[i])
-        p[i, 1 - i] = 1.0 - p[i, i]
-    c_bar = [sum(p[i, j] * mu[i] for i in range(2)) for j in range(2)]
+    """One IMM cycle for one track, every model, written out term by term."""
+    p = hand_markov(params, dt_s)
+    m = p.shape[0]
+    c_bar = [sum(p[i, j] * mu[i] for i in range(m)) for j in range(m)]
     fq = model_fq(params, dt_s)
     new_x, new_P, lik = [], [], []
-    for j in range(2):
-        w = [p[i, j] * mu[i] / c_bar[j] for i in range(2)]
-        x0 = w[0] * xs[0] + w[1] * xs[1]
-        P0 = sum(w[i] * (Ps[i] + np.outer(xs[i] - x0, xs[i] - x0)) for i in range(2))
+    for j in range(m):
+        w = [p[i, j] * mu[i] / c_bar[j] for i in range(m)]
+        x0 = sum(w[i] * xs[i] for i in range(m))
+        P0 = sum(w[i] * (Ps[i] + np.outer(xs[i] - x0, xs[i] - x0)) for i in range(m))
         F, Q = fq[j]
         xp = F @ x0
         Pp = F @ P0 @ F.T + Q
@@ -85,7 +120,7 @@ def hand_cycle(
         I_KH = np.eye(6) - K @ H
         new_P.append(I_KH @ Pp @ I_KH.T + K @ R @ K.T)
         lik.append(math.exp(-0.5 * nu @ np.linalg.inv(S) @ nu) / (2.0 * math.pi * math.sqrt(np.linalg.det(S))))
-    mu_new = np.array([lik[j] * c_bar[j] for j in range(2)])
+    mu_new = np.array([lik[j] * c_bar[j] for j in range(m)])
     return new_x, new_P, mu_new / mu_new.sum()
 
 
@@ -120,21 +155,23 @@ def test_cycle_matches_hand_computation_with_varying_dt() -> None:
     dts = np.array([4.0, 2.5, 6.0, 4.0, 0.5, 8.0, 4.0, 4.0, 3.0, 4.0])
     zs = turning_measurements(dts.size, dts, seed=3)
     st = imm.initiate(X0[None], P0[None])
-    xs, Ps, mu = [X0.copy(), X0.copy()], [P0.copy(), P0.copy()], params.prior_mu()
+    m = imm.n_models
+    assert m == 6  # quiet, manoeuvre, right and left turns at 1.5 and 3°/s
+    xs, Ps, mu = [X0.copy()] * m, [P0.copy()] * m, params.prior_mu()
     mu_max = 0.0
     for dt, z in zip(dts, zs):
         st = imm.update(imm.predict(st, dt), z[None], R50[None])
         xs, Ps, mu = hand_cycle(params, xs, Ps, mu, float(dt), z, R50)
         np.testing.assert_allclose(st.mu[0], mu, rtol=1e-9, atol=1e-12)
-        for j in range(2):
+        for j in range(m):
             np.testing.assert_allclose(st.x_models[0, j], xs[j], rtol=1e-9, atol=1e-7)
             np.testing.assert_allclose(st.P_models[0, j], Ps[j], rtol=1e-8, atol=1e-7)
         x, P = imm.combine(st)
         xh, Ph = hand_combine(xs, Ps, mu)
         np.testing.assert_allclose(x[0], xh, rtol=1e-9, atol=1e-7)
         np.testing.assert_allclose(P[0], Ph, rtol=1e-8, atol=1e-7)
-        mu_max = max(mu_max, float(mu[MANOEUVRE]))
-    assert mu_max > 0.5  # the turn was seen: both models mattered
+        mu_max = max(mu_max, 1.0 - float(mu[QUIET]))
+    assert mu_max > 0.5  # the turn was seen: the other models mattered
 
 
 def test_matches_filterpy_imm_estimator() -> None:
@@ -151,11 +188,7 @@ def test_matches_filterpy_imm_estimator() -> None:
         filters.append(kf)
     # filterpy's code forms c̄ = μ·M, i.e. M[i, j] is the probability from mode i to mode j
     # (its docstring says the transpose); p_ij = exp(−dt/τ_i) on the diagonal, eq. 0
-    tau = params.dwell_s()
-    M = np.array(
-        [[math.exp(-dt / tau[0]), 1 - math.exp(-dt / tau[0])], [1 - math.exp(-dt / tau[1]), math.exp(-dt / tau[1])]]
-    )
-    est = fp_kalman.IMMEstimator(filters, params.prior_mu(), M)
+    est = fp_kalman.IMMEstimator(filters, params.prior_mu(), hand_markov(params, dt))
     st = imm.initiate(X0[None], P0[None])
     zs = turning_measurements(15, np.full(15, dt), seed=11)
     mu_max = 0.0
@@ -170,25 +203,22 @@ def test_matches_filterpy_imm_estimator() -> None:
         x, P = imm.combine(st)
         np.testing.assert_allclose(x[0], est.x[:, 0], rtol=1e-9, atol=1e-7)
         np.testing.assert_allclose(P[0], est.P, rtol=1e-8, atol=1e-7)
-        mu_max = max(mu_max, float(est.mu[MANOEUVRE]))
-    assert mu_max > 0.5  # the turn was seen: both models mattered
+        mu_max = max(mu_max, 1.0 - float(est.mu[QUIET]))
+    assert mu_max > 0.5  # the turn was seen: the other models mattered
 
 
 def test_transition_matrix_and_likelihood() -> None:
     imm = IMMFilter()
     dt = np.array([0.0, 4.0, 30.0])
     pi = imm.transition_matrix(dt)
-    tau = np.array([IMMParams().quiet_dwell_s, IMMParams().manoeuvre_dwell_s])
     for n, d in enumerate(dt):
-        for i in range(2):
-            assert pi[n, i, i] == pytest.approx(math.exp(-d / tau[i]), rel=1e-14)
-            assert pi[n, i, 1 - i] == pytest.approx(1.0 - math.exp(-d / tau[i]), rel=1e-14, abs=1e-300)
+        np.testing.assert_allclose(pi[n], hand_markov(IMMParams(), float(d)), rtol=1e-13, atol=1e-300)
     # log Λ_j (eq. 5) against scipy's Gaussian
     rng = np.random.default_rng(5)
     st = imm.predict(imm.initiate(X0[None], P0[None]), 4.0)
     z = rng.normal(800.0, 100.0, size=(1, 2))
     ll = imm.log_likelihoods(st, z, R50[None])
-    for j in range(2):
+    for j in range(imm.n_models):
         S = H @ st.P_models[0, j] @ H.T + R50
         ref = multivariate_normal(mean=H @ st.x_models[0, j], cov=S).logpdf(z[0])
         assert ll[0, j] == pytest.approx(ref, rel=1e-12)
@@ -196,15 +226,26 @@ def test_transition_matrix_and_likelihood() -> None:
 
 def test_predict_over_zero_dt_changes_nothing() -> None:
     """Π(0) = I: no mixing, no motion, no process noise; even a mode of probability 0
-    (c̄_j = 0) keeps its state instead of dividing by zero."""
+    (c̄_j = 0) keeps its state instead of dividing by zero.  A turn model's acceleration
+    is the turn's own (ω·[−vy, vx], coordinated_turn.py eq. 4) at any dt, 0 included:
+    there only position and velocity stay as they were."""
     imm = IMMFilter()
     rng = np.random.default_rng(2)
-    st = imm.initiate(X0[None].repeat(2, 0), P0[None].repeat(2, 0), mu=np.array([[1.0, 0.0], [0.3, 0.7]]))
+    mu = np.zeros((2, imm.n_models))
+    mu[0, QUIET], mu[1, QUIET], mu[1, MANOEUVRE] = 1.0, 0.3, 0.7
+    st = imm.initiate(X0[None].repeat(2, 0), P0[None].repeat(2, 0), mu=mu)
     st.x_models += rng.normal(0.0, 10.0, st.x_models.shape)
     out = imm.predict(st, 0.0)
     np.testing.assert_array_equal(out.mu, st.mu)
-    np.testing.assert_allclose(out.x_models, st.x_models, rtol=1e-15, atol=1e-12)
-    np.testing.assert_allclose(out.P_models, st.P_models, rtol=1e-15, atol=1e-9)
+    singer, pv = [QUIET, MANOEUVRE], [0, 1, 3, 4]
+    np.testing.assert_allclose(out.x_models[:, singer], st.x_models[:, singer], rtol=1e-15, atol=1e-12)
+    np.testing.assert_allclose(out.P_models[:, singer], st.P_models[:, singer], rtol=1e-15, atol=1e-9)
+    np.testing.assert_allclose(out.x_models[..., pv], st.x_models[..., pv], rtol=1e-15, atol=1e-12)
+    np.testing.assert_allclose(out.P_models[:, :, pv][..., pv], st.P_models[:, :, pv][..., pv], rtol=1e-15, atol=1e-9)
+    for j, model in enumerate(imm.models[2:], start=2):
+        w = -math.radians(model.turn_rate_deg_s)  # type: ignore[union-attr]
+        np.testing.assert_allclose(out.x_models[:, j, 2], -w * st.x_models[:, j, 4], atol=1e-12)
+        np.testing.assert_allclose(out.x_models[:, j, 5], w * st.x_models[:, j, 1], atol=1e-12)
 
 
 def test_params_are_a_strict_frozen_config_section() -> None:
@@ -327,7 +368,7 @@ def test_rate_one_turn_imm_beats_quiet_singer_and_detects_the_manoeuvre() -> Non
         sq, sb = (xq, Pq), (xb, Pb)
         for key, xx in (("imm", x), ("quiet", xq), ("baseline", xb)):
             err[key].append(np.sum((xx[:, [0, 3]] - truth[k]) ** 2, axis=1))
-        mu_m.append(st.mu[:, MANOEUVRE].mean())
+        mu_m.append(1.0 - st.mu[:, QUIET].mean())  # every model but the quiet one
     mu = np.array(mu_m)
     in_turn = (t > t_turn) & (t <= t_turn + turn_s)
     straight = (t > 60.0) & (t <= t_turn)
@@ -340,7 +381,7 @@ def test_rate_one_turn_imm_beats_quiet_singer_and_detects_the_manoeuvre() -> Non
         + ", ".join(f"{k} {v['straight']:.1f} / {v['turn']:.1f}" for k, v in rms.items())
         + f"; IMM turn/straight {rms['imm']['turn'] / rms['imm']['straight']:.2f}"
     )
-    print("mean mu_manoeuvre from 8 s before the turn: " + " ".join(f"{m:.2f}" for m in mu[(t >= 152) & (t <= 300)]))
+    print("mean 1 - mu_quiet from 8 s before the turn: " + " ".join(f"{m:.2f}" for m in mu[(t >= 152) & (t <= 300)]))
     assert rms["imm"]["turn"] < 0.35 * rms["quiet"]["turn"]
     assert rms["imm"]["turn"] < rms["baseline"]["turn"]
     # the straight flight is not paid for: IMM within 15 % of the quiet filter alone
@@ -423,3 +464,14 @@ def test_print_cost_at_4000_tracks() -> None:
     # what was timed is a valid result (not asserted on time)
     assert np.isfinite(out.P_models).all()
     np.testing.assert_allclose(out.mu.sum(axis=1), 1.0, rtol=1e-12)
+
+
+def test_mixed_covariances_are_exactly_symmetric() -> None:
+    """mix() leaves out a symmetrisation: eq. 4 as formed there is symmetric to the bit when
+    the model covariances are (every (k, l) and (l, k) term is computed the same way)."""
+    imm = IMMFilter()
+    st = _random_state(imm, 300, np.random.default_rng(12))
+    st.x_models *= 30.0  # model states far apart, positions of 10⁵ m
+    _, _, P0 = imm.mix(st, np.random.default_rng(1).uniform(0.0, 12.0, 300))
+    np.testing.assert_array_equal(P0, np.swapaxes(P0, 2, 3))
+    assert (np.linalg.eigvalsh(P0) > 0).all()

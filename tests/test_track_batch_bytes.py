@@ -105,8 +105,12 @@ def synthetic(n: int, rng: np.random.Generator, names: list[str]) -> TrackColumn
         ended=rng.choice(widths, int(rng.integers(0, 20))),
         names=RadarNames(names, PLANE),
         manoeuvre_prob=None if rng.random() < 0.5 else rng.random(n),
+        # tracks of one update carry their own measurement time
+        t_track_s=None if rng.random() < 0.5 else 1.7e9 - rng.random(n) * 4.0,
     )
-    tc.x[rng.random((n, 6)) < 0.01] = np.nan  # a NaN is packed as the float it is
+    # a NaN position is packed as the float it is; a NaN velocity or acceleration (none
+    # known yet) as nil
+    tc.x[rng.random((n, 6)) < 0.01] = np.nan
     tc.x[:1, 0] = -0.0
     return tc
 

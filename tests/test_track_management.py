@@ -124,6 +124,20 @@ def test_confirmation_counts_the_rule_not_a_fixed_three():
     assert table.status.tolist() == [C, C]
 
 
+def test_first_update_confirms_at_once_on_an_address_or_two_radars_with_a_reply():
+    """Issue 15 item 5: a track is confirmed in its first period when a Mode S address, or
+    two radars, agree; at its first update two radars' plots confirm it only beside a
+    transponder reply (Mode S or 3/A): two radars' clutter can coincide once, rarely twice."""
+    t = 100.0
+    table = table_of([row(T, 0.0, t_s=t, updates=1) for _ in range(5)] + [row(T, 0.0, t_s=t, updates=2)])
+    table.sources[:] = [0b001, 0b011, 0b011, 0b011, 0b001, 0b011]
+    table.mode_s[:] = [0x4B1234, -1, -1, -1, -1, -1]
+    table.mode3a[:] = [-1, -1, 0o2341, -1, -1, -1]
+    apply_life_cycle(table, t, rules(confirm_radars=2, confirm_mode_s=True, confirm_agreed_updates=1))
+    # address; two radars, no reply; two radars and 3/A; two radars, no reply; one radar; two radars, 2nd update
+    assert table.status.tolist() == [C, T, C, T, T, C]
+
+
 # ------------------------------------------------------------------ coasting
 
 
@@ -327,3 +341,22 @@ def test_merging_young_tracks_keeps_the_one_most_radars_agreed_on():
     tab = table([0b001, 0b010], [1.0, 2.0])  # one radar each: the latest
     merge_same_address(tab, confirm_updates=3)
     assert tab.x[0, 0] == 1_000.0 and tab.t_state_s[0] == 2.0
+
+
+def test_merging_young_tracks_keeps_the_one_with_a_velocity():
+    """An address's track of two updates (its velocity from the two-point initiation) got
+    no plot this period; a wild plot of the address, too far for the aircraft to have flown
+    there, started a one-plot track beside it. The merge keeps the two-update state (before
+    this rule the one-plot track won on this period's radar count: 7 km off, speed zero)."""
+    from radar_fusion.tracking.track_management import merge_same_address
+
+    tab = TrackTable()
+    rows = tab.append(2)
+    tab.mode_s[rows] = 0x3A7C42
+    tab.updates[rows] = [2, 1]
+    tab.sources[rows] = np.array([0, 0b001], dtype=np.uint64)  # only the wild one has a plot now
+    tab.t_state_s[rows] = [8.0, 11.0]
+    tab.x[rows] = [[-113_329.0, -32.0, 0.0, 24_689.0, -128.0, 0.0], [-120_827.0, 0.0, 0.0, 24_635.0, 0.0, 0.0]]
+    _, merged = merge_same_address(tab, confirm_updates=3)
+    assert len(tab) == 1 and tab.track_id[0] == 1 and merged.tolist() == [2]
+    assert tab.x[0, 0] == -113_329.0 and tab.x[0, 1] == -32.0 and tab.t_state_s[0] == 8.0 and tab.updates[0] == 2

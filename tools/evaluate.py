@@ -22,6 +22,11 @@ Definitions (every figure is taken at the batch times, i.e. each TrackBatch's ``
   *detectable* at ``t`` when the rows on both sides of ``t`` have ``detectable = 1``.
 * Displayed tracks: tracks whose status is ``confirmed`` or ``coasting`` (tentative tracks
   are not shown to a controller and are ignored, except to date a track's start).
+* A track reported at its own time t_k ≠ the batch time (a track of one update, shown
+  where and when it was measured, with no velocity yet) is scored against the truth at
+  t_k: it is moved by the displacement, from t_k to the batch time, of the target
+  nearest to it at t_k, and then treated like the others. Its velocity is nil: velocity
+  errors are taken over the pairs whose track sends one.
 * Association: per batch, existing truth targets (detectable or not) and displayed
   tracks are paired by the optimal assignment (``scipy.optimize.linear_sum_assignment``)
   that minimises Σ min(d, gate)² over pairs, where d is the horizontal distance in the
@@ -287,15 +292,43 @@ def _associate(
 
 
 def _batch_columns(batch: Mapping[str, Any]) -> tuple[np.ndarray, ...]:
+    """ids, x, y, vx, vy (NaN where nil: velocity not known yet), status and each track's own
+    time t (the batch's where the track carries none)."""
     tracks = batch.get("tracks") or []
     n = len(tracks)
+    nan = math.nan
     ids = np.fromiter((tr["track_id"] for tr in tracks), np.int64, n)
     x = np.fromiter((tr["x_m"] for tr in tracks), float, n)
     y = np.fromiter((tr["y_m"] for tr in tracks), float, n)
-    vx = np.fromiter((tr["vx_mps"] for tr in tracks), float, n)
-    vy = np.fromiter((tr["vy_mps"] for tr in tracks), float, n)
+    vx = np.fromiter((nan if tr.get("vx_mps") is None else tr["vx_mps"] for tr in tracks), float, n)
+    vy = np.fromiter((nan if tr.get("vy_mps") is None else tr["vy_mps"] for tr in tracks), float, n)
     status = np.array([tr["status"] for tr in tracks], dtype=object) if n else np.zeros(0, object)
-    return ids, x, y, vx, vy, status
+    t_batch = float(batch["t"])
+    t = np.fromiter((t_batch if tr.get("t") is None else tr["t"] for tr in tracks), float, n)
+    return ids, x, y, vx, vy, status, t
+
+
+def _to_batch_time(
+    x: np.ndarray, y: np.ndarray, t_track: np.ndarray, truth: Truth, tat: Any, b: int, t_batch: float, max_gap_s: float
+) -> None:
+    """Tracks reported at their own time t_k (one update: where and when they were measured,
+    no velocity yet) are scored against the truth at t_k: each is moved, in place, by the
+    displacement from t_k to the batch time of the target nearest to it at t_k, so that its
+    error to that target at the batch time is its error at t_k."""
+    early = np.flatnonzero(t_track != t_batch)
+    if not early.size:
+        return
+    tk, inv = np.unique(t_track[early], return_inverse=True)
+    at_k = interpolate_truth(truth, tk, max_gap_s)
+    for j, k in enumerate(early):
+        col = inv[j]
+        ok = np.flatnonzero(at_k.exists[:, col] & tat.exists[:, b])
+        if not ok.size:
+            continue
+        d = np.hypot(at_k.x_m[ok, col] - x[k], at_k.y_m[ok, col] - y[k])
+        i = ok[int(np.argmin(d))]
+        x[k] += tat.x_m[i, b] - at_k.x_m[i, col]
+        y[k] += tat.y_m[i, b] - at_k.y_m[i, col]
 
 
 def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: EvalParams | None = None) -> Scores:
@@ -328,7 +361,8 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
 
     for b, batch in enumerate(batches):
         t = times[b]
-        ids, x, y, vx, vy, status = _batch_columns(batch)
+        ids, x, y, vx, vy, status, t_track = _batch_columns(batch)
+        _to_batch_time(x, y, t_track, truth, tat, b, t, params.truth_max_gap_s)
         for tid in ids.tolist():
             first_seen.setdefault(tid, t)
         disp = np.isin(status, DISPLAYED_STATUSES) if ids.size else np.zeros(0, bool)
@@ -443,6 +477,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     sel, sel_s = in_rms, in_rms & settled
     sel_straight = sel_s & (turn < params.straight_below_deg_s)  # NaN (no rate) is in neither
     sel_turning = sel_s & (turn > params.turning_above_deg_s)
+    v_known = np.isfinite(evel)  # a track of one update sends no velocity: none to score
 
     return Scores(
         params=params,
@@ -454,12 +489,12 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         n_pairs_settled=int(np.count_nonzero(sel_s)),
         pos_rms_m=_rms(epos[sel]),
         pos_p95_m=_p95(epos[sel]),
-        vel_rms_mps=_rms(evel[sel]),
-        vel_p95_mps=_p95(evel[sel]),
+        vel_rms_mps=_rms(evel[sel & v_known]),
+        vel_p95_mps=_p95(evel[sel & v_known]),
         pos_rms_settled_m=_rms(epos[sel_s]),
         pos_p95_settled_m=_p95(epos[sel_s]),
-        vel_rms_settled_mps=_rms(evel[sel_s]),
-        vel_p95_settled_mps=_p95(evel[sel_s]),
+        vel_rms_settled_mps=_rms(evel[sel_s & v_known]),
+        vel_p95_settled_mps=_p95(evel[sel_s & v_known]),
         pos_rms_straight_m=_rms(epos[sel_straight]),
         pos_rms_turning_m=_rms(epos[sel_turning]),
         n_pairs_straight=int(np.count_nonzero(sel_straight)),
@@ -592,7 +627,7 @@ def plot(batches: Sequence[Mapping[str, Any]], truth: Any, path: str | Path, sco
         )
     xs, ys, ids = [], [], []
     for batch in batches:
-        tid, x, y, _, _, status = _batch_columns(batch)
+        tid, x, y, _, _, status, _ = _batch_columns(batch)
         disp = np.isin(status, DISPLAYED_STATUSES) if tid.size else np.zeros(0, bool)
         xs.append(x[disp])
         ys.append(y[disp])

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import queue
 import threading
 import time
@@ -34,6 +35,7 @@ import zenoh
 
 from .config import BusConfig, Settings
 from .engine import Engine, PeriodOutput
+from .engine.state import load_state, save_state
 from .metrics import DaemonMetrics
 from .safety_nets import SafetyNets
 from .safety_nets.process import health_key
@@ -144,6 +146,8 @@ class FusionDaemon:
         outbox_size: int = 1024,
         safety_nets: str | None = None,
         log_format: str = "text",
+        state_dir: Path | None = None,
+        state_interval_s: float = 0.0,
     ):
         self.settings = settings
         self.prefix = settings.bus.prefix
@@ -160,6 +164,13 @@ class FusionDaemon:
             self.safety_nets_child = SafetyNetsChild(settings, base_dir, log_format=log_format)
         self.safety_nets_health: dict[str, Any] | None = None  # the newest from our child
         self._safety_nets_ready = threading.Event()
+        # state_dir: the engine's tracks are written there after the periods it publishes (at
+        # most every state_interval_s, wall clock) and read back at start (engine/state.py)
+        self.state_dir = state_dir
+        self.state_interval_s = state_interval_s
+        self.tracks_restored = load_state(self.engine, state_dir) if state_dir is not None else None
+        self.states_saved = 0
+        self._state_saved_at = -math.inf
         self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self.stop_event = threading.Event()
         self.stopped = threading.Event()
@@ -402,6 +413,12 @@ class FusionDaemon:
         for out in outputs:
             self.metrics.observe_period(out.processing_s)
             self._emit(out)
+        if outputs and self.state_dir is not None:
+            now = time.monotonic()
+            if now - self._state_saved_at >= self.state_interval_s:
+                save_state(self.engine, self.state_dir)  # after the hand-over: tracks never wait for it
+                self.states_saved += 1
+                self._state_saved_at = now
 
     def _emit(self, item: Any) -> None:
         """Hand an output to the publishing thread; never waits (drops the oldest when full)."""
@@ -452,6 +469,8 @@ class FusionDaemon:
             outputs_dropped=self.outputs_dropped,
             publish_errors=self.publish_errors,
         )
+        if self.state_dir is not None:  # serve --state-dir
+            h["counters"].update(states_saved=self.states_saved, tracks_restored=self.tracks_restored or 0)
         health = {
             "v": 1,
             "t": now,

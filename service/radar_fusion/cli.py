@@ -148,6 +148,18 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
         "`radar-fusion safety-nets` as a supervised child process; in-process = on the daemon's processing "
         "thread; external = none here (run `radar-fusion safety-nets` elsewhere)",
     )
+    p.add_argument(
+        "--state-dir",
+        default=None,
+        help="keep the tracks across a restart: write the engine's state here after the periods it "
+        "publishes and read it back at start (same configuration; engine/state.py)",
+    )
+    p.add_argument(
+        "--state-interval-s",
+        type=float,
+        default=0.0,
+        help="write the state at most this often, wall clock (default 0: after every period)",
+    )
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -168,12 +180,22 @@ def _serve(args: argparse.Namespace) -> int:
 
     import zenoh
 
-    daemon = FusionDaemon(
-        settings,
-        base_dir=Path(args.config).resolve().parent,
-        safety_nets=args.safety_nets,
-        log_format=args.log_format,
-    )
+    from .engine.state import StateMismatch
+
+    try:
+        daemon = FusionDaemon(
+            settings,
+            base_dir=Path(args.config).resolve().parent,
+            state_dir=None if args.state_dir is None else Path(args.state_dir),
+            state_interval_s=args.state_interval_s,
+            safety_nets=args.safety_nets,
+            log_format=args.log_format,
+        )
+    except StateMismatch as exc:
+        print(f"the state in {args.state_dir} is not this configuration's, not starting:\n{exc}", file=sys.stderr)
+        return 4
+    if daemon.tracks_restored is not None:
+        logging.getLogger("radar_fusion").info("restored %d tracks from %s", daemon.tracks_restored, args.state_dir)
     try:
         daemon.start()
     except zenoh.ZError as exc:  # the listen port is taken, no router at the connect endpoints, ...

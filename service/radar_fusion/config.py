@@ -141,7 +141,8 @@ class TrackingConfig(_Section):
         "imm",
         description="singer: one Singer model (σ_m above) with NIS manoeuvre detection raising its noise "
         "(manoeuvre.py), the seeds' filter and the baseline; imm: an interacting multiple model filter of a "
-        "quiet and a manoeuvre Singer model ([tracking.imm], tracking/imm.py), which follows turns without "
+        "quiet and a manoeuvre Singer model and right and left coordinated turns ([tracking.imm], "
+        "tracking/imm.py, tracking/coordinated_turn.py), which follows turns without "
         "the straight-flight noise of a single high-σ_m model, and publishes each track's manoeuvre "
         "probability (issue 15 item 3). Default imm: side by side on the same plots it was more accurate in every "
         "case measured (demo 73.0 -> 62.6 m, ADS-B 94 -> 87 m, 50x3 GOSPA 878 -> 830 m), with the same track ids "

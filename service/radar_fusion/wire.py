@@ -91,18 +91,25 @@ class RadarStatus(_Message):
 
 
 class Track(BaseModel):
-    """One system track at the batch's reference time."""
+    """One system track at the batch's reference time; a track of one update, whose velocity
+    is not known yet, at its measurement time ``t`` with ``vx_mps``/``vy_mps`` nil."""
 
     model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True)
     track_id: int = Field(ge=0)
-    t: float
+    t: float = Field(
+        description="time of this state, UTC epoch s: the batch's t, or for a track whose velocity is not known "
+        "yet the time it was measured (it is not extrapolated)"
+    )
     status: Literal["tentative", "confirmed", "coasting"]
     lat_deg: float
     lon_deg: float
     x_m: float = Field(description="system plane, east")
     y_m: float = Field(description="system plane, north")
-    vx_mps: float
-    vy_mps: float
+    vx_mps: float | None = Field(
+        description="velocity east; nil while not known (a track of one update: confirmed at once by two radars "
+        "or a Mode S address, before a second update gives it a velocity)"
+    )
+    vy_mps: float | None = Field(description="velocity north; nil while not known (see vx_mps)")
     fl: float | None = None
     cov_xy: list[float] = Field(min_length=3, max_length=3, description="[σxx², σxy, σyy²] in m²")
     sources: list[str] = Field(description="radar ids that contributed this period")
@@ -118,8 +125,8 @@ class Track(BaseModel):
         None,
         ge=0,
         le=1,
-        description="probability that the track manoeuvres (the IMM's manoeuvre model); absent with the "
-        "single-model Singer filter",
+        description="probability that the track manoeuvres (the IMM's models other than the quiet one: "
+        "turns, speed changes); absent with the single-model Singer filter",
     )
 
 

@@ -98,10 +98,11 @@ class Cat062Encoder:
             ("Y", _clamp(float(tr["y_m"]), -lim_xy, lim_xy)),
         )
         lim_v = (2**15 - 1) * 0.25
-        items["185"] = (
-            ("VX", _clamp(float(tr["vx_mps"]), -lim_v, lim_v)),
-            ("VY", _clamp(float(tr["vy_mps"]), -lim_v, lim_v)),
-        )
+        if tr.get("vx_mps") is not None and tr.get("vy_mps") is not None:  # nil: not known yet, I062/185 left out
+            items["185"] = (
+                ("VX", _clamp(float(tr["vx_mps"]), -lim_v, lim_v)),
+                ("VY", _clamp(float(tr["vy_mps"]), -lim_v, lim_v)),
+            )
         if tr.get("fl") is not None:
             items["136"] = _clamp(float(tr["fl"]), -1500.0, 1500.0)
         if tr.get("mode3a") is not None:

@@ -96,6 +96,11 @@ class TrackColumns:
     safety_eligible: np.ndarray | None = None
     # the IMM's manoeuvre-model probability per track (tracking.filter = "imm"), else None
     manoeuvre_prob: np.ndarray | None = None
+    # Each track's own time (N,), s, where it differs from t_s: a track of one update has no
+    # velocity yet (x's velocity and acceleration are NaN, sent as nil) and is reported
+    # where it was measured, at its measurement time, not extrapolated to t_s. None: every
+    # track is at t_s.
+    t_track_s: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.track_id.shape[0])
@@ -151,14 +156,14 @@ class TrackColumns:
         mode_s = self.mode_s.tolist()
         cols = (
             self.track_id.tolist(),
-            repeat(self.t_s, n),
+            repeat(self.t_s, n) if self.t_track_s is None else self.t_track_s.tolist(),
             _STATUS_NAMES[self.status].tolist(),
             lat.tolist(),
             lon.tolist(),
             x[:, 0].tolist(),
             x[:, 3].tolist(),
-            x[:, 1].tolist(),
-            x[:, 4].tolist(),
+            _nil_nan(x[:, 1]),
+            _nil_nan(x[:, 4]),
             [None if f != f else f for f in self.fl.tolist()],
             self.cov_xy.tolist(),
             self.names.sources(masks),
@@ -167,8 +172,8 @@ class TrackColumns:
             self.updates.tolist(),
             self.age_s.tolist(),
             [None if v != v else v for v in self.vrate_fpm.tolist()],
-            x[:, 2].tolist(),
-            x[:, 5].tolist(),
+            _nil_nan(x[:, 2]),
+            _nil_nan(x[:, 5]),
             repeat(None, n) if self.manoeuvre_prob is None else np.round(self.manoeuvre_prob, 4).tolist(),
         )
         tracks = [dict(zip(TRACK_KEYS, row)) for row in zip(*cols)]
@@ -186,11 +191,16 @@ class TrackColumns:
         lat, lon = self.geodetic
         rows = MapRows(n).raw(_TRACK_MAP_HEADER)
         rows.key("track_id").integers(self.track_id)
-        rows.key("t").raw(msgpack.packb(self.t_s))
+        if self.t_track_s is None:
+            rows.key("t").raw(msgpack.packb(self.t_s))
+        else:
+            rows.key("t").float64(self.t_track_s)
         rows.key("status").table(self.status, _STATUS_PACKED)
         rows.key("lat_deg").float64(lat).key("lon_deg").float64(lon)
         rows.key("x_m").float64(x[:, 0]).key("y_m").float64(x[:, 3])
-        rows.key("vx_mps").float64(x[:, 1]).key("vy_mps").float64(x[:, 4])
+        # NaN velocity (one update: none yet) and acceleration are nil, as in to_message
+        rows.key("vx_mps").float64(x[:, 1], nil=np.isnan(x[:, 1]))
+        rows.key("vy_mps").float64(x[:, 4], nil=np.isnan(x[:, 4]))
         # as the filter has it, not rounded: a safety-nets process judges exactly what the
         # engine's columns hold (rounded to 0.01 FL, a figure of the demo's alerts moved 0.4 ft)
         rows.key("fl").float64(self.fl, nil=np.isnan(self.fl))
@@ -209,7 +219,8 @@ class TrackColumns:
         rows.key("updates").integers(self.updates)
         rows.key("age_s").float64(self.age_s)
         rows.key("vrate_fpm").float64(self.vrate_fpm, nil=np.isnan(self.vrate_fpm))
-        rows.key("ax_mps2").float64(x[:, 2]).key("ay_mps2").float64(x[:, 5])
+        rows.key("ax_mps2").float64(x[:, 2], nil=np.isnan(x[:, 2]))
+        rows.key("ay_mps2").float64(x[:, 5], nil=np.isnan(x[:, 5]))
         rows.key("manoeuvre_prob")
         if self.manoeuvre_prob is None:
             rows.raw(b"\xc0")
@@ -236,6 +247,8 @@ class TrackColumns:
         floats = [self.x, self.cov_xy, self.fl, self.vrate_fpm, self.age_s, *self.geodetic]
         if self.manoeuvre_prob is not None:
             floats.append(self.manoeuvre_prob)
+        if self.t_track_s is not None:
+            floats.append(self.t_track_s)
         ints = (self.track_id, self.status, self.mode3a, self.mode_s, self.updates)
         return (
             all(a.dtype.kind == "f" for a in floats)
@@ -288,9 +301,11 @@ class TrackColumns:
         status_names = [get(t, "status") for t in tracks]
         cov = np.array([get(t, "cov_xy", (math.nan,) * 3) for t in tracks], float).reshape(n, 3)
         t_first = float(get(tracks[0], "t", math.nan)) if tracks else math.nan
+        t_batch = float(batch["t"]) if batch is not None else t_first
+        t_track = col("t", t_batch)
         columns = cls(
             period=int(batch["period"]) if batch is not None else -1,
-            t_s=float(batch["t"]) if batch is not None else t_first,
+            t_s=t_batch,
             track_id=np.fromiter((int(get(t, "track_id")) for t in tracks), np.int64, n),
             status=np.fromiter((_STATUS_CODES.get(s, TENTATIVE) for s in status_names), np.int8, n),
             x=np.column_stack(
@@ -308,10 +323,19 @@ class TrackColumns:
             names=RadarNames(ids, plane),
             safety_eligible=np.fromiter((s == "confirmed" for s in status_names), bool, n),
             manoeuvre_prob=col("manoeuvre_prob") if any(get(t, "manoeuvre_prob") is not None for t in tracks) else None,
+            t_track_s=None if bool(np.all(t_track == t_batch)) else t_track,
         )
+        no_v = np.isnan(columns.x[:, 1])  # no velocity yet: no acceleration either
+        columns.x[no_v, 2] = columns.x[no_v, 5] = math.nan
         # positions on the earth as the sender computed them (the cached_property's slot)
         columns.__dict__["geodetic"] = (col("lat_deg"), col("lon_deg"))
         return columns
+
+
+def _nil_nan(a: np.ndarray) -> list[float | None]:
+    """The column as Python floats, None for NaN (a value not known yet)."""
+    values = a.tolist()
+    return [None if v != v else v for v in values] if np.isnan(a).any() else values
 
 
 # wire.Track fields in the order TrackColumns.to_message builds them

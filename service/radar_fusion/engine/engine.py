@@ -53,8 +53,8 @@ from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
 from ..geo.unknown_height import unknown_height_plots
 from ..safety_nets import SafetyNets
 from ..tracking.clustering import ClusterResult, cluster_plots
-from ..tracking.fusion import consensus_outliers, fuse_clusters
-from ..tracking.imm import MANOEUVRE, IMMFilter, IMMState
+from ..tracking.fusion import consensus_outliers, fuse_clusters, leave_one_out_outliers
+from ..tracking.imm import QUIET, IMMFilter, IMMState
 from ..tracking.initiation import (
     floor_covariance,
     one_point_initiation,
@@ -65,7 +65,7 @@ from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
 from ..tracking.registration import RadarRegistration
-from ..tracking.singer_filter import AltitudeFilter, SingerFilter
+from ..tracking.singer_filter import POS_IDX, AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
     TENTATIVE,
@@ -376,6 +376,22 @@ class Engine:
         return Prediction(x, P, alt_x, alt_P)
 
     # ------------------------------------------------------------- associate
+    def _gate_models(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray] | None:
+        """With the IMM, each track's model-conditioned predicted positions and covariances
+        for the gate (imm.py, "Gating"): an established track (confirmed or coasting) takes
+        a plot that any of its models expects, so that the second scan into a turn still
+        joins it; a tentative track gates on its combined prediction only, so that clutter
+        does not confirm it (with every track's models, the primary-high scenario confirmed
+        a clutter track in 2 of its 3 test seeds)."""
+        if pred.imm is None:
+            return None
+        xy = pred.imm.x_models[:, :, POS_IDX]
+        cov = pred.imm.P_models[:, :, POS_IDX[:, None], POS_IDX[None, :]]
+        young = np.flatnonzero(self.tracks.status == TENTATIVE)
+        xy[young] = position_m(pred.x[young])[:, None, :]
+        cov[young] = cov_pos_m2(pred.P[young])[:, None]
+        return xy, cov
+
     def _associate(self, plots: ConvertedPlots, pred: Prediction, t_ref_s: float) -> ClusterResult:
         """Time alignment and k-means clustering seeded by the tracks (Shu §2); a plot with a
         live track's Mode S address goes to that track (association.identity_pairs)."""
@@ -399,6 +415,7 @@ class Engine:
             track_last_cov_m2=cov_pos_m2(tr.P),
             track_last_t_s=tr.t_state_s,
             track_velocity_known=tr.updates >= 2,
+            track_models=self._gate_models(pred),
         )
         self.counters["plots_redundant"] += int(res.redundant.sum())
         self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())
@@ -425,31 +442,62 @@ class Engine:
             if drop.any():
                 used = used & ~drop
                 self.counters["plots_primary_left_out"] += int(drop.sum())
-        lab = res.labels[used]
-        n_in = np.bincount(lab, minlength=n_clusters)
-        t_c = np.bincount(lab, weights=plots.t_s[used], minlength=n_clusters) / np.maximum(n_in, 1)
-        row_of_plot = res.cluster_track[lab]
-        dt_p = t_c[lab] - plots.t_s[used]
+        # Without a velocity (a new target, or a track of one update) the plots are fused at
+        # zero speed, so the fused position is where the aircraft was at the plots' mean time
+        # weighted as the fusion weighs them (1/trace R): at their plain mean time instead,
+        # a precise plot early and a coarse one late put it up to a second of flight off.
+        no_v = np.ones(n_clusters, bool)
+        has_track = res.cluster_track >= 0
+        no_v[has_track] = self.tracks.updates[res.cluster_track[has_track]] < 2
         # a padding row (-1) stands for "no track": zero velocity, wide velocity prior
         v_pad = np.concatenate([velocity_mps(pred.x), np.zeros((1, 2))])
         pvv_pad = np.concatenate([cov_vel(pred.P), self.one_plot_vel_var_m2ps2 * np.eye(2)[None]])
-        v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
-        z_plot = plots.xy_m[used] + v * dt_p[:, None]
-        R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
-        # A plot that joined by its Mode S address from outside the gate and that the
-        # cluster's in-gate radars contradict is a wild plot, not a manoeuvre: dropped and
-        # counted (fusion.consensus_outliers).
+
+        def align(used: np.ndarray) -> tuple[np.ndarray, ...]:
+            lab = res.labels[used]
+            n_in = np.bincount(lab, minlength=n_clusters)
+            t_c = np.bincount(lab, weights=plots.t_s[used], minlength=n_clusters) / np.maximum(n_in, 1)
+            if no_v.any():
+                w = 1.0 / np.trace(plots.cov_m2[used], axis1=1, axis2=2)
+                w_sum = np.bincount(lab, weights=w, minlength=n_clusters)
+                t_w = np.bincount(lab, weights=w * plots.t_s[used], minlength=n_clusters) / np.where(
+                    w_sum > 0, w_sum, 1
+                )
+                t_c = np.where(no_v & (w_sum > 0), t_w, t_c)
+            row_of_plot = res.cluster_track[lab]
+            dt_p = t_c[lab] - plots.t_s[used]
+            v, p_vv = v_pad[row_of_plot], pvv_pad[row_of_plot]
+            z_plot = plots.xy_m[used] + v * dt_p[:, None]
+            R_plot = plots.cov_m2[used] + dt_p[:, None, None] ** 2 * p_vv
+            return lab, n_in, t_c, row_of_plot, v, z_plot, R_plot
+
+        lab, n_in, t_c, row_of_plot, v, z_plot, R_plot = align(used)
+        # A cluster without a velocity has no prediction to gate its plots: of three plots or
+        # more, the one the others contradict beyond the gate is a wild plot, dropped and
+        # counted (fusion.leave_one_out_outliers); the rest are aligned again without it.
+        wild = leave_one_out_outliers(lab, z_plot, R_plot, no_v, n_clusters, self.clustering.gate_chi2)
+        if wild.any():
+            self.counters["plots_new_target_outliers"] += int(wild.sum())
+            used[np.flatnonzero(used)[wild]] = False
+            lab, n_in, t_c, row_of_plot, v, z_plot, R_plot = align(used)
+        # A plot that joined from outside the gate of the track's combined prediction (by
+        # its Mode S address, or inside an IMM turn model's gate) and that the cluster's
+        # in-gate radars contradict is a wild plot, not a manoeuvre: dropped and counted
+        # (fusion.consensus_outliers), by address or by model gate.
         outlier = consensus_outliers(
             lab, z_plot, R_plot, res.plot_d2[used] > self.clustering.gate_chi2, n_clusters, self.clustering.gate_chi2
         )
         if outlier.any():
-            self.counters["plots_identity_outliers"] += int(outlier.sum())
+            by_address = int((plots.mode_s[used][outlier] >= 0).sum())
+            self.counters["plots_identity_outliers"] += by_address
+            self.counters["plots_model_gate_outliers"] += int(outlier.sum()) - by_address
             keep = ~outlier
             used[np.flatnonzero(used)[outlier]] = False
             lab, row_of_plot, v, z_plot, R_plot = lab[keep], row_of_plot[keep], v[keep], z_plot[keep], R_plot[keep]
             n_in = np.bincount(lab, minlength=n_clusters)
-        # A plot that joined its track by its Mode S address from outside the χ² gate counts
-        # as if it lay on the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
+        # A plot that joined its track from outside the χ² gate of its combined prediction
+        # (by its Mode S address, or inside an IMM turn model's gate) counts as if it lay on
+        # the gate's edge (R scaled by d²/gate, a Huber-type bound): one wild
         # plot moves the track no more than a plot at the gate's edge would, while a genuine
         # manoeuvre pulls it scan after scan, and its NIS switches manoeuvre noise on.
         self._register(plots, res, used, lab, row_of_plot, z_plot, R_plot, v, t_ref_s)
@@ -770,20 +818,34 @@ class Engine:
     # ---------------------------------------------------------------- output
     def _output(self, period: int, t_ref_s: float, ended: np.ndarray, out: Prediction) -> TrackColumns:
         tr = self.tracks
-        P = out.P
+        x, P, alt_x = out.x, out.P, out.alt_x
+        t_track_s = None
+        # A track of one update has no velocity yet (initiation.py: its velocity is the wide
+        # prior): it is reported where and when it was measured, velocity nil, not carried
+        # to t_ref at zero speed. Two radars or a Mode S address confirm it at once.
+        young = np.flatnonzero(tr.updates < 2)
+        if young.size:
+            x, P, alt_x = x.copy(), P.copy(), alt_x.copy()
+            x[young] = tr.x[young]
+            x[young[:, None], [1, 2, 4, 5]] = np.nan
+            P[young] = tr.P[young]
+            alt_x[young] = tr.alt_x[young]
+            alt_x[young, 1] = np.nan
+            t_track_s = np.full(len(tr), t_ref_s)
+            t_track_s[young] = tr.t_state_s[young]
         manoeuvre_prob = None
         if self.imm is not None:  # μ of the latest update predicted to t_ref (imm.py eq. 1), like x
             pi = self.imm.transition_matrix(t_ref_s - tr.t_state_s)
-            manoeuvre_prob = np.einsum("ni,nij->nj", tr.mu, pi)[:, MANOEUVRE]
+            manoeuvre_prob = 1.0 - np.einsum("ni,nij->nj", tr.mu, pi)[:, QUIET]
         return TrackColumns(
             period=period,
             t_s=t_ref_s,
             track_id=tr.track_id.copy(),
             status=tr.status.copy(),
-            x=out.x,
+            x=x,
             cov_xy=np.stack([P[:, 0, 0], P[:, 0, 3], P[:, 3, 3]], axis=1),
-            fl=out.alt_x[:, 0].copy(),
-            vrate_fpm=out.alt_x[:, 1] * FT_PER_FL * 60.0,
+            fl=alt_x[:, 0].copy(),
+            vrate_fpm=alt_x[:, 1] * FT_PER_FL * 60.0,
             sources=tr.sources.copy(),
             mode3a=tr.mode3a.copy(),
             mode_s=tr.mode_s.copy(),
@@ -792,6 +854,7 @@ class Engine:
             ended=ended,
             names=self._names,
             manoeuvre_prob=manoeuvre_prob,
+            t_track_s=t_track_s,
         )
 
     # ================================================================= health

@@ -26,8 +26,9 @@ import numpy as np
 from ..engine.columns import TRACK_KEYS
 from ..tracking.track_management import STATUS_NAMES
 
-FLOAT_FIELDS = ("t", "lat_deg", "lon_deg", "x_m", "y_m", "vx_mps", "vy_mps", "age_s")
-OPTIONAL_FLOAT_FIELDS = ("fl", "vrate_fpm", "ax_mps2", "ay_mps2", "manoeuvre_prob")
+FLOAT_FIELDS = ("t", "lat_deg", "lon_deg", "x_m", "y_m", "age_s")
+# nil (NaN here): velocity of a track of one update (none yet), and what a sender does not know
+OPTIONAL_FLOAT_FIELDS = ("vx_mps", "vy_mps", "fl", "vrate_fpm", "ax_mps2", "ay_mps2", "manoeuvre_prob")
 _STATUS_TEMPLATES = {bytes(msgpack.packb(name)): code for code, name in enumerate(STATUS_NAMES)}
 _CHAR_SHIFTS = np.array([56, 48, 40, 32, 24, 16], np.uint64)  # the first 6 bytes of a big-endian u64
 _HEX = np.full(256, -1, np.int64)

@@ -70,8 +70,8 @@ _STATUS_CODES = {name: code for code, name in enumerate(STATUS_NAMES)}
 _NUMBER = {float, int}
 _NUMBER_OR_NONE = {float, int, type(None)}
 # required numbers (finite), optional numbers (None or finite)
-_FLOATS = ("t", "lat_deg", "lon_deg", "x_m", "y_m", "vx_mps", "vy_mps", "age_s")
-_OPTIONAL_FLOATS = ("fl", "vrate_fpm", "ax_mps2", "ay_mps2", "manoeuvre_prob")
+_FLOATS = ("t", "lat_deg", "lon_deg", "x_m", "y_m", "age_s")
+_OPTIONAL_FLOATS = ("vx_mps", "vy_mps", "fl", "vrate_fpm", "ax_mps2", "ay_mps2", "manoeuvre_prob")
 
 
 class _NotColumns(Exception):
@@ -147,9 +147,7 @@ class TrackBatchReader:
             np.uint64,
             n,
         )
-        x = np.column_stack(
-            [c["x_m"], c["vx_mps"], np.nan_to_num(c["ax_mps2"]), c["y_m"], c["vy_mps"], np.nan_to_num(c["ay_mps2"])]
-        ).reshape(n, 6)
+        x = np.column_stack([c["x_m"], c["vx_mps"], c["ax_mps2"], c["y_m"], c["vy_mps"], c["ay_mps2"]]).reshape(n, 6)
         columns = TrackColumns(
             period=period,
             t_s=float(t_s),
@@ -168,6 +166,7 @@ class TrackBatchReader:
             names=self.names,
             safety_eligible=None,
             manoeuvre_prob=None if np.isnan(mp).all() else mp,
+            t_track_s=None if bool((c["track_t"] == t_s).all()) else c["track_t"],
         )
         columns.__dict__["geodetic"] = (c["lat_deg"], c["lon_deg"])
         return columns
@@ -274,9 +273,9 @@ class TrackBatchReader:
         cov_xy = np.array(cov, dtype=float).reshape(n, 3)
         _check(bool(np.isfinite(cov_xy).all()))
         sources = np.fromiter((self._mask(tr["sources"]) for tr in tracks), np.uint64, n)
-        x = np.column_stack(
-            [f["x_m"], f["vx_mps"], np.nan_to_num(o["ax_mps2"]), f["y_m"], f["vy_mps"], np.nan_to_num(o["ay_mps2"])]
-        ).reshape(n, 6)
+        # nil velocity and acceleration (a track of one update, an older sender) are NaN, as in
+        # the engine's columns; the safety nets take such a track as not moving
+        x = np.column_stack([f["x_m"], o["vx_mps"], o["ax_mps2"], f["y_m"], o["vy_mps"], o["ay_mps2"]]).reshape(n, 6)
         columns = TrackColumns(
             period=period,
             t_s=float(t_s),
@@ -295,6 +294,7 @@ class TrackBatchReader:
             names=self.names,
             safety_eligible=None,  # the engine's rule: every track that is not tentative
             manoeuvre_prob=None if np.isnan(mp).all() else mp,
+            t_track_s=None if bool((f["t"] == t_s).all()) else f["t"],
         )
         columns.__dict__["geodetic"] = (f["lat_deg"], f["lon_deg"])  # as the sender computed them
         return columns

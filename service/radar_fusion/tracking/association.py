@@ -428,6 +428,7 @@ def gated_pairs(
     params: ClusteringParams,
     last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     velocity_known: np.ndarray | None = None,
+    models: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Steps 1-3 of clustering.py: candidate (plot, track) pairs, each plot aligned to
     t_ref with the track's velocity, kept when inside the Mahalanobis gate (and the
@@ -445,9 +446,26 @@ def gated_pairs(
     a plot only where the aircraft could have flown from its one measured position
     (:func:`within_reach`): two clutter plots of two radars must not confirm a track by
     falling within each other's prior, nor make it fly at Mach 5.
+
+    ``models``: the IMM's model-conditioned predicted positions (N, M, 2) and covariances
+    (N, M, 2, 2) (imm.py, "Gating"). With them, the gate and the assignment cost take the
+    smallest d² over the combined prediction and every model's, so a plot joins a track
+    when any of its models expects it there: the second scan into a turn, far from the
+    quiet model's prediction but where a turn model put it. The d² returned stays the
+    combined prediction's: a plot beyond that gate is weighed and checked against the
+    other radars as a plot beyond the gate (fusion.consensus_outliers), since a wild plot
+    can fall where a turn model expects the aircraft. For a track whose models should not
+    widen its gate, pass its combined prediction as every model's.
     """
+    radius_cp = track_cp
+    if models is not None:
+        # the k-d tree's radius covers every model's gate: λmax(P_j) + |x_j − x|² as an
+        # isotropic bound about the combined prediction (the exact gates follow)
+        spread = np.sum((models[0] - track_xy[:, None, :]) ** 2, axis=2)
+        lam = (lambda_max_2x2(models[1].reshape(-1, 2, 2)).reshape(spread.shape) + spread).max(axis=1)
+        radius_cp = track_cp + (np.maximum(lam - lambda_max_2x2(track_cp), 0.0))[:, None, None] * np.eye(2)
     pair_plot, pair_track = candidate_pairs(
-        plot_xy, plot_cov, dt_s, plot_ok, track_xy, track_v, track_cp, track_cv, track_ok, params
+        plot_xy, plot_cov, dt_s, plot_ok, track_xy, track_v, radius_cp, track_cv, track_ok, params
     )
     pair_xy, pair_cov = align_to_reference(
         plot_xy[pair_plot],
@@ -459,7 +477,12 @@ def gated_pairs(
     )
     resid = pair_xy - track_xy[pair_track]
     d2 = mahalanobis2_2x2(resid, track_cp[pair_track] + pair_cov)
-    gated = d2 <= params.gate_chi2
+    d2_gate = d2  # the smallest d² over the combined prediction and each model's
+    if models is not None:
+        for j in range(models[0].shape[1]):
+            d2_j = mahalanobis2_2x2(pair_xy - models[0][pair_track, j], models[1][pair_track, j] + pair_cov)
+            d2_gate = np.minimum(d2_gate, d2_j)
+    gated = d2_gate <= params.gate_chi2
     if params.max_gate_m is not None:
         gated &= np.hypot(resid[:, 0], resid[:, 1]) <= params.max_gate_m
     gated &= identity_compatible(
@@ -482,6 +505,7 @@ def gated_pairs(
     pair_xy = pair_xy[gated]
     pair_cov = pair_cov[gated]
     d2 = d2[gated]
+    d2_gate = d2_gate[gated]
     if last is not None and params.identity_association:
         id_plot, id_track = identity_pairs(
             plot_ms, plot_ok, plot_xy, plot_cov, plot_t, track_ms, track_ok, *last, params.max_speed_mps
@@ -500,6 +524,7 @@ def gated_pairs(
         pair_xy = np.concatenate([pair_xy[keep], add_xy])
         pair_cov = np.concatenate([pair_cov[keep], add_cov])
         d2 = np.concatenate([d2[keep], add_d2])
+        d2_gate = np.concatenate([d2_gate[keep], add_d2])
     own = (plot_ms[pair_plot] >= 0) & (plot_ms[pair_plot] == track_ms[pair_track])
-    cost = np.where(own, d2 * IDENTITY_COST_FACTOR, d2)
+    cost = np.where(own, d2_gate * IDENTITY_COST_FACTOR, d2_gate)
     return pair_plot, pair_track, pair_xy, pair_cov, d2, cost

@@ -458,6 +458,7 @@ def cluster_plots(
     track_last_cov_m2: np.ndarray | None = None,
     track_last_t_s: np.ndarray | None = None,
     track_velocity_known: np.ndarray | None = None,
+    track_models: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> ClusterResult:
     """Align one period's plots to ``t_ref_s`` and cluster them (see the module docstring).
 
@@ -471,6 +472,9 @@ def cluster_plots(
     from the maximum speed (association.identity_pairs), not only inside the χ² gate.
     ``track_velocity_known`` (N,) bool, with ``track_last_*``: a track without a velocity yet
     takes only plots inside that sanity gate too (association.gated_pairs).
+    ``track_models``: the IMM's model-conditioned positions (N, M, 2) and covariances
+    (N, M, 2, 2); a plot is in a track's gate when it is in any model's
+    (association.gated_pairs).
     """
     params = ClusteringParams() if params is None else params
     plot_xy = np.asarray(plot_xy_m, dtype=float).reshape(-1, 2)
@@ -528,6 +532,7 @@ def cluster_plots(
         params,
         last,
         None if track_velocity_known is None else np.asarray(track_velocity_known, bool).reshape(n_tracks),
+        track_models,
     )
     pair_radar = radar[pair_plot]
 

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from .singer_filter import inv_2x2
 
-__all__ = ["FUSION_METHODS", "fuse_clusters"]
+__all__ = ["FUSION_METHODS", "consensus_outliers", "fuse_clusters", "leave_one_out_outliers"]
 
 FUSION_METHODS = ("scalar", "matrix")
 
@@ -144,19 +144,65 @@ def consensus_outliers(
     if not beyond_gate.any() or not inside.any():
         return out
     W = inv_2x2(R_m2[inside])
-    info = np.zeros((n_clusters, 2, 2))
-    np.add.at(info, labels[inside], W)
-    info_z = np.zeros((n_clusters, 2))
-    np.add.at(info_z, labels[inside], np.einsum("kij,kj->ki", W, z_m[inside]))
+    info = _cluster_sum(labels[inside], W, n_clusters)
+    info_z = _cluster_sum(labels[inside], np.einsum("kij,kj->ki", W, z_m[inside]), n_clusters)
     has = np.bincount(labels[inside], minlength=n_clusters) > 0
     cand = np.flatnonzero(beyond_gate & has[labels])
     if not cand.size:
         return out
     c = labels[cand]
-    R_in = inv_2x2(info[c])
-    z_in = np.einsum("kij,kj->ki", R_in, info_z[c])
-    y = z_m[cand] - z_in
-    S_inv = inv_2x2(R_m2[cand] + R_in)
-    d2 = np.einsum("ki,kij,kj->k", y, S_inv, y)
-    out[cand] = d2 > gate_chi2
+    out[cand] = _d2_against(z_m[cand], R_m2[cand], info[c], info_z[c]) > gate_chi2
+    return out
+
+
+def _d2_against(
+    z: NDArray[np.float64], R: NDArray[np.float64], info: NDArray[np.float64], info_z: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """d² = (z − z_f)ᵀ (R + R_f)⁻¹ (z − z_f) of plots (z, R) against the fusion of others
+    given in information form (Σ R⁻¹, Σ R⁻¹ z): R_f = info⁻¹, z_f = R_f info_z."""
+    R_f = inv_2x2(info)
+    y = z - np.einsum("kij,kj->ki", R_f, info_z)
+    return np.asarray(np.einsum("ki,kij,kj->k", y, inv_2x2(R + R_f), y))
+
+
+def leave_one_out_outliers(
+    labels: NDArray[np.intp],
+    z_m: NDArray[np.float64],
+    R_m2: NDArray[np.float64],
+    check: NDArray[np.bool_],
+    n_clusters: int,
+    gate_chi2: float,
+) -> NDArray[np.bool_]:
+    """In each cluster of ``check`` (K clusters) with three plots or more, the plot that
+    the others contradict most, when they contradict it beyond the gate (issue 15 item 7).
+
+    A cluster without a track has no prediction to gate its plots: a wild plot (1-3 km
+    off, a precise radar's) joins the new target's cluster and pulls its first position,
+    and then the two-point velocity. With three plots or more the others tell: each plot
+    i against the inverse-variance fusion of the others (Shu eq. 5-6 in information form),
+
+        z₋ᵢ = R₋ᵢ Σ_{j≠i} R_j⁻¹ z_j,   R₋ᵢ = (Σ_{j≠i} R_j⁻¹)⁻¹,
+        d²_i = (z_i − z₋ᵢ)ᵀ (R_i + R₋ᵢ)⁻¹ (z_i − z₋ᵢ),
+
+    and the plot of the largest d²_i is an outlier when d²_i > gate_chi2. One plot per
+    cluster at most: with one wild plot among three, the two good ones also disagree with
+    a fusion that contains it, but less. ``labels`` (P,), ``z_m`` (P, 2), ``R_m2`` (P, 2, 2).
+    Returns (P,) bool.
+    """
+    out = np.zeros(labels.shape[0], dtype=bool)
+    n = np.bincount(labels, minlength=n_clusters)
+    cand = np.flatnonzero(check[labels] & (n[labels] >= 3))
+    if not cand.size:
+        return out
+    W = inv_2x2(R_m2)
+    Wz = np.einsum("pij,pj->pi", W, z_m)
+    info = _cluster_sum(labels, W, n_clusters)
+    info_z = _cluster_sum(labels, Wz, n_clusters)
+    c = labels[cand]
+    d2 = _d2_against(z_m[cand], R_m2[cand], info[c] - W[cand], info_z[c] - Wz[cand])  # the others' fusion
+    worst = np.full(n_clusters, -np.inf)
+    np.maximum.at(worst, c, d2)
+    flagged = np.flatnonzero((d2 == worst[c]) & (d2 > gate_chi2))
+    _, first = np.unique(c[flagged], return_index=True)  # one per cluster, even on a tie
+    out[cand[flagged[first]]] = True
     return out

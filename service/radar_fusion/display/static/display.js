@@ -260,7 +260,8 @@
     const level = state.scene ? state.scene.level_vrate_fpm : 400;
     const arrow = vr == null ? " " : vr > level ? "↑" : vr < -level ? "↓" : " ";
     const flText = fl == null ? "---" : String(Math.round(fl)).padStart(3, "0");
-    const gs = Math.round(Math.hypot(f.vx_mps[i], f.vy_mps[i]) * KT_PER_MPS);
+    // a track of one update has no velocity yet (null): no speed shown
+    const gs = f.vx_mps[i] == null ? "---" : Math.round(Math.hypot(f.vx_mps[i], f.vy_mps[i]) * KT_PER_MPS);
     return `${flText}${arrow} ${gs}`;
   }
 
@@ -328,7 +329,7 @@
       if (vectorS > 0) {
         c.beginPath();
         for (let i = 0; i < n; i++) {
-          if (f.status[i] !== s) continue;
+          if (f.status[i] !== s || f.vx_mps[i] == null) continue;
           c.moveTo(px[i], py[i]);
           c.lineTo(px[i] + f.vx_mps[i] * vectorS * state.view.pxPerM, py[i] - f.vy_mps[i] * vectorS * state.view.pxPerM);
         }
@@ -515,8 +516,9 @@
       ui.details.replaceChildren(text("div", `track ${id}: no longer tracked`, "muted"));
       return;
     }
-    const gsKt = Math.hypot(f.vx_mps[i], f.vy_mps[i]) * KT_PER_MPS;
-    const hdg = (Math.atan2(f.vx_mps[i], f.vy_mps[i]) * 180 / Math.PI + 360) % 360;
+    const noV = f.vx_mps[i] == null; // one update: no velocity yet
+    const gsKt = noV ? NaN : Math.hypot(f.vx_mps[i], f.vy_mps[i]) * KT_PER_MPS;
+    const hdg = noV ? NaN : (Math.atan2(f.vx_mps[i], f.vy_mps[i]) * 180 / Math.PI + 360) % 360;
     const dl = document.createElement("dl");
     dl.className = "kv";
     kv(dl, [
@@ -525,8 +527,8 @@
       ["Mode S", f.mode_s[i] || "–"],
       ["FL", fmt(f.fl[i], 0)],
       ["vert. rate", fmt(f.vrate_fpm[i], 0, " ft/min")],
-      ["ground speed", `${gsKt.toFixed(0)} kt`],
-      ["track (grid)", `${hdg.toFixed(0).padStart(3, "0")}°`],
+      ["ground speed", noV ? "– (one update)" : `${gsKt.toFixed(0)} kt`],
+      ["track (grid)", noV ? "–" : `${hdg.toFixed(0).padStart(3, "0")}°`],
       ["lat / lon", `${f.lat_deg[i].toFixed(4)} ${f.lon_deg[i].toFixed(4)}`],
       ["x / y", `${(f.x_m[i] / 1000).toFixed(2)} ${(f.y_m[i] / 1000).toFixed(2)} km`],
       ["σ position", fmt(f.sigma_m[i], 0, " m")],

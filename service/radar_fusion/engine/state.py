@@ -1,0 +1,162 @@
+"""The engine's track state as bytes, for a restart that keeps its tracks (issue 13 item 3).
+
+A restarted daemon without it starts its ids again at 1 and re-initiates every track
+(the README's fault section). With ``serve --state-dir DIR`` the daemon writes this
+state after each period it publishes, and a new daemon on the same configuration reads
+it back before its first plot: the same tracks with the same ids, predicted on from
+where they were, and the radars' registration estimates.
+
+Format (version 1): one msgpack map
+
+    v               1
+    kind            "radar-fusion-engine-state"
+    radar_ids       the configuration's radar ids in order (the ``sources`` bits and the
+                    registration rows are indexed by them)
+    n_models        the IMM's model count (0: the Singer filter)
+    track_t_s       reference time of the newest closed period, UTC epoch s
+    next_period     the first period not yet closed (plots before it are late)
+    next_id         the next track id to hand out
+    tracks          {column name: [dtype, shape, raw bytes]}, TrackTable's columns
+    address_memory  [[mode_s, id, [x_m, y_m], [[cov]], t_s], ...]: recently ended tracks
+    registration    {name: [dtype, shape, raw bytes]} of the estimator's arrays, and its
+                    counters
+
+What is not kept, and why it does not matter for long: the plots buffered for the period
+that was open (lost with the process, as on any restart), the wild-plot gate's recent
+history per radar (it relearns within a few scans), the clock check and the counters
+(health starts again with the new process's ``uptime_s``), and the safety nets' open
+alerts (they are raised again as new).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import msgpack
+import numpy as np
+
+if TYPE_CHECKING:
+    from .engine import Engine
+
+__all__ = ["STATE_FILE", "STATE_VERSION", "StateMismatch", "load_state", "restore", "save_state", "snapshot"]
+
+STATE_VERSION = 1
+STATE_KIND = "radar-fusion-engine-state"
+#: the file name inside ``--state-dir``
+STATE_FILE = "engine-state.msgpack"
+
+_REGISTRATION_ARRAYS = ("information", "information_vector", "bias", "sigma", "effective_plots")
+_REGISTRATION_COUNTS = ("updates", "plots_used", "plots_gated")
+
+
+class StateMismatch(ValueError):
+    """A saved state that does not belong to this configuration (or is not a state)."""
+
+
+def _pack_array(a: np.ndarray) -> list[Any]:
+    a = np.ascontiguousarray(a)
+    return [a.dtype.str, list(a.shape), a.tobytes()]
+
+
+def _unpack_array(item: Any) -> np.ndarray:
+    dtype, shape, raw = item
+    return np.frombuffer(raw, dtype=np.dtype(dtype)).reshape(shape).copy()
+
+
+def snapshot(engine: Engine) -> bytes:
+    """The engine's track state (module docstring) as msgpack bytes."""
+    tr = engine.tracks
+    reg = engine.registration
+    memory = [[a, i, xy.tolist(), cov.tolist(), t] for a, i, xy, cov, t in engine.address_memory.entries()]
+    state = {
+        "v": STATE_VERSION,
+        "kind": STATE_KIND,
+        "radar_ids": list(engine.radar_ids),
+        "n_models": tr.n_models,
+        "track_t_s": engine.track_t_s,
+        "next_period": engine.buffer.next_period,
+        "next_id": tr.next_id,
+        "tracks": {name: _pack_array(getattr(tr, name)) for name in tr._fields},
+        "address_memory": memory,
+        "registration": {
+            **{name: _pack_array(getattr(reg, name)) for name in _REGISTRATION_ARRAYS},
+            **{name: int(getattr(reg, name)) for name in _REGISTRATION_COUNTS},
+        },
+    }
+    return bytes(msgpack.packb(state, use_bin_type=True))
+
+
+def restore(engine: Engine, data: bytes) -> int:
+    """Load a :func:`snapshot` into a new engine of the same configuration (before its first
+    plot); returns the number of tracks restored. Raises :class:`StateMismatch` when the
+    bytes are not a state of this version, or of other radars or another filter."""
+    try:
+        state = msgpack.unpackb(data, raw=False)
+    except Exception as exc:  # any decoding error: not a state file
+        raise StateMismatch(f"not a radar-fusion state: {exc}") from exc
+    if not isinstance(state, dict) or state.get("kind") != STATE_KIND:
+        raise StateMismatch("not a radar-fusion state")
+    if state.get("v") != STATE_VERSION:
+        raise StateMismatch(f"state version {state.get('v')!r}, this daemon reads {STATE_VERSION}")
+    if state["radar_ids"] != list(engine.radar_ids):
+        raise StateMismatch(f"state of radars {state['radar_ids']}, configured {engine.radar_ids}")
+    tr = engine.tracks
+    if state["n_models"] != tr.n_models:
+        raise StateMismatch(f"state of a filter with {state['n_models']} models, configured {tr.n_models}")
+    if len(tr) or engine.periods_closed:
+        raise StateMismatch("restore into a new engine only (it has tracks or closed periods)")
+    columns = {name: _unpack_array(item) for name, item in state["tracks"].items()}
+    if set(columns) != set(tr._fields):
+        raise StateMismatch(f"state columns {sorted(columns)} differ from the track table's")
+    n = {c.shape[0] for c in columns.values()}
+    if len(n) != 1:
+        raise StateMismatch("state columns of different lengths")
+    for name, (shape, dtype, _) in tr._fields.items():
+        if columns[name].shape[1:] != shape:
+            raise StateMismatch(f"state column {name} of shape {columns[name].shape[1:]}, expected {shape}")
+        setattr(tr, name, columns[name].astype(dtype, copy=False))
+    tr.n = n.pop()
+    tr.next_id = int(state["next_id"])
+    engine.track_t_s = state["track_t_s"]
+    if state["next_period"] is not None:
+        engine.buffer.next_period = int(state["next_period"])
+    engine.address_memory.load([tuple(entry) for entry in state["address_memory"]])
+    reg = engine.registration
+    for name in _REGISTRATION_ARRAYS:
+        value = _unpack_array(state["registration"][name])
+        if value.shape != getattr(reg, name).shape:
+            raise StateMismatch(f"registration {name} of shape {value.shape}, expected {getattr(reg, name).shape}")
+        setattr(reg, name, value)
+    for name in _REGISTRATION_COUNTS:
+        setattr(reg, name, int(state["registration"][name]))
+    return tr.n  # the registration's correction is taken from the estimator at each period
+
+
+def save_state(engine: Engine, directory: str | os.PathLike[str]) -> Path:
+    """Write the snapshot to ``directory/STATE_FILE`` atomically (a temporary file renamed
+    over it): a daemon killed while writing leaves the previous state whole."""
+    path = Path(directory) / STATE_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".engine-state-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(snapshot(engine))
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_state(engine: Engine, directory: str | os.PathLike[str]) -> int | None:
+    """Restore from ``directory/STATE_FILE`` if there is one; returns the tracks restored,
+    or None without a file. A file of another configuration raises :class:`StateMismatch`."""
+    path = Path(directory) / STATE_FILE
+    if not path.exists():
+        return None
+    return restore(engine, path.read_bytes())

@@ -1,0 +1,84 @@
+"""Coordinated-turn model (tracking/coordinated_turn.py) against independent computations:
+the exact circular arc of a turning aircraft, and Φ, Q of the continuous model by Van
+Loan's method (scipy expm), not the closed forms of the module."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from radar_fusion.tracking.coordinated_turn import CoordinatedTurnModel
+
+SUB = [0, 1, 3, 4]  # x, vx, y, vy of the state [x, vx, ax, y, vy, ay]
+
+
+def van_loan_ct(omega_rad_s: float, q_m2_s3: float, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """F, Q (4×4, [x, vx, y, vy]) of d/dt [x, vx, y, vy] = [vx, −ω vy, vy, ω vx] + white
+    acceleration q on each axis: expm([[−A, GqGᵀ], [0, Aᵀ]]·T) = [[·, F⁻¹Q], [0, Fᵀ]]."""
+    A = np.zeros((4, 4))
+    A[0, 1] = A[2, 3] = 1.0
+    A[1, 3], A[3, 1] = -omega_rad_s, omega_rad_s
+    gqg = np.diag([0.0, q_m2_s3, 0.0, q_m2_s3])
+    big = np.zeros((8, 8))
+    big[:4, :4], big[:4, 4:], big[4:, 4:] = -A, gqg, A.T
+    e = expm(big * dt_s)
+    F = e[4:, 4:].T
+    return F, F @ e[:4, 4:]
+
+
+@pytest.mark.parametrize("rate_deg_s", [3.0, -3.0, 1.5, 1e-5])
+@pytest.mark.parametrize("dt_s", [4.0, 0.25, 1e-3, 12.0])
+def test_transition_and_noise_equal_van_loan(rate_deg_s: float, dt_s: float) -> None:
+    m = CoordinatedTurnModel(rate_deg_s, 2.0)
+    F, Q = van_loan_ct(m.turn_rate_rad_s, 2.0, dt_s)
+    np.testing.assert_allclose(m.transition(dt_s)[0][np.ix_(SUB, SUB)], F, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(m.process_noise(dt_s)[0][np.ix_(SUB, SUB)], Q, rtol=1e-9, atol=1e-12 * dt_s**3)
+    # the acceleration rows are the turn's centripetal acceleration of the predicted velocity
+    phi = m.transition(dt_s)[0]
+    w = m.turn_rate_rad_s
+    np.testing.assert_allclose(phi[2], -w * phi[4], atol=1e-15)
+    np.testing.assert_allclose(phi[5], w * phi[1], atol=1e-15)
+    Q6 = m.process_noise(dt_s)[0]
+    assert np.all(np.linalg.eigvalsh(Q6) > -1e-9 * np.abs(Q6).max())
+
+
+def test_prediction_follows_the_exact_arc_of_a_right_turn() -> None:
+    """An aircraft heading north at 200 m/s turning right at 3°/s: after T it is on the
+    circle of radius v/ω centred east of it, its heading 3·T degrees."""
+    v, rate = 200.0, 3.0
+    w = math.radians(rate)
+    radius = v / w
+    m = CoordinatedTurnModel(rate, 0.0)
+    x0 = np.array([[0.0, 0.0, 0.0, 0.0, v, 0.0]])
+    for T in (1.0, 4.0, 30.0, 60.0):
+        x, P = m.predict(x0, np.zeros((1, 6, 6)), T)
+        heading = w * T  # clockwise from north
+        assert x[0, 0] == pytest.approx(radius * (1.0 - math.cos(heading)), abs=1e-6)
+        assert x[0, 3] == pytest.approx(radius * math.sin(heading), abs=1e-6)
+        assert x[0, 1] == pytest.approx(v * math.sin(heading), abs=1e-9)
+        assert x[0, 4] == pytest.approx(v * math.cos(heading), abs=1e-9)
+        # centripetal acceleration v²/r = v·ω, towards the centre
+        a = x[0, [2, 5]]
+        assert np.hypot(*a) == pytest.approx(v * w, rel=1e-12)
+        centre = np.array([radius, 0.0])
+        to_centre = centre - x[0, [0, 3]]
+        assert float(a @ to_centre) / (np.hypot(*a) * np.hypot(*to_centre)) == pytest.approx(1.0, abs=1e-12)
+        np.testing.assert_array_equal(P, np.zeros((1, 6, 6)))
+
+
+def test_batch_of_tracks_with_their_own_dt() -> None:
+    m = CoordinatedTurnModel(-1.5, 1.0)
+    rng = np.random.default_rng(4)
+    x = rng.normal(0.0, 100.0, (5, 6))
+    A = rng.normal(0.0, 10.0, (5, 6, 6))
+    P = A @ np.swapaxes(A, 1, 2)
+    dt = np.array([0.0, 1.0, 4.0, 5.5, 10.0])
+    xb, Pb = m.predict(x, P, dt)
+    for n in range(5):
+        x1, P1 = m.predict(x[n : n + 1], P[n : n + 1], dt[n])
+        np.testing.assert_allclose(xb[n], x1[0], rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(Pb[n], P1[0], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(xb[0][[0, 1, 3, 4]], x[0][[0, 1, 3, 4]], atol=1e-12)
