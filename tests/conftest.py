@@ -46,6 +46,15 @@ def zenoh_sessions_only_in_bus_tests(request: pytest.FixtureRequest, monkeypatch
     monkeypatch.setattr(zenoh, "open", refuse)
 
 
+@pytest.fixture(autouse=True)
+def safety_nets_in_process_unless_tested(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Daemons built by tests run the safety nets on their processing thread, as one
+    process ([safety_nets] process = in_process, through the environment override), so
+    that each test does not start a child interpreter; the tests of the safety-nets
+    process (test_safety_nets_process.py) ask for the child themselves."""
+    monkeypatch.setenv("RADAR_FUSION_SAFETY_NETS__PROCESS", "in_process")
+
+
 def pytest_configure(config):
     """One BLAS thread for the whole test session, as every radar-fusion entry point sets
     (cli.one_blas_thread): the engine's tiny matrices only contend on OpenBLAS threads."""

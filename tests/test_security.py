@@ -48,6 +48,7 @@ IDENTITIES = (
     "display-1",
     "display-b1",
     "intruder",
+    "safety-nets",
 )
 
 
@@ -308,6 +309,52 @@ def test_one_site_tls_mtls_and_access_control(pki, scenario, free_port, tmp_path
     assert health["rejected"] == {}
     assert all(r["seq_gaps"] == 0 for r in health["radars"].values())  # no 900 00x batch got in
     assert len(spy) >= daemon.batches_published and b"not from the daemon" not in spy
+
+
+def test_one_site_the_safety_nets_child_joins_with_its_own_certificate(pki, scenario, free_port, tmp_path, monkeypatch):
+    """serve's default, the safety nets as a child process, on the production files: the
+    child connects with safety-nets.json5 (CN safety-nets), the router's access control
+    lets it read the tracks and publish its health and alerts, a display receives them."""
+    monkeypatch.delenv("RADAR_FUSION_SAFETY_NETS__PROCESS")  # the suite's in-process default
+    simulation, base = scenario
+    endpoint = f"tls/127.0.0.1:{free_port}"
+    nets = {
+        **base.get("safety_nets", {}),
+        "process": "child",
+        "connect": [endpoint],
+        "zenoh_config_file": str(deploy_config("safety-nets.json5", pki, tmp_path)),
+    }
+    settings = daemon_settings(
+        {**base, "safety_nets": nets},
+        mode="router",
+        listen=[endpoint],
+        zenoh_config_file=str(deploy_config("daemon-router.json5", pki, tmp_path)),
+    )
+    frontend = deploy_config("radar-frontend.json5", pki, tmp_path)
+    daemon = FusionDaemon(settings, idle_flush_s=60.0).start()
+    sessions: dict[str, zenoh.Session] = {}
+    healths: list[dict] = []
+    try:
+        for radar in ("north", "west", "south"):
+            sessions[radar] = open_session(client_config(frontend, pki, f"fe-{radar}", endpoint))
+        sessions["display"] = open_session(client_config(frontend, pki, "display-1", endpoint))
+        sessions["display"].declare_subscriber(
+            "atc/fusion/safety_nets/health", lambda s: healths.append(msgpack.unpackb(s.payload.to_bytes()))
+        )
+        assert wait_until(daemon._safety_nets_ready.is_set, 60), "the child did not join the TLS bus"
+        n_sent = feed(sessions, simulation.messages, speed=30.0)
+        assert wait_until(lambda: daemon.messages_processed >= n_sent, 30)
+        daemon.stop()  # the last periods, then the child judges them and stops
+        assert daemon.safety_nets_child is not None and daemon.safety_nets_child.proc.returncode == 0
+        assert healths, "the display got no health from the safety-nets child"
+        judged = max(h["counters"]["batches_processed"] for h in healths)
+        assert judged >= daemon.batches_published - 1 > 5  # every period (but maybe the very last)
+        assert all(h["rejected"] == {} for h in healths)
+    finally:
+        if not daemon.stopped.is_set():
+            daemon.stop()
+        for s in sessions.values():
+            s.close()
 
 
 def test_two_sites_linked_over_tls_each_router_enforcing_its_site(pki, scenario, free_port, tmp_path):

@@ -19,9 +19,11 @@ Tracks come from one of two trackers (``--tracker``):
   Mode S radars observe the truth (range σ 50/70 m, azimuth σ 0.08°/0.10°, Mode C flight
   level quantised to 100 ft), their plots go through ``Engine.ingest_plots`` / ``poll``
   (outlier gate, clustering, fusion, Singer filter, altitude filter, track management)
-  with the safety nets attached — exactly what the daemon runs, without the bus. The
-  engine hands the safety nets its track columns, Mode S addresses included, so two
-  tracks of one aircraft are never paired by STCA.
+  and each period's TrackBatch, as the daemon publishes it, judged by the safety-nets
+  process's own code (``SafetyNetsProcess.process``: decode, SafetyNets) — exactly what
+  ``serve`` runs, without the bus (``--safety-nets in-process``: the nets attached to the
+  engine, on its columns, as before issue 16; the figures are the same). The TrackBatch
+  carries each track's Mode S address, so two tracks of one aircraft are never paired by STCA.
 * ``emulated``: truth + tracker-like errors (position σ 100 m, velocity σ 5 m/s with a
   6 s lag, acceleration from that lag, flight level ±50 ft, vertical rate with an 8 s lag
   and σ 150 fpm), sent as TrackBatch-like track dicts and read back with
@@ -43,6 +45,7 @@ from radar_fusion.engine import Engine, TrackColumns
 from radar_fusion.geo.coordinates import RadarSites, SystemPlane, geodetic_to_polar
 from radar_fusion.geo.units import FT_PER_FL, M_PER_FL, M_PER_NM
 from radar_fusion.safety_nets import SafetyNets, SafetyNetsConfig, load_areas, load_msa
+from radar_fusion.safety_nets.process import SafetyNetsProcess
 from radar_fusion.wire import KIND_CODES, DecodedPlots
 
 CENTER_LAT_DEG, CENTER_LON_DEG = 47.0, 8.0
@@ -263,8 +266,13 @@ RADARS = [  # id, lat, lon, alt_m, sigma_range_m, sigma_azimuth_deg, rotation_pe
 ]
 
 
-def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.random.Generator) -> tuple[list, dict]:
-    """Plots from two rotating Mode S radars → the real Engine with the safety nets attached."""
+def run_engine(
+    truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.random.Generator, via: str = "process"
+) -> tuple[list, dict]:
+    """Plots from two rotating Mode S radars → the real Engine → the safety nets: ``via``
+    ``process`` as the safety-nets process judges them (each period's TrackBatch bytes, as
+    published, through :meth:`SafetyNetsProcess.process`, without the bus), ``in_process``
+    attached to the engine (its own columns)."""
     settings = settings_from_dict(
         {
             "system": {"center_lat": CENTER_LAT_DEG, "center_lon": CENTER_LON_DEG, "period_s": PERIOD_S},
@@ -282,7 +290,8 @@ def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.rando
             ],
         }
     )
-    engine = Engine(settings, safety_nets=nets)
+    engine = Engine(settings, safety_nets=nets if via == "in_process" else None)
+    consumer = SafetyNetsProcess(settings, nets=nets) if via == "process" else None
     sites = RadarSites.from_configs(settings.radars)
     A = truth.x_m.shape[0]
     t0 = 1.7e9
@@ -327,7 +336,8 @@ def run_engine(truth: Truth, nets: SafetyNets, plane: SystemPlane, rng: np.rando
             for trk in out.track_batch["tracks"]:
                 if trk.get("mode_s"):
                     id_map[trk["track_id"]] = int(trk["mode_s"], 16) - 0x3C0000
-            for a in out.alerts:
+            judged = consumer.process(out.track_batch_bytes) if consumer is not None else out.alerts
+            for a in judged:
                 alerts.append({**a, "t": a["t"] - t0})
     return alerts, id_map
 
@@ -345,14 +355,16 @@ class Result:
     alerts: list = field(default_factory=list)
 
 
-def evaluate_scenario(sc: Scenario, tracker: str, seed: int) -> Result:
+def evaluate_scenario(sc: Scenario, tracker: str, seed: int, via: str = "process") -> Result:
     plane = SystemPlane(CENTER_LAT_DEG, CENTER_LON_DEG)
     cfg = SafetyNetsConfig.model_validate({**sc.config, "load_entry_point_hooks": False})
     nets = SafetyNets(cfg, plane)
     truth = fly(sc.aircraft, sc.duration_s)
     rng = np.random.default_rng(seed)
-    runner = run_engine if tracker == "engine" else run_emulated
-    alerts, id_map = runner(truth, nets, plane, rng)
+    if tracker == "engine":
+        alerts, id_map = run_engine(truth, nets, plane, rng, via)
+    else:
+        alerts, id_map = run_emulated(truth, nets, plane, rng)
     names = [a.name for a in sc.aircraft]
     t_event = truth_event_time(sc, truth, plane, cfg)
     detected, warning, nuisance = (None, None, 0)
@@ -377,12 +389,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="auto",
         help="engine (= auto, the default): plots through the real Engine; emulated: truth + tracker errors",
     )
+    parser.add_argument(
+        "--safety-nets",
+        choices=("process", "in-process"),
+        default="process",
+        help="with the engine: process (default, what serve runs) = each period's TrackBatch bytes judged by "
+        "the safety-nets process's code (decode, SafetyNets), without the bus; in-process = the nets attached "
+        "to the engine, on its own columns",
+    )
     parser.add_argument("--seeds", type=int, default=3, help="noise seeds per scenario (default 3)")
     parser.add_argument("--alerts", action="store_true", help="print every new/ended alert")
 
 
 def run(args: argparse.Namespace) -> int:
     tracker = "engine" if args.tracker == "auto" else args.tracker
+    via = args.safety_nets.replace("-", "_")
     print(
         f"safety-net evaluation: tracker = {tracker}"
         + (
@@ -392,6 +413,14 @@ def run(args: argparse.Namespace) -> int:
         )
     )
     if tracker == "engine":
+        print(
+            "safety nets: "
+            + (
+                "as the safety-nets process runs them, on each period's TrackBatch as published"
+                if via == "process"
+                else "in process, on the engine's own columns"
+            )
+        )
         print(
             "(STCA gets each track's Mode S address from the engine, so duplicate tracks of one aircraft are "
             "not paired)"
@@ -405,7 +434,7 @@ def run(args: argparse.Namespace) -> int:
     print("-" * len(header))
     warnings, n_conf, n_det, n_nuis = [], 0, 0, 0
     for sc in scenarios():
-        res = [evaluate_scenario(sc, tracker, seed) for seed in range(1, args.seeds + 1)]
+        res = [evaluate_scenario(sc, tracker, seed, via) for seed in range(1, args.seeds + 1)]
         nuis = sum(r.nuisance for r in res)
         n_nuis += nuis
         if sc.kind:

@@ -38,6 +38,8 @@ from .engine import Engine, PeriodOutput
 from .engine.state import load_state, save_state
 from .metrics import DaemonMetrics
 from .safety_nets import SafetyNets
+from .safety_nets.process import health_key
+from .safety_nets.supervisor import SafetyNetsChild
 from .wire import RadarStatus, Rejection, decode_message, decode_plot_batch
 
 log = logging.getLogger("radar_fusion.bus")
@@ -130,7 +132,10 @@ class RateLimitedLog:
 
 
 class FusionDaemon:
-    """The fusion daemon: one Zenoh session, one engine, a processing and a publishing thread."""
+    """The fusion daemon: one Zenoh session, one engine, a processing and a publishing thread,
+    and by default the safety nets as a supervised child process (``safety_nets``)."""
+
+    safety_nets_ready_timeout_s = 30.0  # a fresh interpreter's imports take ~3 s on 2 shared cores
 
     def __init__(
         self,
@@ -139,13 +144,26 @@ class FusionDaemon:
         idle_flush_s: float | None = None,
         base_dir: Path | None = None,
         outbox_size: int = 1024,
+        safety_nets: str | None = None,
+        log_format: str = "text",
         state_dir: Path | None = None,
         state_interval_s: float = 0.0,
     ):
         self.settings = settings
         self.prefix = settings.bus.prefix
+        # Where the safety nets run: "child" (their own process, started here), "in_process"
+        # (on the processing thread) or "external" (none here); default [safety_nets] process.
+        self.safety_nets_mode = (safety_nets or settings.safety_nets.process).replace("-", "_")
+        if self.safety_nets_mode not in ("child", "in_process", "external"):
+            raise ValueError(f"safety_nets must be child, in_process or external, not {safety_nets!r}")
         # base_dir: where the config file lives; relative areas/MSA file paths resolve there
-        self.engine = Engine(settings, safety_nets=SafetyNets.from_settings(settings, base_dir=base_dir))
+        in_process = self.safety_nets_mode == "in_process"
+        self.engine = Engine(settings, safety_nets=SafetyNets.from_settings(settings, base_dir) if in_process else None)
+        self.safety_nets_child: SafetyNetsChild | None = None
+        if self.safety_nets_mode == "child":
+            self.safety_nets_child = SafetyNetsChild(settings, base_dir, log_format=log_format)
+        self.safety_nets_health: dict[str, Any] | None = None  # the newest from our child
+        self._safety_nets_ready = threading.Event()
         # state_dir: the engine's tracks are written there after the periods it publishes (at
         # most every state_interval_s, wall clock) and read back at start (engine/state.py)
         self.state_dir = state_dir
@@ -188,13 +206,23 @@ class FusionDaemon:
         self.metrics.start()
         self._session = open_session(cfg)
         p = self.prefix
-        # One subscriber for plots and status: its callback sees a sender's messages in
-        # the order they were sent, so a north marker never overtakes the plots before it.
-        self._subs = [self._session.declare_subscriber(f"{p}/radar/*/*", self._on_sample)]
         self._pubs["tracks"] = reliable_publisher(self._session, f"{p}/fusion/tracks")
         self._pubs["health"] = self._session.declare_publisher(f"{p}/fusion/health")
-        for kind in ("stca", "apw", "msaw"):
-            self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
+        if self.safety_nets_mode == "in_process":
+            for kind in ("stca", "apw", "msaw"):
+                self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
+        elif self.safety_nets_child is not None:
+            # The child joins this session's router (or the routers it connects to), then
+            # says it is ready with its first health; the processing thread waits for that
+            # (bounded) before its first period, so that the child judges the first periods
+            # too. Plots received meanwhile wait in the input queue.
+            self._subs.append(self._session.declare_subscriber(health_key(p), self._on_safety_nets_health))
+            self.safety_nets_child.start()
+        else:
+            log.warning("safety nets: external; this daemon runs none (a radar-fusion safety-nets must run elsewhere)")
+        # One subscriber for plots and status: its callback sees a sender's messages in
+        # the order they were sent, so a north marker never overtakes the plots before it.
+        self._subs.append(self._session.declare_subscriber(f"{p}/radar/*/*", self._on_sample))
         self._publisher = threading.Thread(target=self._publish_loop, name="fusion-publish", daemon=True)
         self._publisher.start()
         self._thread = threading.Thread(target=self._run, name="fusion-engine", daemon=True)
@@ -204,6 +232,8 @@ class FusionDaemon:
 
     def stop(self, timeout_s: float = 30.0) -> None:
         """Drain what was received, flush the open periods, publish them, close the session."""
+        if self.safety_nets_child is not None:
+            self.safety_nets_child.no_more_restarts()  # it judges the last periods, then stops
         self.stop_event.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
@@ -213,6 +243,8 @@ class FusionDaemon:
             except queue.Full:
                 log.error("publishing thread stuck; %d outputs not sent", self.outbox.qsize())
             self._publisher.join(timeout_s)
+        if self.safety_nets_child is not None:  # after the last batches: it judges them, then exits
+            self.safety_nets_child.stop()
         for sub in self._subs:
             sub.undeclare()
         self._subs = []
@@ -230,6 +262,18 @@ class FusionDaemon:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def _on_safety_nets_health(self, sample: zenoh.Sample) -> None:
+        """The child's health (Zenoh's thread): kept for this daemon's health; the first says it is ready."""
+        child = self.safety_nets_child
+        try:
+            health = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
+            if child is None or not isinstance(health, dict) or health.get("pid") != child.pid:
+                return  # another safety-nets process on the bus
+        except Exception:
+            return
+        self.safety_nets_health = health
+        self._safety_nets_ready.set()
 
     # ------------------------------------------------------------------ input
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -284,6 +328,15 @@ class FusionDaemon:
 
     # ------------------------------------------------------------- processing
     def _run(self) -> None:
+        deadline = time.monotonic() + self.safety_nets_ready_timeout_s
+        while self.safety_nets_child is not None and not self._safety_nets_ready.wait(0.05):
+            if self.stop_event.is_set() or time.monotonic() > deadline:
+                break
+        if self.safety_nets_child is not None and not self._safety_nets_ready.is_set():
+            log.error(
+                "safety-nets child not ready after %.0f s: the tracks go on without it for now",
+                self.safety_nets_ready_timeout_s,
+            )
         last_health = 0.0
         processed_at_flush = 0  # messages_processed when the open periods were last flushed
         while True:
@@ -418,7 +471,37 @@ class FusionDaemon:
         )
         if self.state_dir is not None:  # serve --state-dir
             h["counters"].update(states_saved=self.states_saved, tracks_restored=self.tracks_restored or 0)
-        return {"v": 1, "t": now, "uptime_s": now - self.started_wall, **h, "lag_s": (now - newest) if newest else None}
+        health = {
+            "v": 1,
+            "t": now,
+            "uptime_s": now - self.started_wall,
+            **h,
+            "lag_s": (now - newest) if newest else None,
+        }
+        health["safety_nets"] = self.safety_nets_status()
+        child = self.safety_nets_child
+        if child is not None:
+            counters = h["counters"]
+            counters["safety_nets_process_restarts"] = child.restarts
+            relayed = self.safety_nets_health
+            if relayed is not None and isinstance(relayed.get("counters"), dict):
+                # the child's event counts, under the names they had in process (safety_nets_<name>)
+                counters.update(
+                    {k: v for k, v in relayed["counters"].items() if k.startswith("safety_nets_") and type(v) is int}
+                )
+        return health
+
+    def safety_nets_status(self) -> dict[str, Any]:
+        """Where the safety nets run and, for a child, whether it runs (health ``safety_nets``)."""
+        status: dict[str, Any] = {"process": self.safety_nets_mode}
+        child = self.safety_nets_child
+        if child is not None:
+            status.update(child.status())
+            relayed = self.safety_nets_health
+            status["health_age_s"] = (
+                (time.time() - relayed["t"]) if relayed and type(relayed.get("t")) is float else None
+            )
+        return status
 
     def publish_health(self, health: dict[str, Any] | None = None) -> None:
         """Publish a health message: ``health`` (a snapshot), or one built now. Its

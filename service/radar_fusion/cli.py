@@ -1,7 +1,8 @@
 """The `radar-fusion` command: the daemon and its tools, one subcommand each.
 
     radar-fusion demo                       the whole system on a simulated scenario, in one go
-    radar-fusion serve --config FILE        the fusion daemon
+    radar-fusion serve --config FILE        the fusion daemon (and its safety-nets child)
+    radar-fusion safety-nets --config FILE  STCA / APW / MSAW on the tracks topic, as their own process
     radar-fusion display --config FILE      the live situation display in a browser
     radar-fusion simulate ...               write a recording of simulated radar plots + truth
     radar-fusion replay FILE ...            publish a recording to the bus
@@ -35,6 +36,12 @@ SUBCOMMANDS = {
         "_serve_arguments",
         "_serve",
         "run the fusion daemon (embedded Zenoh router by default)",
+    ),
+    "safety-nets": (
+        "radar_fusion.safety_nets.process",
+        "add_arguments",
+        "run",
+        "STCA, APW and MSAW as a consumer of the tracks: alerts and their own health (serve starts one by default)",
     ),
     "display": (
         "radar_fusion.display.command",
@@ -134,6 +141,14 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
         help="text (default) or json: one JSON object per line (time, level, logger, message, extra fields)",
     )
     p.add_argument(
+        "--safety-nets",
+        choices=("child", "in-process", "external"),
+        default=None,
+        help="where the safety nets run (default: [safety_nets] process, itself default child): child = "
+        "`radar-fusion safety-nets` as a supervised child process; in-process = on the daemon's processing "
+        "thread; external = none here (run `radar-fusion safety-nets` elsewhere)",
+    )
+    p.add_argument(
         "--state-dir",
         default=None,
         help="keep the tracks across a restart: write the engine's state here after the periods it "
@@ -173,6 +188,8 @@ def _serve(args: argparse.Namespace) -> int:
             base_dir=Path(args.config).resolve().parent,
             state_dir=None if args.state_dir is None else Path(args.state_dir),
             state_interval_s=args.state_interval_s,
+            safety_nets=args.safety_nets,
+            log_format=args.log_format,
         )
     except StateMismatch as exc:
         print(f"the state in {args.state_dir} is not this configuration's, not starting:\n{exc}", file=sys.stderr)

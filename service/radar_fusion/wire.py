@@ -180,6 +180,21 @@ class RadarHealth(BaseModel):
     )
 
 
+class SafetyNetsStatus(BaseModel):
+    """The daemon's view of its safety nets (``Health.safety_nets``)."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+    process: Literal["child", "in_process", "external"] = Field(
+        description="child: its own process, supervised by the daemon; in_process: the daemon's processing "
+        "thread; external: none in this daemon"
+    )
+    pid: int | None = Field(None, description="child: its process id")
+    running: bool | None = Field(None, description="child: the process runs")
+    restarts: int | None = Field(None, description="child: times it was started again after it exited")
+    last_exit_code: int | None = None
+    health_age_s: float | None = Field(None, description="child: age of its newest health message")
+
+
 class Health(_Message):
     """Daemon health, on ``<prefix>/fusion/health`` every few seconds."""
 
@@ -193,6 +208,40 @@ class Health(_Message):
     processing_ms_p50: float | None = None
     processing_ms_p99: float | None = None
     lag_s: float | None = Field(None, description="wall clock minus the newest closed period's time")
+    # v1 extension (issue 16): where the safety nets run, and the child's state
+    safety_nets: SafetyNetsStatus | None = None
+
+
+class SafetyNetsHealth(_Message):
+    """Health of a safety-nets process (``radar-fusion safety-nets``), on
+    ``<prefix>/fusion/safety_nets/health`` every ``[bus] health_period_s``, and once as it
+    subscribes (ready) and as it stops."""
+
+    t: float = Field(description="wall-clock UTC epoch seconds when published")
+    uptime_s: float = Field(description="restarts from 0 with the process: its alert ids start again at 1")
+    pid: int
+    host: str
+    counters: dict[str, int] = Field(
+        description="batches_received, batches_processed, batches_dropped (queue full: the oldest), "
+        "alerts_published, publish_errors, stream_restarts, queue_depth, model_fallbacks, and the safety "
+        "nets' own counts as safety_nets_<name> (periods, hits_<kind>, alerts_new_<kind>, ...)"
+    )
+    rejected: dict[str, int] = Field(
+        description="TrackBatches refused, by reason: oversize, malformed_msgpack, version, schema, "
+        "out_of_order, internal_error"
+    )
+    newest_period: int | None = None
+    newest_period_t: float | None = None
+    lag_s: float | None = Field(None, description="wall clock minus the newest judged period's time")
+    active_alerts: int
+    alert_latency_ms_p50: float | None = Field(
+        None, description="a TrackBatch's arrival to its alerts published, over the last 1,000 batches"
+    )
+    alert_latency_ms_p99: float | None = None
+    processing_ms_p50: float | None = Field(None, description="decoding and judging one TrackBatch")
+    processing_ms_p99: float | None = None
+    hook_errors: dict[str, int] = Field(default_factory=dict)
+    hook_load_errors: dict[str, str] = Field(default_factory=dict)
 
 
 MESSAGE_MODELS: dict[str, type[BaseModel]] = {
@@ -203,6 +252,7 @@ MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "Track": Track,
     "Alert": Alert,
     "Health": Health,
+    "SafetyNetsHealth": SafetyNetsHealth,
 }
 
 

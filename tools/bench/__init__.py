@@ -155,6 +155,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="replay speed of the end-to-end latency run (default 1 = real time; 0 = skip it)",
     )
     g.add_argument(
+        "--safety-nets",
+        choices=("child", "in-process", "external"),
+        default="child",
+        help="(b): where the daemon runs the safety nets (serve --safety-nets; default child, serve's default)",
+    )
+    g.add_argument(
         "--bus-timeout-s",
         type=float,
         default=600.0,

@@ -15,6 +15,7 @@ The tables, goals and report: :mod:`.report`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import math
 import os
@@ -428,7 +429,9 @@ def _closable_after(records, settings) -> Any:
     return out
 
 
-def run_bus(case_dir: str, speed: float | None, warmup_s: float, timeout_s: float) -> dict[str, Any]:
+def run_bus(
+    case_dir: str, speed: float | None, warmup_s: float, timeout_s: float, safety_nets: str = "child"
+) -> dict[str, Any]:
     """(b) The daemon (``radar-fusion serve``, its own process, embedded router on a free
     127.0.0.1 port) fed by the replay tool (:func:`replay.replay_records`, a client
     session), the track batches received by a subscriber on another client session.
@@ -442,6 +445,14 @@ def run_bus(case_dir: str, speed: float | None, warmup_s: float, timeout_s: floa
     message that let it close (the first after which every live radar's watermark has
     passed the period's end + the allowed lateness: the last input the period waits
     for); periods ending in the first ``warmup_s`` are left out.
+
+    Alerts (``safety_nets``: where serve runs them, ``serve --safety-nets``): the same
+    subscriber receives them. Alert latency after its TrackBatch, per period with alerts =
+    receive time of the period's last alert − receive time of its TrackBatch (in process
+    they are published right after it); alert end-to-end = the last alert's receive time −
+    the publish time of the input that closed the period. The safety-nets child's own
+    figures (a TrackBatch's arrival to its alerts published, over its last 1,000 batches)
+    come from its final health message.
     """
     import signal
     import subprocess as sp
@@ -483,11 +494,24 @@ def run_bus(case_dir: str, speed: float | None, warmup_s: float, timeout_s: floa
     log_path = Path(case_dir, f"daemon_{port}.log")
     with open(log_path, "w") as log:
         daemon = sp.Popen(
-            [sys.executable, "-m", "radar_fusion.cli", "serve", "--config", str(cfg_path), "--log-level", "WARNING"],
+            [
+                sys.executable,
+                "-m",
+                "radar_fusion.cli",
+                "serve",
+                "--config",
+                str(cfg_path),
+                "--log-level",
+                "WARNING",
+                "--safety-nets",
+                safety_nets,
+            ],
             stdout=log,
             stderr=sp.STDOUT,
         )
     received: list[tuple[float, bytes]] = []
+    alerts_received: list[tuple[float, bytes]] = []
+    nets_health: list[bytes] = []
     session = None
     try:
         deadline = time.monotonic() + 30.0
@@ -500,6 +524,12 @@ def run_bus(case_dir: str, speed: float | None, warmup_s: float, timeout_s: floa
                 time.sleep(0.2)
         sub = session.declare_subscriber(
             f"{prefix}/fusion/tracks", lambda s: received.append((time.monotonic(), s.payload.to_bytes()))
+        )
+        alert_sub = session.declare_subscriber(
+            f"{prefix}/fusion/alerts/*", lambda s: alerts_received.append((time.monotonic(), s.payload.to_bytes()))
+        )
+        health_sub = session.declare_subscriber(
+            f"{prefix}/fusion/safety_nets/health", lambda s: nets_health.append(s.payload.to_bytes())
         )
         time.sleep(1.0)  # subscriptions propagate through the router
         pub_s: list[float] = []
@@ -526,6 +556,13 @@ def run_bus(case_dir: str, speed: float | None, warmup_s: float, timeout_s: floa
         except OSError:
             pass
         sub.undeclare()
+        if daemon.poll() is None:  # stopped while we listen: the child's last alerts and final health
+            daemon.send_signal(signal.SIGINT)
+            with contextlib.suppress(sp.TimeoutExpired):
+                daemon.wait(30)
+        time.sleep(0.5)
+        alert_sub.undeclare()
+        health_sub.undeclare()
     finally:
         if session is not None:
             session.close()
@@ -547,7 +584,39 @@ def run_bus(case_dir: str, speed: float | None, warmup_s: float, timeout_s: floa
         i = int(np.searchsorted(closable, end_s - 1e-9, side="left"))
         if end_s >= warm_end and i < pub.size:
             lat_ms.append(1e3 * (t_r - pub[i]))
+    batch_rx = {float(b["t"]): t_r for t_r, b in batches}
+    last_alert: dict[float, float] = {}
+    n_alerts = 0
+    for t_r, p in alerts_received:
+        a = msgpack.unpackb(p, raw=False)
+        n_alerts += 1
+        last_alert[float(a["t"])] = max(last_alert.get(float(a["t"]), -math.inf), t_r)
+    after_ms, alert_e2e_ms = [], []
+    for t_ref, t_a in last_alert.items():
+        if t_ref not in batch_rx or t_ref < warm_end:
+            continue
+        after_ms.append(1e3 * (t_a - batch_rx[t_ref]))
+        b = next((b for _, b in batches if float(b["t"]) == t_ref), None)
+        if b is not None:
+            i = int(np.searchsorted(closable, (b["period"] + 1) * period_s - 1e-9, side="left"))
+            if i < pub.size:
+                alert_e2e_ms.append(1e3 * (t_a - pub[i]))
+    child = msgpack.unpackb(nets_health[-1], raw=False) if nets_health else {}
     return {
+        "safety_nets": safety_nets,
+        "alert_messages": n_alerts,
+        "alert_periods": len(after_ms),
+        "alert_after_batch_p50_ms": percentile(after_ms, 50),
+        "alert_after_batch_p99_ms": percentile(after_ms, 99),
+        "alert_after_batch_max_ms": max(after_ms) if after_ms else math.nan,
+        "alert_e2e_p50_ms": percentile(alert_e2e_ms, 50),
+        "alert_e2e_p99_ms": percentile(alert_e2e_ms, 99),
+        "nets_latency_p50_ms": child.get("alert_latency_ms_p50"),
+        "nets_latency_p99_ms": child.get("alert_latency_ms_p99"),
+        "nets_processing_p99_ms": child.get("processing_ms_p99"),
+        "nets_batches_processed": child.get("counters", {}).get("batches_processed"),
+        "nets_batches_dropped": child.get("counters", {}).get("batches_dropped"),
+        "nets_rejected": child.get("rejected"),
         "speed": speed,
         "plots": n_plots,
         "messages": len(records),
@@ -562,6 +631,24 @@ def run_bus(case_dir: str, speed: float | None, warmup_s: float, timeout_s: floa
         "e2e_periods": len(lat_ms),
         "daemon_peak_rss_mb": (peak_kb or 0) / 1024.0,
     }
+
+
+def alert_line(b: dict[str, Any]) -> str:
+    """The alert latency figures of a run_bus result, one line."""
+    line = (
+        f"alerts: {b['alert_messages']:,} messages; their period's last alert after its TrackBatch p50 "
+        f"{b['alert_after_batch_p50_ms']:.1f} / p99 {b['alert_after_batch_p99_ms']:.1f} / max "
+        f"{b['alert_after_batch_max_ms']:.1f} ms over {b['alert_periods']} periods; alert end-to-end p50 "
+        f"{b['alert_e2e_p50_ms']:.1f} / p99 {b['alert_e2e_p99_ms']:.1f} ms"
+    )
+    if b.get("nets_latency_p99_ms") is not None:
+        line += (
+            f"; safety-nets process: arrival to alerts published p50 {b['nets_latency_p50_ms']:.1f} / p99 "
+            f"{b['nets_latency_p99_ms']:.1f} ms (judging p99 {b['nets_processing_p99_ms']:.1f} ms), "
+            f"{b['nets_batches_processed']} batches, {b['nets_batches_dropped']} dropped, rejected "
+            f"{b['nets_rejected'] or 0}"
+        )
+    return line
 
 
 def _estimate_reference_s(cost: tuple[float, str] | None, plots: int, tracks: float) -> float | None:
@@ -624,21 +711,24 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
             flush=True,
         )
         if not args.no_bus:
-            row["bus"] = b = in_fresh_process(run_bus, case_dir, None, args.warmup_s, args.bus_timeout_s)
+            nets = args.safety_nets
+            row["bus"] = b = in_fresh_process(run_bus, case_dir, None, args.warmup_s, args.bus_timeout_s, nets)
             print(
-                f"  (b) daemon over Zenoh, replay at max speed: {b['plots_per_s']:,.0f} plots/s "
-                f"({b['wall_s']:.1f} s), daemon peak RSS {b['daemon_peak_rss_mb']:.0f} MB",
+                f"  (b) daemon over Zenoh (safety nets {nets}), replay at max speed: {b['plots_per_s']:,.0f} plots/s "
+                f"({b['wall_s']:.1f} s), daemon peak RSS {b['daemon_peak_rss_mb']:.0f} MB; "
+                f"{b['alert_messages']:,} alert messages",
                 flush=True,
             )
             if args.latency_speed > 0:
                 row["bus_paced"] = bp = in_fresh_process(
-                    run_bus, case_dir, args.latency_speed, args.warmup_s, args.bus_timeout_s
+                    run_bus, case_dir, args.latency_speed, args.warmup_s, args.bus_timeout_s, nets
                 )
                 print(
                     f"      replay at {args.latency_speed:g}× real time: end-to-end p50 {bp['e2e_p50_ms']:.1f} / "
                     f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods",
                     flush=True,
                 )
+                print("      " + alert_line(bp), flush=True)
         if use_ref:
             est = _estimate_reference_s(ref_cost, sim["plots"], eng["tracks_per_period"])
             if ref_cost is not None and est is not None and est > args.reference_budget_s:  # est needs ref_cost

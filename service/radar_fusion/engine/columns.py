@@ -164,7 +164,7 @@ class TrackColumns:
             x[:, 3].tolist(),
             _nil_nan(x[:, 1]),
             _nil_nan(x[:, 4]),
-            [None if f != f else f for f in np.round(self.fl, 2).tolist()],
+            [None if f != f else f for f in self.fl.tolist()],
             self.cov_xy.tolist(),
             self.names.sources(masks),
             [None if m < 0 else m for m in self.mode3a.tolist()],
@@ -201,8 +201,9 @@ class TrackColumns:
         # NaN velocity (one update: none yet) and acceleration are nil, as in to_message
         rows.key("vx_mps").float64(x[:, 1], nil=np.isnan(x[:, 1]))
         rows.key("vy_mps").float64(x[:, 4], nil=np.isnan(x[:, 4]))
-        fl = np.round(self.fl, 2)
-        rows.key("fl").float64(fl, nil=np.isnan(fl))
+        # as the filter has it, not rounded: a safety-nets process judges exactly what the
+        # engine's columns hold (rounded to 0.01 FL, a figure of the demo's alerts moved 0.4 ft)
+        rows.key("fl").float64(self.fl, nil=np.isnan(self.fl))
         cov = self.cov_xy
         rows.key("cov_xy").raw(b"\x93").float64(cov[:, 0]).float64(cov[:, 1]).float64(cov[:, 2])
         masks, inverse = np.unique(self.sources, return_inverse=True)

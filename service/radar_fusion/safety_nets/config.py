@@ -54,6 +54,27 @@ class SafetyNetsConfig(BaseModel):
     turn_max_heading_change_deg: float = Field(
         90.0, gt=0, le=360, description="a predicted turn stops after this heading change"
     )
+    process: Literal["child", "in_process", "external"] = Field(
+        "child",
+        description="how `radar-fusion serve` runs the safety nets. child (default): as its own process, "
+        "`radar-fusion safety-nets`, started, restarted and stopped by serve; a fault or a slow period in the "
+        "safety nets never holds up the tracks, and they no longer cost serve's processing thread (issue 16). "
+        "in_process: on serve's processing thread, one process as before issue 16 (alerts a little sooner, "
+        "tracks later by the nets' time). external: serve runs none; a `radar-fusion safety-nets` elsewhere "
+        "(another host) must. `serve --safety-nets` overrides it",
+    )
+    connect: list[str] = Field(
+        default_factory=list,
+        description="Zenoh endpoints the safety-nets process joins. Default: [bus] connect when the daemon "
+        "is a client, else its [bus] listen endpoints. On a TLS bus name the host in the daemon's certificate "
+        "(tls/fusion.site-a.example:7447): a listen address such as 0.0.0.0 fails the name check",
+    )
+    zenoh_config_file: str | None = Field(
+        None,
+        description="Zenoh JSON5 file of the safety-nets process (TLS client with its own certificate, e.g. "
+        "deploy/zenoh/safety-nets.json5). Default: [bus] zenoh_config_file, which will not do when the daemon "
+        "embeds the router with access control: the router's file would apply its rules to the child's session",
+    )
     load_entry_point_hooks: bool = Field(True, description="discover alert hooks from Python entry points")
 
     # STCA

@@ -7,6 +7,7 @@ from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
 from pydantic import ValidationError
 
 from ..geo.coordinates import SystemPlane
@@ -127,6 +128,17 @@ class SafetyNets:
                     consumer(dict(a))
                 except Exception as exc:
                     self._hook_failed(name, exc)
+        return alerts
+
+    def restart(self, t_s: float) -> list[dict]:
+        """A new tracks stream (the tracker restarted): its track ids are not the old ones.
+        Every open alert ends (returned, status ``ended``, at ``t_s``); the vertical-rate
+        history is dropped. Alert ids go on counting (never reused)."""
+        alerts = self.life_cycle.update(float(t_s), [], np.empty(0, np.int64))
+        for a in alerts:
+            self.counters["alerts_ended"] += 1
+            self.counters[f"alerts_ended_{a['kind']}"] += 1
+        self.vertical_history = VerticalRateHistory()
         return alerts
 
     def _count_hits(self, kind: str, hits: list[Hit]) -> list[Hit]:
