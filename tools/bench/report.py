@@ -450,9 +450,10 @@ COMPARE_NOTES = [
     "the engine run on one radar's plots alone, the radar with the lowest settled position RMS.",
     "Measurement noise: RMS horizontal error of the non-wild plots against truth (radar biases included); "
     "model: the RMS the plot covariances predict. PCRB: posterior Cramér–Rao bound (Tichavský 1998) for the "
-    "engine's Singer model with every plot's covariance, perfect association, no bias: the floor for aircraft "
-    "that manoeuvre as the model says (σ_m = 2.5 m/s²). Straight-flying aircraft accelerate less than that, so "
-    "a tracker can come out at or a little below this line on mostly straight traffic.",
+    "filter's straight-flight model (the IMM's quiet model; the Singer filter's own) with every plot's "
+    "covariance, perfect association, no bias: the floor for aircraft that fly as that model says, over all "
+    "settled times and over straight flight alone (truth turn rate < 0.3°/s). Truth flying exactly straight "
+    "accelerates less than the model allows, so a tracker can come out at or a little below it there.",
     "ADS-B truth: each flight's fixes (stale repeats dropped) smoothed by a robust cubic smoothing spline "
     "per axis in a local plane (tools/smoothing.py: Huber then bisquare reweighting, lam from a 40 m fix error "
     "and 5 m²/s³ white acceleration); the radars are simulated from that path and the truth velocity is its "
