@@ -584,6 +584,14 @@ def run_bus(
         i = int(np.searchsorted(closable, end_s - 1e-9, side="left"))
         if end_s >= warm_end and i < pub.size:
             lat_ms.append(1e3 * (t_r - pub[i]))
+    # Data age at a display (issue 16 item 5): a TrackBatch's receive time minus its reference
+    # time t, on the replay's clock. Paced replay publishes each record at a fixed offset from
+    # its own time, so wall = event time + the median offset of the records as published.
+    age_ms: list[float] = []
+    if speed and pub.size:
+        n_pub = pub.size
+        offset_s = float(np.median(pub - np.array([r.t_s for r in records[:n_pub]]) / speed))
+        age_ms = [1e3 * (t_r - (offset_s + float(b["t"]) / speed)) for t_r, b in batches if float(b["t"]) >= warm_end]
     batch_rx = {float(b["t"]): t_r for t_r, b in batches}
     last_alert: dict[float, float] = {}
     n_alerts = 0
@@ -629,6 +637,9 @@ def run_bus(
         "e2e_p99_ms": percentile(lat_ms, 99),
         "e2e_max_ms": max(lat_ms) if lat_ms else math.nan,
         "e2e_periods": len(lat_ms),
+        "data_age_p50_ms": percentile(age_ms, 50),
+        "data_age_p99_ms": percentile(age_ms, 99),
+        "data_age_periods": len(age_ms),
         "daemon_peak_rss_mb": (peak_kb or 0) / 1024.0,
     }
 
@@ -725,7 +736,9 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
                 )
                 print(
                     f"      replay at {args.latency_speed:g}× real time: end-to-end p50 {bp['e2e_p50_ms']:.1f} / "
-                    f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods",
+                    f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods; data age (TrackBatch "
+                    f"received minus its t) p50 {bp['data_age_p50_ms'] / 1e3:.2f} / p99 "
+                    f"{bp['data_age_p99_ms'] / 1e3:.2f} s over {bp['data_age_periods']} periods",
                     flush=True,
                 )
                 print("      " + alert_line(bp), flush=True)
