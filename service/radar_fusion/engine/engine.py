@@ -831,7 +831,8 @@ class Engine:
         t_track_s = None
         # A track of one update has no velocity yet (initiation.py: its velocity is the wide
         # prior): it is reported where and when it was measured, velocity nil, not carried
-        # to t_ref at zero speed. Two radars or a Mode S address confirm it at once.
+        # to t_ref at zero speed. A Mode S address, or two radars beside a transponder reply,
+        # confirm it at once (track_management.apply_life_cycle).
         young = np.flatnonzero(tr.updates < 2)
         if young.size:
             x, P, alt_x = x.copy(), P.copy(), alt_x.copy()
