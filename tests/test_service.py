@@ -350,3 +350,26 @@ def test_serve_killed_with_sigkill_restarts_from_its_state_with_the_same_tracks(
     last_before = {t["track_id"] for t in first["batches"][-1]["tracks"] if t["status"] == "confirmed"}
     first_after = {t["track_id"] for t in second["batches"][0]["tracks"]}
     assert last_before and last_before <= first_after
+
+
+@pytest.mark.slow
+def test_serve_with_a_state_it_cannot_use_starts_without_it_and_sets_it_aside(short_scenario, free_port, tmp_path):
+    """A state of another configuration (or a damaged file) must not keep a surveillance
+    daemon down: it starts fresh, says why, counts it, and keeps the file for a look."""
+    out, _ = short_scenario
+    records = list(read_recording(out / "plots.rec"))[:600]
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "engine-state.msgpack").write_bytes(b"\x81\xa4kind\xa3odd")
+    config = serve_config(out, free_port, tmp_path / "serve.toml")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SERVE_ONLY, "--config", str(config), "--state-dir", str(state)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    seen = feed_then_signal(proc, free_port, records, signal.SIGINT)
+    assert seen["rc"] == 0 and "state not restored" in seen["stderr"] and "Traceback" not in seen["stderr"]
+    assert seen["batches"] and seen["health"][-1]["counters"]["states_set_aside"] == 1
+    names = sorted(p.name for p in state.iterdir())
+    assert names[0] == "engine-state.msgpack" and names[1].startswith("engine-state.msgpack.rejected-"), names

@@ -10,7 +10,7 @@ import pytest
 
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
-from radar_fusion.engine.state import StateMismatch, load_state, restore, save_state, snapshot
+from radar_fusion.engine.state import StateMismatch, load_state, restore, save_state, set_state_aside, snapshot
 from radar_fusion.tools import evaluate as ev
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.replay import replay_into_engine
@@ -92,7 +92,22 @@ def test_a_state_of_another_configuration_or_no_state_is_refused(demo, tmp_path)
             restore(Engine(settings), junk)
     with pytest.raises(StateMismatch, match="new engine"):
         restore(engine, data)
+    # a refused state changes nothing: here a column of the wrong shape, found after decoding
+    import msgpack
+
+    state = msgpack.unpackb(data, raw=False)
+    dtype, shape, raw = state["tracks"]["P"]
+    state["tracks"]["P"] = [dtype, [shape[0], 36], raw]
+    fresh = Engine(settings)
+    before = snapshot(fresh)
+    with pytest.raises(StateMismatch, match="shape"):
+        restore(fresh, msgpack.packb(state, use_bin_type=True))
+    assert snapshot(fresh) == before
     assert load_state(Engine(settings), tmp_path) is None  # no file: a fresh start
     # a kill while writing leaves the previous file whole: only complete files are renamed in
     save_state(engine, tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["engine-state.msgpack"]
+    # a state refused at start is set aside, not overwritten by the next save
+    aside = set_state_aside(tmp_path)
+    assert aside is not None and aside.name.startswith("engine-state.msgpack.rejected-")
+    assert load_state(Engine(settings), tmp_path) is None and aside.exists()

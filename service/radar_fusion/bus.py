@@ -35,7 +35,7 @@ import zenoh
 
 from .config import BusConfig, Settings
 from .engine import Engine, PeriodOutput
-from .engine.state import load_state, save_state
+from .engine.state import StateMismatch, load_state, save_state, set_state_aside
 from .metrics import DaemonMetrics
 from .safety_nets import SafetyNets
 from .safety_nets.process import health_key
@@ -168,7 +168,18 @@ class FusionDaemon:
         # most every state_interval_s, wall clock) and read back at start (engine/state.py)
         self.state_dir = state_dir
         self.state_interval_s = state_interval_s
-        self.tracks_restored = load_state(self.engine, state_dir) if state_dir is not None else None
+        self.tracks_restored: int | None = None
+        self.state_set_aside: Path | None = None
+        if state_dir is not None:
+            try:
+                self.tracks_restored = load_state(self.engine, state_dir)
+            except StateMismatch as exc:
+                # another configuration's state (radars or filter changed) or a damaged file:
+                # a surveillance service starts anyway, without it, and keeps the file aside
+                self.state_set_aside = set_state_aside(state_dir)
+                log.warning(
+                    "state not restored, the daemon starts without it (%s); set aside as %s", exc, self.state_set_aside
+                )
         self.states_saved = 0
         self._state_saved_at = -math.inf
         self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
@@ -470,7 +481,11 @@ class FusionDaemon:
             publish_errors=self.publish_errors,
         )
         if self.state_dir is not None:  # serve --state-dir
-            h["counters"].update(states_saved=self.states_saved, tracks_restored=self.tracks_restored or 0)
+            h["counters"].update(
+                states_saved=self.states_saved,
+                tracks_restored=self.tracks_restored or 0,
+                states_set_aside=int(self.state_set_aside is not None),
+            )
         health = {
             "v": 1,
             "t": now,

@@ -180,20 +180,14 @@ def _serve(args: argparse.Namespace) -> int:
 
     import zenoh
 
-    from .engine.state import StateMismatch
-
-    try:
-        daemon = FusionDaemon(
-            settings,
-            base_dir=Path(args.config).resolve().parent,
-            state_dir=None if args.state_dir is None else Path(args.state_dir),
-            state_interval_s=args.state_interval_s,
-            safety_nets=args.safety_nets,
-            log_format=args.log_format,
-        )
-    except StateMismatch as exc:
-        print(f"the state in {args.state_dir} is not this configuration's, not starting:\n{exc}", file=sys.stderr)
-        return 4
+    daemon = FusionDaemon(
+        settings,
+        base_dir=Path(args.config).resolve().parent,
+        state_dir=None if args.state_dir is None else Path(args.state_dir),
+        state_interval_s=args.state_interval_s,
+        safety_nets=args.safety_nets,
+        log_format=args.log_format,
+    )
     if daemon.tracks_restored is not None:
         logging.getLogger("radar_fusion").info("restored %d tracks from %s", daemon.tracks_restored, args.state_dir)
     try:

@@ -41,7 +41,16 @@ import numpy as np
 if TYPE_CHECKING:
     from .engine import Engine
 
-__all__ = ["STATE_FILE", "STATE_VERSION", "StateMismatch", "load_state", "restore", "save_state", "snapshot"]
+__all__ = [
+    "STATE_FILE",
+    "STATE_VERSION",
+    "StateMismatch",
+    "load_state",
+    "restore",
+    "save_state",
+    "set_state_aside",
+    "snapshot",
+]
 
 STATE_VERSION = 1
 STATE_KIND = "radar-fusion-engine-state"
@@ -101,37 +110,46 @@ def restore(engine: Engine, data: bytes) -> int:
         raise StateMismatch("not a radar-fusion state")
     if state.get("v") != STATE_VERSION:
         raise StateMismatch(f"state version {state.get('v')!r}, this daemon reads {STATE_VERSION}")
-    if state["radar_ids"] != list(engine.radar_ids):
-        raise StateMismatch(f"state of radars {state['radar_ids']}, configured {engine.radar_ids}")
+    if state.get("radar_ids") != list(engine.radar_ids):
+        raise StateMismatch(f"state of radars {state.get('radar_ids')}, configured {engine.radar_ids}")
     tr = engine.tracks
-    if state["n_models"] != tr.n_models:
-        raise StateMismatch(f"state of a filter with {state['n_models']} models, configured {tr.n_models}")
+    if state.get("n_models") != tr.n_models:
+        raise StateMismatch(f"state of a filter with {state.get('n_models')} models, configured {tr.n_models}")
     if len(tr) or engine.periods_closed:
         raise StateMismatch("restore into a new engine only (it has tracks or closed periods)")
-    columns = {name: _unpack_array(item) for name, item in state["tracks"].items()}
+    try:
+        columns = {name: _unpack_array(item) for name, item in state["tracks"].items()}
+        registration = {name: _unpack_array(state["registration"][name]) for name in _REGISTRATION_ARRAYS}
+        counts = {name: int(state["registration"][name]) for name in _REGISTRATION_COUNTS}
+        memory = [tuple(entry) for entry in state["address_memory"]]
+        next_id, track_t_s, next_period = int(state["next_id"]), state["track_t_s"], state["next_period"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StateMismatch(f"a damaged state: {exc}") from exc
+    # every check before anything is changed: a refused state leaves the engine as it was
     if set(columns) != set(tr._fields):
         raise StateMismatch(f"state columns {sorted(columns)} differ from the track table's")
     n = {c.shape[0] for c in columns.values()}
     if len(n) != 1:
         raise StateMismatch("state columns of different lengths")
-    for name, (shape, dtype, _) in tr._fields.items():
+    for name, (shape, _, _) in tr._fields.items():
         if columns[name].shape[1:] != shape:
             raise StateMismatch(f"state column {name} of shape {columns[name].shape[1:]}, expected {shape}")
-        setattr(tr, name, columns[name].astype(dtype, copy=False))
-    tr.n = n.pop()
-    tr.next_id = int(state["next_id"])
-    engine.track_t_s = state["track_t_s"]
-    if state["next_period"] is not None:
-        engine.buffer.next_period = int(state["next_period"])
-    engine.address_memory.load([tuple(entry) for entry in state["address_memory"]])
     reg = engine.registration
-    for name in _REGISTRATION_ARRAYS:
-        value = _unpack_array(state["registration"][name])
+    for name, value in registration.items():
         if value.shape != getattr(reg, name).shape:
             raise StateMismatch(f"registration {name} of shape {value.shape}, expected {getattr(reg, name).shape}")
+    for name, (_, dtype, _) in tr._fields.items():
+        setattr(tr, name, columns[name].astype(dtype, copy=False))
+    tr.n = n.pop()
+    tr.next_id = next_id
+    engine.track_t_s = track_t_s
+    if next_period is not None:
+        engine.buffer.next_period = int(next_period)
+    engine.address_memory.load(memory)
+    for name, value in registration.items():
         setattr(reg, name, value)
-    for name in _REGISTRATION_COUNTS:
-        setattr(reg, name, int(state["registration"][name]))
+    for name, count in counts.items():
+        setattr(reg, name, count)
     return tr.n  # the registration's correction is taken from the estimator at each period
 
 
@@ -160,3 +178,17 @@ def load_state(engine: Engine, directory: str | os.PathLike[str]) -> int | None:
     if not path.exists():
         return None
     return restore(engine, path.read_bytes())
+
+
+def set_state_aside(directory: str | os.PathLike[str]) -> Path | None:
+    """Rename ``directory/STATE_FILE`` to ``STATE_FILE.rejected-<UTC time>`` (a state this
+    configuration refused), so that the next save does not overwrite what an operator may
+    want to look at; returns the new path, or None without a file."""
+    import time
+
+    path = Path(directory) / STATE_FILE
+    if not path.exists():
+        return None
+    aside = path.with_name(f"{STATE_FILE}.rejected-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
+    os.replace(path, aside)
+    return aside
