@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 
 from ..geo.coordinates import SystemPlane
 from ..geo.units import FT_PER_FL, M_PER_NM
+from ..tracking.association import sorted_unique
 from .config import SafetyNetsConfig
 from .life_cycle import Hit
 from .polygon import Polygon, ring_xy
@@ -113,8 +114,7 @@ class Stca:
                 # unique pairs via one int64 key each (np.unique(axis=0) sorts a void dtype: 10x slower),
                 # sorted then deduplicated: np.unique's hash path (numpy >= 2.3) took 10x the sort on the
                 # millions of keys of 4,000 tracks (30 % of the daemon's processing thread); same result
-                key = np.sort(pairs[:, 0] * np.int64(e.size) + pairs[:, 1])
-                key = key[np.concatenate([[True], key[1:] != key[:-1]])]
+                key = sorted_unique(pairs[:, 0] * np.int64(e.size) + pairs[:, 1])
                 pairs = np.column_stack([key // e.size, key % e.size])
         if pairs.size:  # the same Mode S address twice is a duplicate track, not a pair
             ms = tr.mode_s[e]

@@ -77,6 +77,7 @@ from .association import (
     first_per_group,
     gated_pairs,
     identity_compatible,
+    sorted_unique,
     transfer_track_clusters,
 )
 from .initiation import unknown_velocity_var_m2ps2
@@ -385,8 +386,7 @@ def _cluster_new_targets(
     degree = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
     simple = np.ones(n_comp, dtype=bool)
     simple[comp[degree != size[comp] - 1]] = False  # not a clique
-    key = np.sort(comp.astype(np.int64) * n_radars + radar)  # sorted and de-duplicated: np.unique's
-    distinct = key[np.r_[True, key[1:] != key[:-1]]]  # hash path (numpy >= 2.3) is several times slower
+    distinct = sorted_unique(comp.astype(np.int64) * n_radars + radar)
     simple &= np.bincount(distinct // n_radars, minlength=n_comp) == size  # radar repeated
 
     labels = np.full(n, -1, dtype=np.intp)

@@ -37,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 from numpy.typing import NDArray
 
+from .association import first_per_group
 from .singer_filter import inv_2x2
 
 __all__ = ["FUSION_METHODS", "consensus_outliers", "fuse_clusters", "leave_one_out_outliers"]
@@ -200,9 +201,6 @@ def leave_one_out_outliers(
     info_z = _cluster_sum(labels, Wz, n_clusters)
     c = labels[cand]
     d2 = _d2_against(z_m[cand], R_m2[cand], info[c] - W[cand], info_z[c] - Wz[cand])  # the others' fusion
-    worst = np.full(n_clusters, -np.inf)
-    np.maximum.at(worst, c, d2)
-    flagged = np.flatnonzero((d2 == worst[c]) & (d2 > gate_chi2))
-    _, first = np.unique(c[flagged], return_index=True)  # one per cluster, even on a tie
-    out[cand[flagged[first]]] = True
+    worst = first_per_group(c, -d2)  # each cluster's largest d², one even on a tie
+    out[cand[worst[d2[worst] > gate_chi2]]] = True
     return out
