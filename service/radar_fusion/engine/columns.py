@@ -164,14 +164,14 @@ class TrackColumns:
             x[:, 3].tolist(),
             _nil_nan(x[:, 1]),
             _nil_nan(x[:, 4]),
-            [None if f != f else f for f in self.fl.tolist()],
+            _nil_nan(self.fl),
             self.cov_xy.tolist(),
             self.names.sources(masks),
             [None if m < 0 else m for m in self.mode3a.tolist()],
             self.names.mode_s(mode_s),
             self.updates.tolist(),
             self.age_s.tolist(),
-            [None if v != v else v for v in self.vrate_fpm.tolist()],
+            _nil_nan(self.vrate_fpm),
             _nil_nan(x[:, 2]),
             _nil_nan(x[:, 5]),
             repeat(None, n) if self.manoeuvre_prob is None else np.round(self.manoeuvre_prob, 4).tolist(),
@@ -333,7 +333,7 @@ class TrackColumns:
 
 
 def _nil_nan(a: np.ndarray) -> list[float | None]:
-    """The column as Python floats, None for NaN (a value not known yet)."""
+    """The column as Python floats, None for NaN (not known, or not yet)."""
     values = a.tolist()
     return [None if v != v else v for v in values] if np.isnan(a).any() else values
 

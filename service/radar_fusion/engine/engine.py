@@ -414,7 +414,7 @@ class Engine:
             track_last_xy_m=position_m(tr.x),
             track_last_cov_m2=cov_pos_m2(tr.P),
             track_last_t_s=tr.t_state_s,
-            track_velocity_known=tr.updates >= 2,
+            track_velocity_known=tr.velocity_known,
             track_models=self._gate_models(pred),
         )
         self.counters["plots_redundant"] += int(res.redundant.sum())
@@ -448,7 +448,7 @@ class Engine:
         # a precise plot early and a coarse one late put it up to a second of flight off.
         no_v = np.ones(n_clusters, bool)
         has_track = res.cluster_track >= 0
-        no_v[has_track] = self.tracks.updates[res.cluster_track[has_track]] < 2
+        no_v[has_track] = ~self.tracks.velocity_known[res.cluster_track[has_track]]
         # a padding row (-1) stands for "no track": zero velocity, wide velocity prior
         v_pad = np.concatenate([velocity_mps(pred.x), np.zeros((1, 2))])
         pvv_pad = np.concatenate([cov_vel(pred.P), self.one_plot_vel_var_m2ps2 * np.eye(2)[None]])
@@ -833,7 +833,7 @@ class Engine:
         # prior): it is reported where and when it was measured, velocity nil, not carried
         # to t_ref at zero speed. A Mode S address, or two radars beside a transponder reply,
         # confirm it at once (track_management.apply_life_cycle).
-        young = np.flatnonzero(tr.updates < 2)
+        young = np.flatnonzero(~tr.velocity_known)
         if young.size:
             x, P, alt_x = x.copy(), P.copy(), alt_x.copy()
             x[young] = tr.x[young]

@@ -65,8 +65,9 @@ after the last update, p_ij = Π[i, j] from mode i to mode j:
        x⁰_j = Σ_i μ_{i|j} x_i                             mixed states                (3)
        P⁰_j = Σ_i μ_{i|j} [P_i + (x_i − x⁰_j)(x_i − x⁰_j)ᵀ] mixed covariances          (4)
 
-2. Mode-matched prediction, in :meth:`IMMFilter.predict`: model j's Singer prediction
-   (Shu eq. 8, 11) from (x⁰_j, P⁰_j) over each track's dt_s.  The state returned holds
+2. Mode-matched prediction, in :meth:`IMMFilter.predict`: model j's own prediction
+   (Singer: Shu eq. 8, 11; coordinated turn: coordinated_turn.py eq. 2-4) from
+   (x⁰_j, P⁰_j) over each track's dt_s.  The state returned holds
    μ = c̄ of (1): the mode probabilities predicted to the new time, which is also the
    right prior for the next cycle if the track gets no measurement (a coasting track is
    predicted again from this state, and (1)–(4) then mix with c̄).
@@ -211,7 +212,7 @@ class IMMParams(BaseModel):
     def prior_mu(self) -> Float:
         """Mode probabilities of a new track, (M,): ``prior_manoeuvre_prob`` shared by the
         models other than the quiet one."""
-        m = 2 + 2 * len(self.turn_rates_deg_s)
+        m = self.dwell_s().size  # the model count
         return np.array([1.0 - self.prior_manoeuvre_prob] + [self.prior_manoeuvre_prob / (m - 1)] * (m - 1))
 
 
@@ -251,7 +252,7 @@ class IMMFilter:
 
     def __init__(self, params: IMMParams | None = None) -> None:
         self.params = IMMParams() if params is None else params
-        #: the M Singer models, in mode order
+        #: the M models, in mode order
         self.models: tuple[SingerFilter | CoordinatedTurnModel, ...] = self.params.models()
         self._dwell_s = self.params.dwell_s()
 
@@ -311,8 +312,8 @@ class IMMFilter:
         return c_bar, x0, P0
 
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
-        """Steps 1-2: mixing (eq. 1-4) and each model's Singer prediction (Shu eq. 8, 11)
-        over dt_s (scalar or (N,)).  The result carries μ = c̄ (eq. 1)."""
+        """Steps 1-2: mixing (eq. 1-4) and each model's prediction (step 2 above) over dt_s
+        (scalar or (N,)).  The result carries μ = c̄ (eq. 1)."""
         c_bar, x0, P0 = self.mix(state, dt_s)
         n = len(state)
         dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
