@@ -12,6 +12,10 @@ a consumer that stalls its link (Zenoh then blocks every put towards it, for up 
     <prefix>/radar/*/status  → Engine.ingest_status    <prefix>/fusion/alerts/<kind> ← Alert
                                                        <prefix>/fusion/health        ← Health
 
+With ``[redundancy] enabled`` (redundancy.py) the daemon is one of a hot-standby pair:
+it also publishes its track state on ``<prefix>/fusion/state`` while active, and while
+standby applies the active's instead of closing periods itself.
+
 Nothing a sender does can stop the processing thread: every decode or validation
 failure becomes a counted rejection, visible on the health key and logged at a
 bounded rate.
@@ -35,8 +39,10 @@ import zenoh
 
 from .config import BusConfig, Settings
 from .engine import Engine, PeriodOutput
-from .engine.state import StateMismatch, load_state, save_state, set_state_aside
+from .engine.state import StateMismatch, load_state, restore, save_state, set_state_aside, snapshot
+from .engine.state import decode as decode_state
 from .metrics import DaemonMetrics
+from .redundancy import Election, ElectionOnBus, Role, default_instance
 from .safety_nets import SafetyNets
 from .safety_nets.process import health_key
 from .safety_nets.supervisor import SafetyNetsChild
@@ -53,8 +59,10 @@ def zenoh_config(
     connect: list[str] | None = None,
     multicast_scouting: bool = False,
     config_file: str | None = None,
+    lease_s: float | None = None,
 ) -> zenoh.Config:
-    """A zenoh.Config for the given role; a JSON5 file (TLS, ACL) may provide the rest."""
+    """A zenoh.Config for the given role; a JSON5 file (TLS, ACL) may provide the rest.
+    ``lease_s``: how long a silent link lives (Zenoh's default is 10 s)."""
     cfg = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
     if listen is not None:
@@ -62,6 +70,8 @@ def zenoh_config(
     if connect is not None:
         cfg.insert_json5("connect/endpoints", json.dumps(connect))
     cfg.insert_json5("scouting/multicast/enabled", "true" if multicast_scouting else "false")
+    if lease_s is not None:
+        cfg.insert_json5("transport/link/tx/lease", str(int(lease_s * 1000)))
     return cfg
 
 
@@ -95,6 +105,24 @@ def tool_client_config(config_path: str | None, connect: list[str] | None, prefi
         )
         return cfg, prefix or settings.bus.prefix
     return zenoh_config("client", connect=connect or ["tcp/127.0.0.1:7447"]), prefix or "atc"
+
+
+def batch_stamp(payload: bytes) -> tuple[str, int, int] | None:
+    """(instance, epoch, period) of a TrackBatch's bytes, or None without a stamp: the
+    head and the tail are read, the tracks between only skipped."""
+    unpacker = msgpack.Unpacker(raw=False, max_buffer_size=max(len(payload), 1 << 20))
+    unpacker.feed(payload)
+    fields: dict[str, Any] = {}
+    for _ in range(unpacker.read_map_header()):
+        key = unpacker.unpack()
+        if key == "tracks":
+            unpacker.skip()
+        else:
+            fields[key] = unpacker.unpack()
+    instance, epoch, period = fields.get("instance"), fields.get("epoch"), fields.get("period")
+    if isinstance(instance, str) and type(epoch) is int and type(period) is int:
+        return instance, epoch, period
+    return None
 
 
 def reliable_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
@@ -151,6 +179,32 @@ class FusionDaemon:
     ):
         self.settings = settings
         self.prefix = settings.bus.prefix
+        # A hot-standby pair (redundancy.py): without it this daemon is simply the active
+        red = settings.redundancy
+        self.instance = red.instance or default_instance()
+        if red.enabled and red.instance is None:  # the child learns whose alerts it publishes
+            settings = settings.model_copy(update={"redundancy": red.model_copy(update={"instance": self.instance})})
+        self.election = Election(self.instance, time.monotonic(), red.settle_s) if red.enabled else None
+        self.role: Role = "standby" if red.enabled else "active"
+        self.epoch = 0  # the epoch this daemon publishes under while active (0: no redundancy)
+        self._control: queue.SimpleQueue = queue.SimpleQueue()  # election events, others' states
+        self._election_bus: ElectionOnBus | None = None
+        self._published_seen: int | None = None  # the newest period another active published
+        self._not_before_period: int | None = None  # after a take-over: periods up to it were published
+        self.redundancy_counters: Counter[str] = Counter(
+            dict.fromkeys(
+                (
+                    "takeovers",
+                    "stand_downs",
+                    "states_published",
+                    "states_applied",
+                    "states_refused",
+                    "periods_not_republished",
+                    "outputs_withheld",
+                ),
+                0,
+            )
+        )
         # Where the safety nets run: "child" (their own process, started here), "in_process"
         # (on the processing thread) or "external" (none here); default [safety_nets] process.
         self.safety_nets_mode = (safety_nets or settings.safety_nets.process).replace("-", "_")
@@ -213,12 +267,25 @@ class FusionDaemon:
     # ------------------------------------------------------------- lifecycle
     def start(self) -> FusionDaemon:
         bus = self.settings.bus
-        cfg = zenoh_config(bus.mode, bus.listen, bus.connect, bus.multicast_scouting, bus.zenoh_config_file)
+        lease_s = self.settings.redundancy.lease_s if self.election is not None else None
+        cfg = zenoh_config(bus.mode, bus.listen, bus.connect, bus.multicast_scouting, bus.zenoh_config_file, lease_s)
         self.metrics.start()
         self._session = open_session(cfg)
         p = self.prefix
         self._pubs["tracks"] = reliable_publisher(self._session, f"{p}/fusion/tracks")
         self._pubs["health"] = self._session.declare_publisher(f"{p}/fusion/health")
+        if self.election is not None:
+            # a state is whole: one a slow standby misses is replaced by the next (DROP, not BLOCK)
+            self._pubs["state"] = self._session.declare_publisher(
+                f"{p}/fusion/state",
+                reliability=zenoh.Reliability.RELIABLE,
+                congestion_control=zenoh.CongestionControl.DROP,
+            )
+            remote = zenoh.Locality.REMOTE
+            for key, callback in (("state", self._on_state), ("tracks", self._on_tracks)):
+                sub = self._session.declare_subscriber(f"{p}/fusion/{key}", callback, allowed_origin=remote)
+                self._subs.append(sub)
+            self._election_bus = ElectionOnBus(self._session, p, self.instance, self._on_election)
         if self.safety_nets_mode == "in_process":
             for kind in ("stca", "apw", "msaw"):
                 self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
@@ -256,6 +323,9 @@ class FusionDaemon:
             self._publisher.join(timeout_s)
         if self.safety_nets_child is not None:  # after the last batches: it judges them, then exits
             self.safety_nets_child.stop()
+        if self._election_bus is not None:
+            self._election_bus.close()
+            self._election_bus = None
         for sub in self._subs:
             sub.undeclare()
         self._subs = []
@@ -285,6 +355,103 @@ class FusionDaemon:
             return
         self.safety_nets_health = health
         self._safety_nets_ready.set()
+
+    # ------------------------------------------------------------- redundancy
+    def _on_election(self, kind: str, instance: str, epoch: int, alive: bool) -> None:
+        self._control.put((kind, instance, epoch, alive))  # Zenoh's thread: hand over
+
+    def _on_state(self, sample: zenoh.Sample) -> None:
+        self._control.put(("state", sample.payload.to_bytes()))
+
+    def _on_tracks(self, sample: zenoh.Sample) -> None:
+        """Another active's TrackBatch: only its stamp and period are wanted."""
+        try:
+            stamp = batch_stamp(sample.payload.to_bytes())
+        except Exception:
+            return
+        if stamp is not None:
+            self._control.put(("tracks", *stamp))
+
+    def _redundancy_step(self) -> None:
+        """The processing thread's turn at the election: what the bus showed, then the rules."""
+        election = self.election
+        if election is None:
+            return
+        while True:
+            try:
+                item = self._control.get_nowait()
+            except queue.Empty:
+                break
+            kind = item[0]
+            if kind == "member":
+                election.member_seen(item[1], item[3])
+            elif kind == "active":
+                election.active_seen(item[1], item[2], item[3])
+            elif kind == "tracks":
+                instance, epoch, period = item[1:]
+                election.epoch_seen(instance, epoch)
+                if epoch >= election.highest_epoch:
+                    self._published_seen = max(period, self._published_seen or period)
+            elif kind == "state":
+                self._take_state(item[1])
+            self._decide()
+        self._decide()
+
+    def _decide(self) -> None:
+        election = self.election
+        assert election is not None
+        decision = election.decide(time.monotonic())
+        if decision == "take_over":
+            self.epoch = election.took_over()
+            self.role = "active"
+            self.redundancy_counters["takeovers"] += 1
+            self._not_before_period = self._published_seen
+            if self._election_bus is not None:
+                self._election_bus.declare_active(self.epoch)
+            log.warning(
+                "%s is the active now, epoch %d (periods up to %s were published before)",
+                self.instance,
+                self.epoch,
+                self._published_seen,
+            )
+        elif decision == "stand_down":
+            election.stood_down()
+            self.role = "standby"
+            self.redundancy_counters["stand_downs"] += 1
+            if self._election_bus is not None:
+                self._election_bus.withdraw_active()
+            log.warning("%s stands down: an active of epoch %d is on the bus", self.instance, election.highest_epoch)
+
+    def _take_state(self, payload: bytes) -> None:
+        """Another active's state: a standby applies it (its tracks become the active's)."""
+        election = self.election
+        assert election is not None
+        try:
+            state = decode_state(payload)
+            epoch, instance, period = state.get("epoch"), state.get("instance"), state.get("period")
+            if type(epoch) is not int or not isinstance(instance, str):
+                raise StateMismatch("a state without an active's epoch and instance")
+        except StateMismatch as exc:
+            self.redundancy_counters["states_refused"] += 1
+            self._log_rejection("state", str(exc))
+            return
+        election.epoch_seen(instance, epoch)
+        if epoch < election.highest_epoch:
+            self.redundancy_counters["states_refused"] += 1
+            self._log_rejection("state", f"a stale active's state (epoch {epoch} < {election.highest_epoch})")
+            return
+        self._decide()  # an active that sees a newer active stands down before it applies its state
+        if self.role != "standby":
+            return
+        try:
+            restore(self.engine, state, replace=True)
+        except StateMismatch as exc:
+            self.redundancy_counters["states_refused"] += 1
+            self._log_rejection("state", str(exc))
+            return
+        self.redundancy_counters["states_applied"] += 1
+        if type(period) is int:
+            self._published_seen = max(period, self._published_seen or period)
 
     # ------------------------------------------------------------------ input
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -361,9 +528,11 @@ class FusionDaemon:
             except queue.Empty:
                 pass
             self._count_overload()
-            self._publish(self.engine.poll())
+            self._redundancy_step()
+            if self.role == "active":  # a standby closes no period: it applies the active's state
+                self._publish(self.engine.poll())
             idle_s = time.monotonic() - self._last_processed
-            if self.messages_processed > processed_at_flush and idle_s > self.idle_flush_s:
+            if self.role == "active" and self.messages_processed > processed_at_flush and idle_s > self.idle_flush_s:
                 self._publish(self.engine.flush())
                 processed_at_flush = self.messages_processed
             now = time.monotonic()
@@ -377,7 +546,11 @@ class FusionDaemon:
             if stopping and self.queue.empty():
                 break
         self._count_overload()
-        self._publish(self.engine.flush())
+        self._redundancy_step()
+        if self.role == "active" and not (self.election is not None and self.election.members):
+            self._publish(self.engine.flush())
+        # (with a standby on the bus the open periods are left to it: it takes over with its
+        # own plots of them, instead of periods closed early without their late plots)
         health = self.health_message()
         self._check_clocks(health)
         self._emit(("health", health))  # the final health, after the last batches
@@ -423,7 +596,19 @@ class FusionDaemon:
     def _publish(self, outputs: list[PeriodOutput]) -> None:
         for out in outputs:
             self.metrics.observe_period(out.processing_s)
+            if self._not_before_period is not None and out.period <= self._not_before_period:
+                # after a take-over: the lost active published this period already
+                self.redundancy_counters["periods_not_republished"] += 1
+                continue
+            if self.election is not None:
+                out.track_columns.epoch, out.track_columns.instance = self.epoch, self.instance
+                for alert in out.alerts:
+                    alert["epoch"] = self.epoch
             self._emit(out)
+        if outputs and self.election is not None:
+            # after the period's TrackBatch: a standby that saw the batch but not this state
+            # (the active died between) recomputes the period without publishing it again
+            self._emit(("state", snapshot(self.engine, outputs[-1].period, self.epoch, self.instance), self.epoch))
         if outputs and self.state_dir is not None:
             now = time.monotonic()
             if now - self._state_saved_at >= self.state_interval_s:
@@ -451,11 +636,23 @@ class FusionDaemon:
             item = self.outbox.get()
             if item is None:
                 return
-            if isinstance(item, tuple):  # ("health", snapshot taken by the processing thread)
+            if isinstance(item, tuple) and item[0] == "health":  # a snapshot taken by the processing thread
                 self._health_pending = False
                 self.publish_health(item[1])
                 continue
+            if isinstance(item, tuple):  # ("state", bytes, epoch): for the standbys
+                if self._still_active(item[2]):
+                    try:
+                        self._pubs["state"].put(item[1])
+                        self.redundancy_counters["states_published"] += 1
+                    except Exception:
+                        log.exception("publishing the state failed")
+                        self.publish_errors += 1
+                continue
             out: PeriodOutput = item
+            if self.election is not None and not self._still_active(out.track_columns.epoch):
+                self.redundancy_counters["outputs_withheld"] += 1  # it stood down meanwhile
+                continue
             try:
                 self._pubs["tracks"].put(out.track_batch_bytes)  # packed from the columns
                 for alert in out.alerts:
@@ -466,6 +663,10 @@ class FusionDaemon:
             except Exception:
                 log.exception("publishing period %s failed", out.period)
                 self.publish_errors += 1
+
+    def _still_active(self, epoch: int | None) -> bool:
+        """Whether an output stamped ``epoch`` may still go out: this daemon is still that active."""
+        return self.role == "active" and epoch == self.epoch
 
     def health_message(self) -> dict[str, Any]:
         h = self.engine.health()
@@ -480,6 +681,8 @@ class FusionDaemon:
             outputs_dropped=self.outputs_dropped,
             publish_errors=self.publish_errors,
         )
+        if self.election is not None:
+            h["counters"].update(self.redundancy_counters)
         if self.state_dir is not None:  # serve --state-dir
             h["counters"].update(
                 states_saved=self.states_saved,
@@ -492,6 +695,9 @@ class FusionDaemon:
             "uptime_s": now - self.started_wall,
             **h,
             "lag_s": (now - newest) if newest else None,
+            "role": self.role,
+            "epoch": self.epoch,
+            "instance": self.instance,
         }
         health["safety_nets"] = self.safety_nets_status()
         child = self.safety_nets_child

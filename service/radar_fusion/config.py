@@ -10,6 +10,7 @@
     [outliers] the live wild-plot gate (tracking/live_gate.py LiveGateParams, all defaulted)
     [safety_nets] STCA / APW / MSAW parameters (all defaulted)
     [metrics]  listen = "127.0.0.1:9108": Prometheus endpoint (off when absent)
+    [redundancy] enabled = true: a hot-standby pair (redundancy.py; off by default)
 
 Environment overrides use the prefix ``RADAR_FUSION_`` and ``__`` between levels, e.g.
 ``RADAR_FUSION_BUS__MODE=client``. A bad file or value raises :class:`ConfigError`,
@@ -76,6 +77,37 @@ class BusConfig(_Section):
     multicast_scouting: bool = False
     zenoh_config_file: str | None = Field(
         None, description="optional zenoh JSON5 config (TLS, access control); listen/connect/mode still apply"
+    )
+
+
+class RedundancyConfig(_Section):
+    """A hot-standby pair (or more) on one bus (redundancy.py, issue 13)."""
+
+    enabled: bool = Field(
+        False,
+        description="elect one active among the serve processes of this configuration on the bus (Zenoh "
+        "liveliness); only the active publishes tracks and alerts, every standby applies its state",
+    )
+    instance: str | None = Field(
+        None,
+        pattern=r"^[A-Za-z0-9_.:-]{1,64}$",
+        description="this process's name on the bus; default <hostname>:<pid>. Among standbys the smallest "
+        "name takes over first",
+    )
+    lease_s: float = Field(
+        2.0,
+        ge=0.5,
+        le=10.0,
+        description="Zenoh link lease with redundancy on: a peer silent this long (host down, cable cut) is "
+        "dropped and its liveliness tokens with it. Default 2 s, so that a standby takes over within two "
+        "periods of 4 s (Zenoh's own default is 10 s)",
+    )
+    settle_s: float = Field(
+        1.0,
+        ge=0,
+        le=30,
+        description="at start, listen this long for an active before taking over (an active already on the "
+        "bus is seen at once through liveliness history; this covers its tokens still in flight)",
     )
 
 
@@ -207,6 +239,7 @@ class Settings(BaseSettings):
     outliers: LiveGateParams = Field(default_factory=LiveGateParams)
     metrics: MetricsConfig = Field(default_factory=MetricsConfig)
     safety_nets: SafetyNetsConfig = Field(default_factory=SafetyNetsConfig)
+    redundancy: RedundancyConfig = Field(default_factory=RedundancyConfig)
 
     @classmethod
     def settings_customise_sources(

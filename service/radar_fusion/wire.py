@@ -137,6 +137,14 @@ class TrackBatch(_Message):
     period: int = Field(ge=0)
     tracks: list[Track]
     ended: list[int] = Field(default_factory=list, description="track ids that ended in this period")
+    # v1 extension (issue 13): a hot-standby pair's active stamps what it publishes
+    epoch: int | None = Field(
+        None,
+        ge=1,
+        description="with [redundancy] on: the publishing active's epoch. It grows at every take-over; a "
+        "consumer drops a message of an epoch lower than the highest it has seen (a stale active)",
+    )
+    instance: str | None = Field(None, description="with [redundancy] on: the publishing daemon's instance name")
 
 
 class Alert(_Message):
@@ -157,6 +165,7 @@ class Alert(_Message):
     # MSAW
     time_to_violation_s: float | None = None
     min_alt_ft: float | None = None
+    epoch: int | None = Field(None, ge=1, description="with [redundancy] on: the epoch of the TrackBatch judged")
 
 
 class RadarHealth(BaseModel):
@@ -210,6 +219,12 @@ class Health(_Message):
     lag_s: float | None = Field(None, description="wall clock minus the newest closed period's time")
     # v1 extension (issue 16): where the safety nets run, and the child's state
     safety_nets: SafetyNetsStatus | None = None
+    # v1 extension (issue 13): the daemon's part in a hot-standby pair
+    role: Literal["active", "standby"] | None = Field(
+        None, description="active: publishes tracks and alerts; standby: applies the active's state"
+    )
+    epoch: int | None = Field(None, description="the active's epoch (0 with [redundancy] off)")
+    instance: str | None = Field(None, description="this daemon's instance name, <hostname>:<pid> by default")
 
 
 class SafetyNetsHealth(_Message):
@@ -228,7 +243,7 @@ class SafetyNetsHealth(_Message):
     )
     rejected: dict[str, int] = Field(
         description="TrackBatches refused, by reason: oversize, malformed_msgpack, version, schema, "
-        "out_of_order, internal_error"
+        "out_of_order, stale_epoch (a stale active's, issue 13), internal_error"
     )
     newest_period: int | None = None
     newest_period_t: float | None = None
@@ -244,6 +259,27 @@ class SafetyNetsHealth(_Message):
     hook_load_errors: dict[str, str] = Field(default_factory=dict)
 
 
+class FusionState(_Message):
+    """The active's track state after a period, on ``<prefix>/fusion/state`` with
+    [redundancy] on (and the file ``serve --state-dir`` writes): what a standby applies so
+    that it holds the same tracks with the same ids (engine/state.py writes and reads it).
+    The arrays are raw little-endian columns, ``[dtype, shape, bytes]``: compact, and
+    read without a Python object per track."""
+
+    kind: Literal["radar-fusion-engine-state"]
+    radar_ids: list[str] = Field(description="the configuration's radars in order (the sources bits' order)")
+    n_models: int = Field(ge=0, description="the IMM's model count, 0 for the Singer filter")
+    track_t_s: float | None = Field(description="reference time of the newest closed period, UTC epoch s")
+    next_period: int | None = Field(description="the first period not yet closed")
+    period: int | None = Field(None, description="the newest closed period (its TrackBatch's period)")
+    next_id: int = Field(ge=1)
+    tracks: dict[str, list[Any]] = Field(description="the track table's columns: {name: [dtype, shape, bytes]}")
+    address_memory: list[list[Any]] = Field(description="recently ended tracks by Mode S address")
+    registration: dict[str, Any] = Field(description="the radar registration estimator's arrays and counts")
+    epoch: int | None = Field(None, description="with [redundancy] on: the publishing active's epoch")
+    instance: str | None = None
+
+
 MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "PlotBatch": PlotBatch,
     "Plot": Plot,
@@ -253,6 +289,7 @@ MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "Alert": Alert,
     "Health": Health,
     "SafetyNetsHealth": SafetyNetsHealth,
+    "FusionState": FusionState,
 }
 
 

@@ -101,9 +101,16 @@ class TrackColumns:
     # where it was measured, at its measurement time, not extrapolated to t_s. None: every
     # track is at t_s.
     t_track_s: np.ndarray | None = None
+    # A hot-standby pair's stamp (issue 13): the publishing active's epoch and instance
+    # name, sent as the TrackBatch's last two keys; None with [redundancy] off (not sent).
+    epoch: int | None = None
+    instance: str | None = None
 
     def __len__(self) -> int:
         return int(self.track_id.shape[0])
+
+    def _stamp(self) -> dict[str, Any]:
+        return {} if self.epoch is None else {"epoch": self.epoch, "instance": self.instance}
 
     # The state's columns by their wire names (views, no copy): what the safety nets and
     # their hooks read.
@@ -177,7 +184,14 @@ class TrackColumns:
             repeat(None, n) if self.manoeuvre_prob is None else np.round(self.manoeuvre_prob, 4).tolist(),
         )
         tracks = [dict(zip(TRACK_KEYS, row)) for row in zip(*cols)]
-        return {"v": 1, "t": self.t_s, "period": self.period, "tracks": tracks, "ended": self.ended.tolist()}
+        return {
+            "v": 1,
+            "t": self.t_s,
+            "period": self.period,
+            "tracks": tracks,
+            "ended": self.ended.tolist(),
+            **self._stamp(),
+        }
 
     def to_msgpack(self) -> bytes:
         """The TrackBatch message msgpack-encoded: the bytes of ``msgpack.packb(self.to_message(),
@@ -228,7 +242,7 @@ class TrackColumns:
             rows.float64(np.round(self.manoeuvre_prob, 4))
         head = b"".join(
             [
-                map_header(5),
+                map_header(5 + len(self._stamp())),
                 msgpack.packb("v"),
                 msgpack.packb(1),
                 msgpack.packb("t"),
@@ -240,6 +254,8 @@ class TrackColumns:
             ]
         )
         tail = bytes(msgpack.packb("ended")) + bytes(msgpack.packb(self.ended.tolist()))
+        for key, value in self._stamp().items():
+            tail += bytes(msgpack.packb(key)) + bytes(msgpack.packb(value))
         return head + rows.tobytes() + tail
 
     def _packable(self) -> bool:
@@ -324,6 +340,8 @@ class TrackColumns:
             safety_eligible=np.fromiter((s == "confirmed" for s in status_names), bool, n),
             manoeuvre_prob=col("manoeuvre_prob") if any(get(t, "manoeuvre_prob") is not None for t in tracks) else None,
             t_track_s=None if bool(np.all(t_track == t_batch)) else t_track,
+            epoch=batch.get("epoch") if batch is not None else None,
+            instance=batch.get("instance") if batch is not None else None,
         )
         no_v = np.isnan(columns.x[:, 1])  # no velocity yet: no acceleration either
         columns.x[no_v, 2] = columns.x[no_v, 5] = math.nan

@@ -118,6 +118,24 @@ class PeriodBuffer:
         self.next_period = k + 1
         return k, end_s, plots
 
+    def discard_before(self, period: int) -> int:
+        """Make ``period`` the oldest open one: the periods before it count as closed, their
+        buffered plots are dropped (a standby applying its active's state, which closed
+        them; a restart from state). Returns the plots dropped."""
+        dropped = 0
+        start_s = period * self.period_s
+        if self._chunks and self._min_t_s < start_s:
+            allp = PlotChunk.concatenate(self._chunks)
+            keep = allp.t_s >= start_s
+            rest = allp.select(keep)
+            dropped = len(allp) - len(rest)
+            self._chunks = [rest] if len(rest) else []
+            self._buffered = len(rest)
+            self._per_radar = np.bincount(rest.radar, minlength=self.n_radars)
+            self._min_t_s = float(rest.t_s.min()) if len(rest) else math.inf
+        self.next_period = period
+        return dropped
+
     def skip_empty_to_data(self) -> None:
         """Jump over periods that hold no plot (used when no track needs coasting): to
         the first buffered plot, or with nothing buffered as far as the watermarks allow

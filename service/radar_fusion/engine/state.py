@@ -18,18 +18,33 @@ Format (version 1): one msgpack map
     next_id         the next track id to hand out
     tracks          {column name: [dtype, shape, raw bytes]}, TrackTable's columns
     address_memory  [[mode_s, id, [x_m, y_m], [[cov]], t_s], ...]: recently ended tracks
-    registration    {name: [dtype, shape, raw bytes]} of the estimator's arrays, and its
-                    counters
+    registration    {name: [dtype, shape, raw bytes]} of the estimator's arrays, its
+                    counters, t_last_s and next_update_t_s (when it next learns)
+    live_gate       the wild-plot gate's window per radar track (tracking/live_gate.py),
+                    {"arrays": {name: [dtype, shape, bytes]} of the rows in use, "last_sweep_t",
+                    "counts"}; nil with the gate off
+    period          the newest closed period (None before the first)
+    epoch, instance with [redundancy] on, the active that published it (else None)
 
-What is not kept, and why it does not matter for long: the plots buffered for the period
-that was open (lost with the process, as on any restart), the wild-plot gate's recent
-history per radar (it relearns within a few scans), the clock check and the counters
+The same bytes are what an active of a hot-standby pair publishes on
+``<prefix>/fusion/state`` after each period (redundancy.py; ``wire.FusionState`` documents
+the envelope for the contract), and a standby applies them with ``replace=True``: its
+tracks become the active's, and the plots it buffered for periods the active has
+closed are dropped.
+
+With all of it, an engine restored from a state and fed the same plots closes the same
+periods with bit-identical tracks (tests/test_state.py). What is not kept, and why it
+does not matter for long: the plots buffered for the period that was open (lost with the
+process, as on any restart; a standby has them itself), the clock check and the counters
 (health starts again with the new process's ``uptime_s``), and the safety nets' open
-alerts (they are raised again as new).
+alerts (a restarted daemon raises them again as new; a standby's child has them).
+A state written before ``live_gate`` and the registration's times were kept (the same
+version) is read without them: the gate relearns within a few scans.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -39,12 +54,14 @@ import msgpack
 import numpy as np
 
 if TYPE_CHECKING:
+    from ..tracking.live_gate import LiveOutlierGate
     from .engine import Engine
 
 __all__ = [
     "STATE_FILE",
     "STATE_VERSION",
     "StateMismatch",
+    "decode",
     "load_state",
     "restore",
     "save_state",
@@ -75,8 +92,9 @@ def _unpack_array(item: Any) -> np.ndarray:
     return np.frombuffer(raw, dtype=np.dtype(dtype)).reshape(shape).copy()
 
 
-def snapshot(engine: Engine) -> bytes:
-    """The engine's track state (module docstring) as msgpack bytes."""
+def snapshot(engine: Engine, period: int | None = None, epoch: int | None = None, instance: str | None = None) -> bytes:
+    """The engine's track state (module docstring) as msgpack bytes; ``period`` is the
+    newest closed period, ``epoch`` and ``instance`` the active's stamp."""
     tr = engine.tracks
     reg = engine.registration
     memory = [[a, i, xy.tolist(), cov.tolist(), t] for a, i, xy, cov, t in engine.address_memory.entries()]
@@ -87,27 +105,64 @@ def snapshot(engine: Engine) -> bytes:
         "n_models": tr.n_models,
         "track_t_s": engine.track_t_s,
         "next_period": engine.buffer.next_period,
+        "period": period,
         "next_id": tr.next_id,
         "tracks": {name: _pack_array(getattr(tr, name)) for name in tr._fields},
         "address_memory": memory,
         "registration": {
             **{name: _pack_array(getattr(reg, name)) for name in _REGISTRATION_ARRAYS},
             **{name: int(getattr(reg, name)) for name in _REGISTRATION_COUNTS},
+            "t_last_s": reg.t_last_s,
+            "next_update_t_s": engine._reg_next_t_s if math.isfinite(engine._reg_next_t_s) else None,
         },
+        "live_gate": _pack_gate(engine.outlier_gate),
+        "epoch": epoch,
+        "instance": instance,
     }
     return bytes(msgpack.packb(state, use_bin_type=True))
 
 
-def restore(engine: Engine, data: bytes) -> int:
-    """Load a :func:`snapshot` into a new engine of the same configuration (before its first
-    plot); returns the number of tracks restored. Raises :class:`StateMismatch` when the
-    bytes are not a state of this version, or of other radars or another filter."""
+def decode(data: bytes) -> dict[str, Any]:
+    """The state map of :func:`snapshot`'s bytes (not checked against a configuration);
+    raises :class:`StateMismatch` when the bytes are not a state."""
     try:
         state = msgpack.unpackb(data, raw=False)
     except Exception as exc:  # any decoding error: not a state file
         raise StateMismatch(f"not a radar-fusion state: {exc}") from exc
     if not isinstance(state, dict) or state.get("kind") != STATE_KIND:
         raise StateMismatch("not a radar-fusion state")
+    return state
+
+
+def _pack_gate(gate: LiveOutlierGate | None) -> dict[str, Any] | None:
+    if gate is None:
+        return None
+    st = gate.state()
+    st["arrays"] = {name: _pack_array(a) for name, a in st["arrays"].items()}
+    return st
+
+
+def _unpack_gate(engine: Engine, packed: Any) -> LiveOutlierGate | None:
+    """A new gate of the engine's parameters holding the state's windows (None: keep the
+    engine's own, a state without them or the gate off)."""
+    if packed is None or engine.outlier_gate is None:
+        return None
+    from ..tracking.live_gate import LiveOutlierGate
+
+    gate = LiveOutlierGate.from_params(engine.settings.outliers)
+    gate.load({**packed, "arrays": {name: _unpack_array(a) for name, a in packed["arrays"].items()}})
+    return gate
+
+
+def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False) -> int:
+    """Load a :func:`snapshot` (bytes, or :func:`decode`'s map) into an engine of the same
+    configuration; returns the number of tracks restored. Without ``replace`` only into a
+    new engine (before its first plot: a restart); with it, over whatever the engine holds
+    (a standby applying its active's state): the tracks, ids, registration and address
+    memory become the state's, and buffered plots of the periods it closed are dropped.
+    Raises :class:`StateMismatch` when the bytes are not a state of this version, or of
+    other radars or another filter, and then leaves the engine as it was."""
+    state = decode(data) if isinstance(data, bytes | bytearray) else data
     if state.get("v") != STATE_VERSION:
         raise StateMismatch(f"state version {state.get('v')!r}, this daemon reads {STATE_VERSION}")
     if state.get("radar_ids") != list(engine.radar_ids):
@@ -115,7 +170,7 @@ def restore(engine: Engine, data: bytes) -> int:
     tr = engine.tracks
     if state.get("n_models") != tr.n_models:
         raise StateMismatch(f"state of a filter with {state.get('n_models')} models, configured {tr.n_models}")
-    if len(tr) or engine.periods_closed:
+    if not replace and (len(tr) or engine.periods_closed):
         raise StateMismatch("restore into a new engine only (it has tracks or closed periods)")
     try:
         columns = {name: _unpack_array(item) for name, item in state["tracks"].items()}
@@ -123,7 +178,10 @@ def restore(engine: Engine, data: bytes) -> int:
         counts = {name: int(state["registration"][name]) for name in _REGISTRATION_COUNTS}
         memory = [tuple(entry) for entry in state["address_memory"]]
         next_id, track_t_s, next_period = int(state["next_id"]), state["track_t_s"], state["next_period"]
-    except (KeyError, TypeError, ValueError) as exc:
+        t_last_s = state["registration"].get("t_last_s")
+        next_update_t_s = state["registration"].get("next_update_t_s")
+        gate = _unpack_gate(engine, state.get("live_gate"))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise StateMismatch(f"a damaged state: {exc}") from exc
     # every check before anything is changed: a refused state leaves the engine as it was
     if set(columns) != set(tr._fields):
@@ -144,12 +202,18 @@ def restore(engine: Engine, data: bytes) -> int:
     tr.next_id = next_id
     engine.track_t_s = track_t_s
     if next_period is not None:
-        engine.buffer.next_period = int(next_period)
+        engine.buffer.discard_before(int(next_period))
+    if replace:
+        engine.address_memory.clear()
     engine.address_memory.load(memory)
     for name, value in registration.items():
         setattr(reg, name, value)
     for name, count in counts.items():
         setattr(reg, name, count)
+    reg.t_last_s = None if t_last_s is None else float(t_last_s)
+    engine._reg_next_t_s = -math.inf if next_update_t_s is None else float(next_update_t_s)
+    if gate is not None:
+        engine.outlier_gate = gate
     return tr.n  # the registration's correction is taken from the estimator at each period
 
 

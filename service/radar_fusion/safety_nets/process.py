@@ -21,6 +21,14 @@ on older data, a replay): the open alerts are ended and the new stream is judged
 ``serve`` runs it as its child (:mod:`.supervisor`): the settings then come on stdin
 (one JSON line) and the end of stdin means the parent is gone, however it died, so the
 child never outlives it.
+
+A hot-standby pair (``[redundancy]``, redundancy.py): TrackBatches carry the active's
+epoch; a batch of an epoch below the highest seen is refused as ``stale_epoch`` (a stale
+active's). Each daemon's child judges every batch of the active, so the standby's child
+holds the same open alerts and alert ids; it publishes only the alerts of batches its
+own parent published (``alerts_for_instance``), so after a take-over the alerts go on
+from the new active's child with the same ids. A stand-alone safety-nets process
+publishes for whichever active is current.
 """
 
 from __future__ import annotations
@@ -77,8 +85,11 @@ class SafetyNetsProcess:
         base_dir: Path | None = None,
         connect: list[str] | None = None,
         nets: SafetyNets | None = None,
+        alerts_for_instance: str | None = None,
     ):
         self.settings = settings
+        self.alerts_for_instance = alerts_for_instance  # a standby's child: only its parent's batches' alerts
+        self.highest_epoch = 0
         self.prefix = settings.bus.prefix
         self.connect = connect
         plane = SystemPlane(settings.system.center_lat, settings.system.center_lon)
@@ -100,6 +111,7 @@ class SafetyNetsProcess:
                     "alerts_published",
                     "publish_errors",
                     "stream_restarts",
+                    "alerts_withheld",
                 ),
                 0,
             )
@@ -110,6 +122,7 @@ class SafetyNetsProcess:
         self.newest_period: int | None = None
         self.newest_t: float | None = None
         self._out_of_order_run = 0
+        self._batch_instance: str | None = None  # the stamp of the batch being judged
         self._session: Any = None
         self._sub: Any = None
         self._pubs: dict[str, Any] = {}
@@ -226,6 +239,12 @@ class SafetyNetsProcess:
         if alerts is None:
             return []
         self.processing_ms.append(1e3 * (time.perf_counter() - t0))
+        if self.alerts_for_instance is not None and self._batch_instance != self.alerts_for_instance:
+            # a standby's child: its parent did not publish this batch; the nets judged it all
+            # the same, so their alerts and ids go on if the parent takes over
+            self.counters["alerts_withheld"] += len(alerts)
+            self.counters["batches_processed"] += 1
+            return []
         for alert in alerts:
             try:
                 pub = self._pubs.get(alert["kind"])
@@ -248,6 +267,12 @@ class SafetyNetsProcess:
             self._reject(columns.reason, columns.detail)
             return None
         alerts: list[dict] = []
+        self._batch_instance = columns.instance
+        if columns.epoch is not None:
+            if columns.epoch < self.highest_epoch:
+                self._reject("stale_epoch", f"period {columns.period} of epoch {columns.epoch} < {self.highest_epoch}")
+                return None
+            self.highest_epoch = columns.epoch
         if self.newest_t is not None and columns.t_s <= self.newest_t:
             self._out_of_order_run += 1
             if self._out_of_order_run < STREAM_RESTART_BATCHES:
@@ -259,6 +284,9 @@ class SafetyNetsProcess:
         self._out_of_order_run = 0
         self.newest_period, self.newest_t = columns.period, columns.t_s
         alerts += self.nets.update(columns.t_s, columns)
+        if columns.epoch is not None:
+            for alert in alerts:
+                alert["epoch"] = columns.epoch
         return alerts
 
     def _reject(self, reason: str, detail: str) -> None:
@@ -356,7 +384,10 @@ def run(args: argparse.Namespace) -> int:
         threading.Thread(target=_watch_parent, args=(stop,), name="parent-watch", daemon=True).start()
     import zenoh
 
-    service = SafetyNetsProcess(settings, base_dir=base_dir, connect=args.connect)
+    red = settings.redundancy
+    # serve's child in a hot-standby pair publishes the alerts of its own parent's batches only
+    alerts_for = red.instance if args.settings_from_stdin and red.enabled else None
+    service = SafetyNetsProcess(settings, base_dir=base_dir, connect=args.connect, alerts_for_instance=alerts_for)
     try:
         service.start()
     except zenoh.ZError as exc:

@@ -136,13 +136,15 @@ class _Reader:
 
 
 def read_tracks(payload: bytes, min_tracks: int = 0) -> dict[str, Any]:
-    """{"t", "period", "ended", and the track columns} from a TrackBatch's bytes, or NotLayout.
+    """{"t", "period", "ended", ["epoch", "instance",] and the track columns} from a
+    TrackBatch's bytes, or NotLayout.
 
     Raises NotLayout below ``min_tracks`` tracks too (the general path is as fast there)."""
     unpacker = msgpack.Unpacker(raw=False, max_buffer_size=max(len(payload), 1 << 20), strict_map_key=True)
     unpacker.feed(payload)
     try:
-        _need(unpacker.read_map_header() == 5)
+        n_keys = unpacker.read_map_header()
+        _need(n_keys in (5, 7))
         head = {}
         for name in ("v", "t", "period"):
             _need(unpacker.unpack() == name)
@@ -158,6 +160,10 @@ def read_tracks(payload: bytes, min_tracks: int = 0) -> dict[str, Any]:
         starts[n] = tell()
         _need(unpacker.unpack() == "ended")
         head["ended"] = unpacker.unpack()
+        if n_keys == 7:  # a hot-standby active's stamp (issue 13)
+            for name in ("epoch", "instance"):
+                _need(unpacker.unpack() == name)
+                head[name] = unpacker.unpack()
         _need(unpacker.tell() == len(payload))
     except NotLayout:
         raise

@@ -78,6 +78,13 @@ class _NotColumns(Exception):
     """The fast reading failed a check; the model decides."""
 
 
+def _stamp_ok(epoch: Any, instance: Any) -> bool:
+    """A hot-standby active's stamp as wire.TrackBatch has it: both absent, or an epoch >= 1 (and a name)."""
+    return (epoch is None and instance is None) or (
+        type(epoch) is int and epoch >= 1 and (instance is None or type(instance) is str)
+    )
+
+
 class TrackBatchReader:
     """Decodes TrackBatch payloads into TrackColumns for one configuration (plane, radar ids).
 
@@ -138,6 +145,7 @@ class TrackBatchReader:
             and bool((c["mode3a"] >= -1).all())
         )
         mp = c["manoeuvre_prob"]
+        ok = ok and _stamp_ok(c.get("epoch"), c.get("instance"))
         if not ok or not bool((((mp >= 0) & (mp <= 1)) | np.isnan(mp)).all()):
             raise NotLayout
         payload_spans = c["sources_span"]
@@ -167,6 +175,8 @@ class TrackBatchReader:
             safety_eligible=None,
             manoeuvre_prob=None if np.isnan(mp).all() else mp,
             t_track_s=None if bool((c["track_t"] == t_s).all()) else c["track_t"],
+            epoch=c.get("epoch"),
+            instance=c.get("instance"),
         )
         columns.__dict__["geodetic"] = (c["lat_deg"], c["lon_deg"])
         return columns
@@ -214,6 +224,7 @@ class TrackBatchReader:
     # ------------------------------------------------------------------ columns
     def _columns(self, obj: dict) -> TrackColumns:
         t_s, period, tracks, ended = obj["t"], obj["period"], obj["tracks"], obj.get("ended", [])
+        _check(_stamp_ok(obj.get("epoch"), obj.get("instance")))
         _check(type(t_s) in _NUMBER and math.isfinite(t_s))
         _check(type(period) is int and period >= 0)
         _check(type(tracks) is list and type(ended) is list)
@@ -295,6 +306,8 @@ class TrackBatchReader:
             safety_eligible=None,  # the engine's rule: every track that is not tentative
             manoeuvre_prob=None if np.isnan(mp).all() else mp,
             t_track_s=None if bool((f["t"] == t_s).all()) else f["t"],
+            epoch=obj.get("epoch"),
+            instance=obj.get("instance"),
         )
         columns.__dict__["geodetic"] = (f["lat_deg"], f["lon_deg"])  # as the sender computed them
         return columns

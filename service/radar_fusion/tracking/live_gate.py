@@ -213,6 +213,44 @@ class LiveOutlierGate:
             )
         )
 
+    _STATE_ARRAYS = (
+        "_x", "_y", "_t", "_px", "_py", "_pt", "_count", "_head", "_npend", "_last_t", "_row_key", "_skeys", "_srows",
+    )  # fmt: skip
+
+    def state(self) -> dict[str, Any]:
+        """What the gate has learnt (each radar track's window), for engine/state.py: a
+        standby or a restarted daemon gates the next plots exactly as this one would."""
+        # the rows in use only, renumbered in order (a gate holds up to max_keys rows)
+        used = np.flatnonzero(self._row_key >= 0)
+        renumber = np.full(self._cap, -1, np.int64)
+        renumber[used] = np.arange(used.size)
+        arrays = {name: getattr(self, name)[used] for name in self._STATE_ARRAYS[:-2]}
+        arrays["_skeys"], arrays["_srows"] = self._skeys, renumber[self._srows]
+        return {
+            "arrays": arrays,
+            "last_sweep_t": float(self._last_sweep_t),
+            "counts": [self.rejected, self.relocked, self.evicted],
+        }
+
+    def load(self, state: dict[str, Any]) -> None:
+        """Take a :meth:`state` of a gate of the same parameters (ValueError otherwise)."""
+        arrays = state["arrays"]
+        if set(arrays) != set(self._STATE_ARRAYS):
+            raise ValueError("not a wild-plot gate's state")
+        cap = int(arrays["_row_key"].shape[0])
+        for name in self._STATE_ARRAYS:
+            a = arrays[name]
+            mine = getattr(self, name)
+            if name not in ("_skeys", "_srows") and (a.shape[0] != cap or a.shape[1:] != mine.shape[1:]):
+                raise ValueError(f"wild-plot gate {name} of shape {a.shape}: another window or a damaged state")
+        for name in self._STATE_ARRAYS:
+            setattr(self, name, arrays[name].astype(getattr(self, name).dtype, copy=True))
+        self._cap = cap
+        self._free = []
+        self._alloc(max(cap, min(1024, self.max_keys)))  # free rows to grow into, as a new gate has
+        self._last_sweep_t = float(state["last_sweep_t"])
+        self.rejected, self.relocked, self.evicted = (int(c) for c in state["counts"])
+
     def _evict_rows(self, rows: NDArray[np.int64]) -> None:
         gone = np.isin(self._skeys, self._row_key[rows])
         self._skeys, self._srows = self._skeys[~gone], self._srows[~gone]

@@ -475,6 +475,9 @@ class AddressMemory:
         """(address, id, last xy, its covariance, last time) of every entry (engine/state.py)."""
         return [(a, *e) for a, e in self._by_address.items()]
 
+    def clear(self) -> None:
+        self._by_address.clear()
+
     def load(self, entries: list[tuple[int, int, np.ndarray, np.ndarray, float]]) -> None:
         """Add the entries of :meth:`entries` (a restart from state)."""
         for a, track_id, xy, cov, t_s in entries:
