@@ -46,7 +46,7 @@ def test_a_standby_waits_while_an_active_lives_and_takes_over_above_its_epoch():
 def test_of_several_standbys_only_the_smallest_name_moves():
     names = ["host-b:7", "host-a:9", "host-c:1"]
     elections = {n: Election(n, started_s=0.0) for n in names}
-    for me, e in elections.items():
+    for e in elections.values():
         for other in names:
             e.member_seen(other, True)
     moving = [n for n, e in elections.items() if e.decide(5.0) == "take_over"]

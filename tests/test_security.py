@@ -415,6 +415,74 @@ def test_two_sites_linked_over_tls_each_router_enforcing_its_site(pki, scenario,
     assert len(spy) >= daemon.batches_published and b"not from the daemon" not in spy
 
 
+@pytest.mark.slow
+def test_two_sites_a_hot_standby_pair_one_daemon_per_site(pki, scenario, free_port, tmp_path):
+    """deploy/README.md's two-host standby: a daemon at each site (both CN radar-fusion, each
+    a client of its own site's router), [redundancy] on. The routers' access control lets
+    them elect (liveliness) and the standby take the active's state across the WAN link;
+    the active stops half way and the standby at the other site goes on: every period once,
+    one id per aircraft."""
+    simulation, base = scenario
+    a, b = f"tls/127.0.0.1:{free_port}", f"tls/127.0.0.1:{other_free_port()}"
+    routers = []
+    sessions: dict[str, zenoh.Session] = {}
+    daemons: dict[str, FusionDaemon] = {}
+    collector = None
+    try:
+        for name, listen, connect in (("router-site-a.json5", a, []), ("router-site-b.json5", b, [a])):
+            cfg = zenoh.Config.from_file(str(deploy_config(name, pki, tmp_path)))
+            cfg.insert_json5("listen/endpoints", json.dumps([listen]))
+            cfg.insert_json5("connect/endpoints", json.dumps(connect))
+            routers.append(open_session(cfg))
+        for site, endpoint in (("a", a), ("b", b)):
+            settings = daemon_settings(
+                base,
+                mode="client",
+                listen=[],
+                connect=[endpoint],
+                zenoh_config_file=str(deploy_config("daemon-client.json5", pki, tmp_path)),
+            )
+            red = settings.redundancy.model_copy(update={"enabled": True, "instance": f"fusion-{site}"})
+            daemons[site] = FusionDaemon(settings.model_copy(update={"redundancy": red}), idle_flush_s=60.0).start()
+            assert wait_until(lambda: daemons["a"].role == "active", 10)
+        frontend = deploy_config("radar-frontend.json5", pki, tmp_path)
+        for radar, endpoint in (("north", a), ("west", a), ("south", b)):
+            sessions[radar] = open_session(client_config(frontend, pki, f"fe-{radar}", endpoint))
+        sessions["display"] = open_session(client_config(frontend, pki, "display-b1", b))
+        collector = TrackCollector(sessions["display"], "atc")
+        consumer_ready(collector)
+        time.sleep(1.0)
+        assert daemons["b"].role == "standby" and daemons["b"].election.members == {"fusion-a"}
+        messages = simulation.messages
+        half = len(messages) // 2
+        feed(sessions, messages[:half], speed=30.0)
+        assert wait_until(lambda: daemons["b"].redundancy_counters["states_applied"] > 5, 10), "no state crossed"
+        daemons["a"].stop()  # with a standby on the bus: no flush, the standby takes the open periods
+        assert wait_until(lambda: daemons["b"].role == "active", 10)
+        feed(sessions, messages[half:], speed=30.0)
+        assert wait_until(lambda: daemons["b"].messages_processed >= len(messages) - half, 30)
+        daemons["b"].stop()
+        assert wait_until(lambda: len(collector.batches) >= sum(d.batches_published for d in daemons.values()), 10)
+    finally:
+        for d in daemons.values():
+            if not d.stopped.is_set():
+                d.stop()
+        if collector is not None:
+            collector.close()
+        for s in [*sessions.values(), *reversed(routers)]:
+            s.close()
+    batches = collector.batches
+    assert [x["epoch"] for x in batches] == sorted(x["epoch"] for x in batches) and batches[-1]["epoch"] == 2
+    periods = [x["period"] for x in batches]
+    assert periods == list(range(periods[0], periods[0] + len(periods)))
+    ids: dict[str, set[int]] = {}
+    for x in batches:
+        for t in x["tracks"]:
+            if t["status"] == "confirmed" and t["mode_s"]:
+                ids.setdefault(t["mode_s"], set()).add(t["track_id"])
+    assert len(ids) >= 5 and all(len(v) == 1 for v in ids.values()), ids
+
+
 def test_a_tools_connect_keeps_the_daemons_tls_configuration(pki, free_port, tmp_path):
     """``replay``/``record --config FILE --connect ENDPOINT``: the endpoint replaces the
     daemon's, its zenoh_config_file (TLS certificates) still applies, so the tool joins a

@@ -201,6 +201,7 @@ class FusionDaemon:
                     "states_refused",
                     "periods_not_republished",
                     "outputs_withheld",
+                    "state_bytes",
                 ),
                 0,
             )
@@ -645,6 +646,7 @@ class FusionDaemon:
                     try:
                         self._pubs["state"].put(item[1])
                         self.redundancy_counters["states_published"] += 1
+                        self.redundancy_counters["state_bytes"] = len(item[1])  # the newest
                     except Exception:
                         log.exception("publishing the state failed")
                         self.publish_errors += 1
