@@ -195,6 +195,27 @@ def test_malformed_messages_are_counted_by_reason_and_skipped():
     assert stats["received"]["alerts"] == 5 and stats["last_tracks_n"] == 2 and stats["frames_built"] == 1
 
 
+def test_a_stale_actives_batches_and_alerts_are_dropped_and_only_the_actives_health_shown():
+    """A hot-standby pair (issue 13): after a partition heals, the old active's last
+    messages (a lower epoch) must not replace the new active's picture."""
+    feed, sent = _feed()
+    feed.handle([("atc/fusion/alerts/stca", alert(1, epoch=2))], batch([track(1), track(2)], period=8, epoch=2))
+    feed.handle([("atc/fusion/alerts/stca", alert(9, epoch=1))], batch([track(5)], period=8, epoch=1))
+    assert feed.rejected == {"stale_epoch": 2}
+    assert [f["n"] for ch, f in sent if ch == "tracks"] == [2]
+    assert [a["alert_id"] for a in feed.alerts.frame()["alerts"]] == [1]
+    feed.handle([], batch([track(1)], period=9, epoch=3))  # a newer take-over is followed
+    assert sent[-1][1]["epoch"] == 3 and feed.highest_epoch == 3
+    # without redundancy (no epoch) nothing changes
+    feed.handle([], batch([track(1)], period=10))
+    assert sent[-1][1]["period"] == 10
+    h = {"v": 1, "t": 1.7e9, "uptime_s": 5.0, "counters": {}, "rejected": {}, "radars": {}, "periods_closed": 1}
+    feed.handle([("atc/fusion/health", msgpack.packb({**h, "tracks": 2, "role": "standby", "instance": "b"}))], None)
+    assert not [ch for ch, _ in sent if ch == "health"]
+    feed.handle([("atc/fusion/health", msgpack.packb({**h, "tracks": 2, "role": "active", "instance": "a"}))], None)
+    assert sent[-1][1]["health"]["instance"] == "a"
+
+
 def test_alert_book_follows_the_life_cycle_and_drops_stale_alerts():
     book = AlertBook(period_s=4.0)
     book.apply({"alert_id": 1, "status": "new", "t": 100.0})

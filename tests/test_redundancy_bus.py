@@ -22,6 +22,7 @@ import pytest
 from radar_fusion.bus import FusionDaemon, open_session, zenoh_config
 from radar_fusion.config import load_settings
 from radar_fusion.engine import Engine
+from radar_fusion.engine.state import load_state
 from radar_fusion.recording import Record
 from radar_fusion.tools import evaluate as ev
 from radar_fusion.tools import simulate as sim
@@ -332,7 +333,10 @@ def test_the_standby_keeps_up_with_1000_aircraft_and_10_radars(tmp_path, free_po
 
     def daemon(instance: str) -> FusionDaemon:
         red = settings.redundancy.model_copy(update={"instance": instance})
-        return FusionDaemon(settings.model_copy(update={"redundancy": red}), safety_nets="external")
+        # with --state-dir a standby keeps the states it applies: the pair restarted whole keeps its tracks
+        return FusionDaemon(
+            settings.model_copy(update={"redundancy": red}), safety_nets="external", state_dir=tmp_path / instance
+        )
 
     a, b = daemon("fusion-a"), daemon("fusion-b")
     client = open_session(zenoh_config("client", connect=[f"tcp/127.0.0.1:{free_port}"]))
@@ -375,3 +379,4 @@ def test_the_standby_keeps_up_with_1000_aircraft_and_10_radars(tmp_path, free_po
     assert counters["states_refused"] == 0
     assert counters["states_applied"] >= 0.8 * a.engine.periods_closed
     assert depth["max"] < 1000
+    assert b.states_saved > 0 and load_state(Engine(settings), tmp_path / "fusion-b") == len(b.engine.tracks)

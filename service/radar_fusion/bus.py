@@ -451,6 +451,7 @@ class FusionDaemon:
             self._log_rejection("state", str(exc))
             return
         self.redundancy_counters["states_applied"] += 1
+        self._save_state(payload)  # a pair restarted whole comes back with its tracks on either host
         if type(period) is int:
             self._published_seen = max(period, self._published_seen or period)
 
@@ -606,14 +607,23 @@ class FusionDaemon:
                 for alert in out.alerts:
                     alert["epoch"] = self.epoch
             self._emit(out)
-        if outputs and self.election is not None:
+        if not outputs:
+            return
+        data = None
+        if self.election is not None:
             # after the period's TrackBatch: a standby that saw the batch but not this state
             # (the active died between) recomputes the period without publishing it again
-            self._emit(("state", snapshot(self.engine, outputs[-1].period, self.epoch, self.instance), self.epoch))
-        if outputs and self.state_dir is not None:
+            data = snapshot(self.engine, outputs[-1].period, self.epoch, self.instance)
+            self._emit(("state", data, self.epoch))
+        self._save_state(data)  # after the hand-over: tracks never wait for it
+
+    def _save_state(self, data: bytes | None = None) -> None:
+        """With ``--state-dir``: write the engine's state (or ``data``, the state just applied)
+        at most every ``state_interval_s``."""
+        if self.state_dir is not None:
             now = time.monotonic()
             if now - self._state_saved_at >= self.state_interval_s:
-                save_state(self.engine, self.state_dir)  # after the hand-over: tracks never wait for it
+                save_state(self.engine, self.state_dir, data)
                 self.states_saved += 1
                 self._state_saved_at = now
 

@@ -91,6 +91,7 @@ def tracks_frame(payload: bytes, max_bytes: int = 16 << 20) -> dict[str, Any] | 
         "type": "tracks",
         "t": batch.t,
         "period": batch.period,
+        "epoch": batch.epoch,
         "n": len(tracks),
         "ended": list(batch.ended),
         "id": [tr.track_id for tr in tracks],
@@ -195,6 +196,7 @@ class Feed:
         self.last_tracks_t: float | None = None
         self.last_tracks_n: int | None = None
         self.radar_status: dict[str, dict[str, Any]] = {}
+        self.highest_epoch = 0  # a hot-standby pair's: what is below is a stale active's
         self._cond = threading.Condition()
         self._pending_tracks: bytes | None = None
         self._inbox: deque[tuple[str, bytes]] = deque()
@@ -289,14 +291,14 @@ class Feed:
             if parts[:2] == ["fusion", "alerts"] and len(parts) == 3:
                 self._count(self.received, "alerts")
                 alert = decode_alert(payload, parts[2], self.max_payload_bytes)
-                if self._ok(alert, key):
+                if self._ok(alert, key) and self._current(alert, key):
                     self.alerts.apply(alert)  # type: ignore[arg-type]
                     alerts_changed = True
             elif rel == "fusion/health":
                 self._count(self.received, "health")
                 decoded = decode_health(payload, self.max_payload_bytes)
-                if self._ok(decoded, key):
-                    health = decoded  # type: ignore[assignment]
+                if self._ok(decoded, key) and decoded.get("role") != "standby":  # type: ignore[union-attr]
+                    health = decoded  # type: ignore[assignment]  # a pair's: the active's is shown
             elif parts[0] == "radar" and len(parts) == 3 and parts[2] == "status":
                 self._count(self.received, "status")
                 status = decode_status(payload, parts[1], self.max_payload_bytes)
@@ -308,7 +310,8 @@ class Feed:
         if tracks is not None:
             t0 = time.perf_counter()
             frame = tracks_frame(tracks, self.max_payload_bytes)
-            if self._ok(frame, f"{self.prefix}/fusion/tracks"):
+            key = f"{self.prefix}/fusion/tracks"
+            if self._ok(frame, key) and self._current(frame, key):
                 assert isinstance(frame, dict)
                 self.last_tracks_t, self.last_tracks_n = frame["t"], frame["n"]
                 alerts_changed |= self.alerts.prune(frame["t"])
@@ -325,6 +328,17 @@ class Feed:
     def _count(self, counter: Counter[str], name: str) -> None:
         with self._cond:  # stats() copies the counters from another thread
             counter[name] += 1
+
+    def _current(self, message: Any, key: str) -> bool:
+        """False for a message of an epoch below the highest seen: a stale active's, after
+        a hot-standby pair's partition healed (counted ``stale_epoch``)."""
+        epoch = message.get("epoch")
+        if epoch is None:
+            return True
+        if epoch < self.highest_epoch:
+            return self._ok(Rejection("stale_epoch", f"epoch {epoch} < {self.highest_epoch}"), key)
+        self.highest_epoch = epoch
+        return True
 
     def _ok(self, decoded: object, key: str) -> bool:
         if isinstance(decoded, Rejection):

@@ -217,15 +217,16 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
     return tr.n  # the registration's correction is taken from the estimator at each period
 
 
-def save_state(engine: Engine, directory: str | os.PathLike[str]) -> Path:
-    """Write the snapshot to ``directory/STATE_FILE`` atomically (a temporary file renamed
-    over it): a daemon killed while writing leaves the previous state whole."""
+def save_state(engine: Engine, directory: str | os.PathLike[str], data: bytes | None = None) -> Path:
+    """Write the snapshot (or ``data``, a state already packed, e.g. the one a standby
+    applied) to ``directory/STATE_FILE`` atomically (a temporary file renamed over it): a
+    daemon killed while writing leaves the previous state whole."""
     path = Path(directory) / STATE_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".engine-state-", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(snapshot(engine))
+            f.write(snapshot(engine) if data is None else data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
