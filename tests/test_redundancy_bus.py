@@ -176,7 +176,7 @@ def test_sigkill_of_the_active_the_standby_goes_on_with_every_period_once_and_th
     before = {t["track_id"] for t in batches[switch - 1]["tracks"] if t["status"] == "confirmed"}
     after = {t["track_id"] for t in batches[switch]["tracks"]}
     assert before and before <= after
-    assert b_health["counters"]["takeovers"] == 1 and b_health["counters"]["states_applied"] > 10
+    assert b_health["counters"]["takeovers"] == 1 and b_health["counters"]["states_applied"] > 10, stderr_b
     # the accuracy of one daemon that was never killed
     settings = load_settings(out / "config.toml")
     alone = replay_into_engine(Engine(settings), simulation.messages)

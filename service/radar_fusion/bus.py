@@ -287,6 +287,10 @@ class FusionDaemon:
                 sub = self._session.declare_subscriber(f"{p}/fusion/{key}", callback, allowed_origin=remote)
                 self._subs.append(sub)
             self._election_bus = ElectionOnBus(self._session, p, self.instance, self._on_election)
+            # what is on the bus now, before any decision (then settle_s from here)
+            self._election_bus.scan(timeout_s=10.0)
+            assert self.election is not None
+            self.election.started_s = time.monotonic()
         if self.safety_nets_mode == "in_process":
             for kind in ("stca", "apw", "msaw"):
                 self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
@@ -316,6 +320,13 @@ class FusionDaemon:
         self.stop_event.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
+            if self._thread.is_alive():  # said, not silent: these messages will not be processed
+                log.error(
+                    "processing not finished %.0f s after the stop: %d received messages not processed, "
+                    "the open periods not published",
+                    timeout_s,
+                    self.queue.qsize(),
+                )
         if self._publisher is not None:
             try:
                 self.outbox.put(None, timeout=timeout_s)  # after the last batches and the final health
@@ -394,9 +405,8 @@ class FusionDaemon:
                 if epoch >= election.highest_epoch:
                     self._published_seen = max(period, self._published_seen or period)
             elif kind == "state":
-                self._take_state(item[1])
-            self._decide()
-        self._decide()
+                self._take_state(item[1])  # decides first: an active may have to stand down
+        self._decide()  # on everything the bus showed, not event by event (a member seen before its active token)
 
     def _decide(self) -> None:
         election = self.election

@@ -12,10 +12,11 @@ host goes down or the link is cut. Every member watches both key sets.
 
 The rules, which :class:`Election` implements without any I/O:
 
-* **One active.** A standby takes over when it sees no active, has listened for
-  ``settle_s`` since it started, and is the smallest instance name among the standbys it
-  sees (so of three, one moves). It takes the epoch one above the highest it has seen
-  (on tokens, TrackBatches and states), so epochs only grow.
+* **One active.** A standby takes over when it sees no active (it has asked the bus
+  for the tokens alive at its start, and listened ``settle_s`` more), and is the smallest
+  instance name among the standbys it sees (so of three, one moves). It takes the epoch
+  one above the highest it has seen (on tokens, TrackBatches and states), so epochs only
+  grow.
 * **Two actives** (a partition healed, or two standbys moved at once): the one of the
   lower epoch stands down at once; at equal epochs the larger name does. A TrackBatch or
   state of a higher epoch than its own makes an active stand down too, before the token
@@ -151,6 +152,20 @@ class ElectionOnBus:
             self._events("active", instance, int(epoch), _alive(sample))
         except ValueError:
             log.warning("ignoring an active token with a bad epoch: %s", sample.key_expr)
+
+    def scan(self, timeout_s: float) -> int:
+        """Ask the bus for the tokens alive now (a liveliness query, answered when every
+        router has replied) and hand them over as events before the caller decides: under
+        load the subscribers' history can come later than any fixed wait (a standby that
+        started on a busy host once took over for a moment beside a live active).
+        Returns the tokens seen."""
+        seen = 0
+        for key, handler in ((f"{self.member_key}/*", self._on_member), (f"{self.active_key}/*/*", self._on_active)):
+            for reply in self.session.liveliness().get(key, timeout=timeout_s):
+                if reply.ok is not None:
+                    handler(reply.ok)
+                    seen += 1
+        return seen
 
     def declare_active(self, epoch: int) -> None:
         self.withdraw_active()
