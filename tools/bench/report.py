@@ -439,8 +439,10 @@ COMPARE_NOTES = [
     "the replay tool publishing the simulated recording from a client session, a subscriber on another; "
     "plots/s at max replay speed = plots / (last TrackBatch received − first message sent); end-to-end "
     "latency with the replay paced at the given speed (1× = real time): TrackBatch received − publish time of "
-    "the message that let the period close (the last input it waits for, about `allowed_lateness_s` after "
-    "the period's last plot in event time); periods of the warm-up are left out. Peak RSS: the daemon's VmHWM.",
+    "the message that let the period close (the last input it waits for: the first message of the slowest "
+    "radar past the period's end, plus that radar's lateness, engine/watermarks.py); data age: TrackBatch "
+    "received − its reference time `t` on the replay's clock, over the periods a recorded message let close "
+    "(not the final heartbeats); periods of the warm-up are left out. Peak RSS: the daemon's VmHWM.",
     "(c) Stone Soup (tools/baseline_stonesoup.py): Kalman CV, GNNWith2DAssignment with a Mahalanobis "
     "DistanceHypothesiser at the engine's gate, MultiMeasurementInitiator (3 updates), UpdateTimeDeleter; "
     "plots converted by radar_fusion.geo.coordinates with the engine's covariances, processed in time order; "
