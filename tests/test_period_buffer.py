@@ -4,9 +4,11 @@ duplicates, sequence gaps, unknown radars, range limits — all counted, none fa
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
+from radar_fusion.engine.watermarks import Watermarks
 from radar_fusion.wire import DecodedPlots, RadarStatus
 
 T0 = 1_533_110_400.0  # 2018-08-01 08:00 UTC, a multiple of the 4 s period
@@ -74,8 +76,8 @@ def test_a_period_closes_only_when_every_live_radar_has_passed_it():
     eng2.ingest_plots(plots("a", 1, T0 + 1.0))
     eng2.ingest_plots(plots("b", 1, T0 + 2.0))
     eng2.ingest_plots(plots("a", 2, T0 + 6.0))
-    assert eng2.poll() == []  # b's watermark (T0+2) has not passed T0+4+1
-    eng2.ingest_status(RadarStatus(radar_id="b", t=T0 + 5.5, kind="sector", sector=3))
+    assert eng2.poll() == []  # b's watermark (T0+2) has not passed T0+4
+    eng2.ingest_status(RadarStatus(radar_id="b", t=T0 + 4.5, kind="sector", sector=3))
     out = eng2.poll()
     assert [o.period for o in out] == [int(T0 // 4)] and out[0].t_s == T0 + 4.0 and out[0].n_plots == 2
 
@@ -84,7 +86,7 @@ def test_single_radar_closes_periods_with_its_own_watermark():
     eng = Engine(settings())
     eng.ingest_plots(plots("a", 1, T0 + 1.0))
     assert eng.poll() == []
-    eng.ingest_plots(plots("a", 2, T0 + 5.5))
+    eng.ingest_plots(plots("a", 2, T0 + 4.0))  # in order so far: no lateness to wait for
     assert [o.t_s for o in eng.poll()] == [T0 + 4.0]
 
 
@@ -102,9 +104,11 @@ def test_a_silent_radar_stops_holding_periods_open():
 def test_late_plots_are_counted_not_silently_lost():
     eng = Engine(settings())
     eng.ingest_plots(plots("a", 1, [T0 + 1.0, T0 + 9.0]))
-    assert [o.t_s for o in eng.poll()] == [T0 + 4.0, T0 + 8.0]  # watermark T0+9 - 1 s lateness
+    assert [o.t_s for o in eng.poll()] == [T0 + 4.0, T0 + 8.0]  # watermark T0+9, in order: no lateness
     assert eng.ingest_plots(plots("a", 2, [T0 + 2.0, T0 + 9.5])) == 1
     assert eng.rejected["plot_late"] == 1 and eng.health()["radars"]["a"]["rejected"] == {"plot_late": 1}
+    # 7 s behind its own watermark: a's lateness is now the most allowed (1 s)
+    assert eng.health()["radars"]["a"]["lateness_s"] == 1.0
 
 
 def test_duplicates_gaps_and_out_of_order_batches():
@@ -167,3 +171,157 @@ def test_a_radar_back_from_a_long_outage_is_accepted_and_a_jump_is_not():
     solo.ingest_plots(plots("a", 1, T0 + 1.0))
     accepted = [solo.ingest_plots(plots("a", k, T0 + 100.0 + 0.5 * k)) for k in range(2, 12)]
     assert accepted == [0] * 8 + [1, 1] and solo.counters["radar_time_relocks"] == 1
+
+
+# ------------------------------------------------------------ realistic radar timing
+# Four rotating radars, 4-10 s a turn, 8 sector messages per turn, random phases
+# (issue 16 item 5): at the end of each sector's sweep a front-end sends that sector's
+# plots (their times spread over the sweep), then the sector message stamped with the
+# boundary; the messages of all radars are merged in time order.
+ROTATIONS_S = {"a": 4.0, "b": 6.0, "c": 8.0, "d": 10.0}
+SECTORS = 8
+
+
+def four_radar_settings(**system):
+    radars = [
+        {
+            "id": rid,
+            "lat": 46.0 + 0.1 * k,
+            "lon": 8.0 - 0.1 * k,
+            "sigma_range_m": 50,
+            "sigma_azimuth_deg": 0.1,
+            "rotation_period_s": rot,
+        }
+        for k, (rid, rot) in enumerate(ROTATIONS_S.items())
+    ]
+    return settings_from_dict(
+        {
+            "system": {"center_lat": 46.0, "center_lon": 8.0, "period_s": 4.0, "allowed_lateness_s": 1.0, **system},
+            "radars": radars,
+            "outliers": {"enabled": False},
+        }
+    )
+
+
+def sweep_messages(duration_s, seed=0, status_first=(), from_s=0.0):
+    """(event time of the message, plots or status) in arrival order; the radars in
+    ``status_first`` send each sector message before that sector's plots from ``from_s``
+    on, as an ASTERIX CAT034 front-end does when it reports the boundary as the antenna
+    crosses it."""
+    rng = np.random.default_rng(seed)
+    events = []
+    for r, (rid, rot) in enumerate(ROTATIONS_S.items()):
+        sector_s = rot / SECTORS
+        t_b = T0 + rng.uniform(0.2, 1.0) * sector_s  # the first boundary after T0
+        k = 0
+        while t_b < T0 + duration_s:
+            t = np.sort(rng.uniform(max(T0, t_b - sector_s), t_b, 3))
+            batch = plots(rid, k, t, azimuth_deg=float((k % SECTORS + 0.5) * 360.0 / SECTORS))
+            status = RadarStatus(
+                radar_id=rid, t=t_b, kind="north" if k % SECTORS == 7 else "sector", sector=k % SECTORS
+            )
+            swap = rid in status_first and t_b >= T0 + from_s
+            pair = [(1, status), (2, batch)] if swap else [(1, batch), (2, status)]
+            events += [(t_b, sub, r, msg) for sub, msg in pair]
+            t_b += sector_s
+            k += 1
+    events.sort(key=lambda e: e[:3])
+    return [(t, msg) for t, _sub, _r, msg in events]
+
+
+def run_messages(eng, messages):
+    """Feed in order, polling after each; returns [(period end, event time of the message that closed it)]."""
+    closed = []
+    for t_msg, msg in messages:
+        if isinstance(msg, RadarStatus):
+            eng.ingest_status(msg)
+        else:
+            eng.ingest_plots(msg)
+        closed += [(o.t_s, t_msg) for o in eng.poll()]
+    return closed
+
+
+def test_radars_in_order_close_a_period_at_the_slowest_radars_first_message_past_its_end():
+    """No radar has shown a plot behind its own newest time, so none is waited for beyond
+    its first message past the period's end: a period closes at most one sector of the
+    slowest radar (10 s / 8 = 1.25 s) after its end, in event time, not a second later
+    still for a fixed lateness; no plot is refused."""
+    eng = Engine(four_radar_settings())
+    messages = sweep_messages(120.0)
+    closed = run_messages(eng, messages)
+    delay_s = np.array([t_msg - end for end, t_msg in closed])
+    assert len(closed) >= 28 and delay_s.min() >= 0.0
+    assert delay_s.max() <= ROTATIONS_S["d"] / SECTORS + 1e-9
+    assert np.median(delay_s) < 1.0  # with a fixed 1 s lateness every delay was over 1 s
+    sent = sum(len(m) for _, m in messages if not isinstance(m, RadarStatus))
+    assert eng.counters["plots_accepted"] == sent and sum(eng.rejected.values()) == 0
+    assert eng.buffer.lateness_s.tolist() == [0.0] * 4
+
+
+def test_a_radar_that_reports_its_sector_before_its_plots_is_waited_for_by_its_lateness():
+    """From 60 s on, radar c sends each sector message as the antenna crosses the boundary,
+    before that sector's plots (up to its 1 s sector behind). Its first such plots may find
+    their period closed (with this seed they do): refused as late and counted; from then on
+    c is waited for by how far behind its plots have come (its lateness, at most
+    allowed_lateness_s), and nothing more is late. The in-order radars keep no lateness."""
+    eng = Engine(four_radar_settings())
+    messages = sweep_messages(240.0, seed=19, status_first={"c"}, from_s=60.0)
+    late_at_s, closed = [], []
+    for t_msg, msg in messages:
+        before = eng.rejected["plot_late"]
+        if isinstance(msg, RadarStatus):
+            eng.ingest_status(msg)
+        else:
+            eng.ingest_plots(msg)
+        if eng.rejected["plot_late"] > before:
+            late_at_s.append(t_msg - T0)
+        closed += [(o.t_s, t_msg) for o in eng.poll()]
+    sent = sum(len(m) for _, m in messages if not isinstance(m, RadarStatus))
+    late = eng.rejected["plot_late"]
+    assert eng.counters["plots_accepted"] + late == sent  # nothing lost without a count
+    assert eng.health()["radars"]["c"]["rejected"] == {"plot_late": late}
+    assert 0 < late <= 3 and len(late_at_s) == 1 and 60.0 <= late_at_s[0] < 61.0  # c's first sector out of order
+    lateness = dict(zip(ROTATIONS_S, eng.buffer.lateness_s.tolist()))
+    assert 0.9 < lateness["c"] <= 1.0 and lateness["a"] == lateness["b"] == lateness["d"] == 0.0
+    delay_s = np.array([t_msg - end for end, t_msg in closed])
+    assert delay_s.max() <= ROTATIONS_S["d"] / SECTORS + 1.0 + 1e-9
+
+
+def test_a_radars_lateness_is_capped_and_forgotten():
+    """Lateness: the most a radar's plots have come behind its newest time, at most
+    allowed_lateness_s, remembered for one to two lateness_memory_s of its event time."""
+    marks = Watermarks(2, max_lateness_s=1.0, radar_timeout_s=30.0, memory_s=60.0)
+    marks.advance(0, T0 + 10.0)
+    marks.advance(1, T0 + 10.0)
+    assert marks.closable_until_s() == T0 + 10.0
+    marks.arrived(0, T0 + 9.7)  # 0.3 s behind
+    assert marks.lateness_s.tolist() == pytest.approx([0.3, 0.0])
+    assert abs(marks.closable_until_s() - (T0 + 9.7)) < 1e-9
+    marks.arrived(0, T0 + 5.0)  # 5 s behind: capped
+    marks.arrived(0, T0 + 9.9)  # less than before: no change
+    assert marks.lateness_s.tolist() == [1.0, 0.0]
+    w = 60.0 * np.ceil((T0 + 10.0) / 60.0)  # the next window boundary
+    marks.advance(0, w + 1.0)  # a new window: the previous one is still remembered
+    assert marks.lateness_s[0] == 1.0
+    marks.advance(0, w + 61.0)  # two windows on without a plot behind: forgotten
+    assert marks.lateness_s[0] == 0.0
+    marks.advance(0, w + 500.0)  # a radar silent for a while comes back: nothing kept either
+    assert marks.lateness_s[0] == 0.0
+
+
+def test_closing_depends_on_event_times_in_arrival_order_only():
+    """Two engines fed the same messages, one polled after every message, the other after
+    every tenth (a fast replay batches its polls): the same periods with the same plots."""
+    messages = sweep_messages(120.0, status_first={"c"}, seed=3)
+    a, b = Engine(four_radar_settings()), Engine(four_radar_settings())
+    out_a, out_b = [], []
+    for i, (_t, msg) in enumerate(messages):
+        for eng in (a, b):
+            eng.ingest_status(msg) if isinstance(msg, RadarStatus) else eng.ingest_plots(msg)
+        out_a += a.poll()
+        if i % 10 == 9:
+            out_b += b.poll()
+    out_a += a.flush()
+    out_b += b.flush()
+    assert [(o.period, o.n_plots) for o in out_a] == [(o.period, o.n_plots) for o in out_b]
+    assert a.rejected == b.rejected

@@ -13,12 +13,12 @@ process on a free loopback port (router mode, health every 0.2 s, through the
 its memory); counters are then taken relative to their values at the start.
 
 Flow control. The sender tracks each radar's newest time sent and so knows when a period
-can close on the daemon's side (every radar past the period's end plus the allowed
-lateness, as period_buffer.py decides). It sends until ``--lead-periods`` periods are
-closable but their TrackBatch has not come back, then waits; it also goes on when the
-health key shows the daemon has processed everything sent (a period with neither plot
-nor track publishes nothing). The daemon's queue thus never holds more than about that
-many periods of traffic, however fast it is.
+can close on the daemon's side (every radar past the period's end, as the daemon decides
+for radars that deliver in order, engine/watermarks.py; simulated recordings do). It
+sends until ``--lead-periods`` periods are closable but their TrackBatch has not come
+back, then waits; it also goes on when the health key shows the daemon has processed
+everything sent (a period with neither plot nor track publishes nothing). The daemon's
+queue thus never holds more than about that many periods of traffic, however fast it is.
 
 Checks (exit status 1 when one fails):
   * loss: per radar, the plot batches, plots, last sequence number and sequence gaps the
@@ -437,7 +437,7 @@ def run_soak(
             radar = key.split("/")[1]
             wm_s[radar] = max(wm_s.get(radar, -math.inf), t_s)
             if radar in sent and len(wm_s) >= 1:
-                closable_s = min(wm_s[r] for r in wm_s if r in sent) - lateness_s
+                closable_s = min(wm_s[r] for r in wm_s if r in sent)  # in-order radars: no lateness
                 k_ready = math.floor(closable_s / period_s) - 1  # the last period ending at or before it
                 if k_start is None or last_ready is None:  # both None until this first radar message
                     k_start = math.floor(t_s / period_s)

@@ -48,7 +48,17 @@ class SystemConfig(_Section):
     center_lon: float = Field(ge=-180, le=180, description="system-plane origin longitude, degrees")
     period_s: float = Field(4.0, gt=0.2, le=30, description="fusion period; at most the shortest rotation period")
     allowed_lateness_s: float = Field(
-        1.0, ge=0, le=30, description="how long after a period's end plots of it are still waited for"
+        1.0,
+        ge=0,
+        le=30,
+        description="the longest a radar's plots are waited for after it has reported a later time; each radar "
+        "is waited for only as far behind its newest time as its plots have been seen to arrive (watermarks.py)",
+    )
+    lateness_memory_s: float = Field(
+        600.0,
+        gt=0,
+        description="event time for which a radar's out-of-order arrival is remembered (its lateness is the "
+        "largest in the last one to two of these): a passing disorder does not delay every period after it",
     )
     radar_timeout_s: float = Field(
         30.0, gt=0, description="event-time silence after which a radar no longer holds periods open"

@@ -172,6 +172,11 @@ class RadarHealth(BaseModel):
     model_config = ConfigDict(extra="ignore", frozen=True)
     live: bool
     watermark_t: float | None = None
+    lateness_s: float | None = Field(
+        None,
+        description="how long after the radar has reported a later time its plots are still waited for: how far "
+        "behind its newest time they have been seen to arrive, at most allowed_lateness_s (v1 extension, issue 16)",
+    )
     plots: int = 0
     batches: int = 0
     last_seq: int | None = None

@@ -149,6 +149,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--adsb-aircraft", type=int, default=80, help="at most this many ADS-B flights (default 80)")
     g.add_argument(
+        "--sectors",
+        type=int,
+        default=None,
+        help="every simulated radar publishes this many sector messages (plot batches) per turn "
+        "(default: the scenario's, 16-32); fewer, longer sectors make the data older at a display",
+    )
+    g.add_argument(
         "--latency-speed",
         type=float,
         default=1.0,

@@ -60,17 +60,25 @@ SCORE_FIELDS = (
 
 
 def _case_label(case: dict[str, Any]) -> str:
+    sectors = f", {case['sectors']} sectors" if case.get("sectors") else ""
     if case["kind"] == "adsb":
-        return f"ADS-B {case['duration_s']:g} s"
-    return f"{case['aircraft']:,}×{case['radars']}"
+        return f"ADS-B {case['duration_s']:g} s{sectors}"
+    return f"{case['aircraft']:,}×{case['radars']}{sectors}"
 
 
 def _build_scenario(case: dict[str, Any], seed: int):
+    import dataclasses
+
     from radar_fusion.tools import simulate as sim_mod
 
     if case["kind"] == "adsb":
-        return sim_mod.adsb_scenario(seed=seed, duration_s=case["duration_s"], max_aircraft=case["max_aircraft"])
-    return sim_mod.scenario_for_benchmark(case["aircraft"], case["radars"], case["duration_s"], seed)
+        scenario = sim_mod.adsb_scenario(seed=seed, duration_s=case["duration_s"], max_aircraft=case["max_aircraft"])
+    else:
+        scenario = sim_mod.scenario_for_benchmark(case["aircraft"], case["radars"], case["duration_s"], seed)
+    if case.get("sectors"):  # every radar publishes this many sector messages per turn
+        radars = [dataclasses.replace(r, n_sectors=case["sectors"]) for r in scenario.radars]
+        scenario = dataclasses.replace(scenario, radars=radars)
+    return scenario
 
 
 def _summary(scores, settled_from_s: float) -> dict[str, Any]:
@@ -402,15 +410,17 @@ def run_reference(
 
 def _closable_after(records, settings) -> Any:
     """Per message: the event time up to which every period may close once it is processed
-    (the period buffer's rule: min over live radars' watermarks − allowed lateness), as a
-    running maximum; periods ending at or before it have all their inputs."""
+    (the period buffer's rule, engine/watermarks.py: over the live radars, watermark less
+    the radar's own lateness), as a running maximum; periods ending at or before it have
+    all their inputs."""
     import numpy as np
 
+    from radar_fusion.engine.watermarks import Watermarks
     from radar_fusion.wire import Rejection, decode_plot_batch
 
     index = {r.id: i for i, r in enumerate(settings.radars)}
-    wm = np.full(len(index), -math.inf)
-    timeout, lateness = settings.system.radar_timeout_s, settings.system.allowed_lateness_s
+    sysc = settings.system
+    marks = Watermarks(len(index), sysc.allowed_lateness_s, sysc.radar_timeout_s, sysc.lateness_memory_s)
     out = np.full(len(records), -math.inf)
     best = -math.inf
     for i, rec in enumerate(records):
@@ -419,12 +429,14 @@ def _closable_after(records, settings) -> Any:
         if r is not None:
             if parts[-1] == "plots":
                 d = decode_plot_batch(rec.payload)
-                t_ev = float(d.t_s.max()) if not isinstance(d, Rejection) and len(d) else rec.t_s
+                if not isinstance(d, Rejection) and len(d):
+                    marks.arrived(r, float(d.t_s.min()))
+                    marks.advance(r, float(d.t_s.max()))
+                else:
+                    marks.advance(r, rec.t_s)
             else:
-                t_ev = rec.t_s
-            wm[r] = max(wm[r], t_ev)
-            live = np.isfinite(wm) & (wm >= wm.max() - timeout)
-            best = max(best, float(wm[live].min()) - lateness)
+                marks.advance(r, rec.t_s)
+            best = max(best, marks.closable_until_s())
         out[i] = best
     return out
 
@@ -442,9 +454,11 @@ def run_bus(
     period + the allowed lateness + 0.5 s) closes the last periods, so every period
     ends the normal way. plots/s = plots / (last TrackBatch received − first message
     sent). Latency of period k = receive time of its TrackBatch − publish time of the
-    message that let it close (the first after which every live radar's watermark has
-    passed the period's end + the allowed lateness: the last input the period waits
-    for); periods ending in the first ``warmup_s`` are left out.
+    message that let it close (the first after which every live radar's watermark less
+    its lateness has passed the period's end: the last input the period waits for);
+    periods ending in the first ``warmup_s`` are left out. Data age (paced runs) = a
+    TrackBatch's receive time − its reference time ``t`` on the replay's clock, over the
+    periods after the warm-up that a recorded message let close (not the final heartbeats).
 
     Alerts (``safety_nets``: where serve runs them, ``serve --safety-nets``): the same
     subscriber receives them. Alert latency after its TrackBatch, per period with alerts =
@@ -484,6 +498,7 @@ def run_bus(
                 n_plots += len(d)
                 t_last = max(t_last, float(d.t_s.max()))
     period_s = settings.system.period_s
+    n_recorded = len(records)  # the heartbeats below follow
     t_hb = max(t_last, records[-1].t_s) + period_s + settings.system.allowed_lateness_s + 0.5
     for r in settings.radars:
         msg = {"v": wire.WIRE_VERSION, "radar_id": r.id, "t": t_hb, "kind": "heartbeat"}
@@ -512,6 +527,7 @@ def run_bus(
     received: list[tuple[float, bytes]] = []
     alerts_received: list[tuple[float, bytes]] = []
     nets_health: list[bytes] = []
+    daemon_health: list[bytes] = []
     session = None
     try:
         deadline = time.monotonic() + 30.0
@@ -530,6 +546,9 @@ def run_bus(
         )
         health_sub = session.declare_subscriber(
             f"{prefix}/fusion/safety_nets/health", lambda s: nets_health.append(s.payload.to_bytes())
+        )
+        daemon_health_sub = session.declare_subscriber(
+            f"{prefix}/fusion/health", lambda s: daemon_health.append(s.payload.to_bytes())
         )
         time.sleep(1.0)  # subscriptions propagate through the router
         pub_s: list[float] = []
@@ -563,6 +582,7 @@ def run_bus(
         time.sleep(0.5)
         alert_sub.undeclare()
         health_sub.undeclare()
+        daemon_health_sub.undeclare()
     finally:
         if session is not None:
             session.close()
@@ -587,11 +607,18 @@ def run_bus(
     # Data age at a display (issue 16 item 5): a TrackBatch's receive time minus its reference
     # time t, on the replay's clock. Paced replay publishes each record at a fixed offset from
     # its own time, so wall = event time + the median offset of the records as published.
+    # Periods that only the final heartbeats let close are left out: at the end of a
+    # recording they wait for the heartbeat, where live radars would have gone on.
     age_ms: list[float] = []
+    age_t: list[float] = []
     if speed and pub.size:
         n_pub = pub.size
         offset_s = float(np.median(pub - np.array([r.t_s for r in records[:n_pub]]) / speed))
-        age_ms = [1e3 * (t_r - (offset_s + float(b["t"]) / speed)) for t_r, b in batches if float(b["t"]) >= warm_end]
+        for t_r, b in batches:
+            closed_by = int(np.searchsorted(closable, (b["period"] + 1) * period_s - 1e-9, side="left"))
+            if float(b["t"]) >= warm_end and closed_by < n_recorded:
+                age_t.append(float(b["t"]))
+                age_ms.append(1e3 * (t_r - (offset_s + float(b["t"]) / speed)))
     batch_rx = {float(b["t"]): t_r for t_r, b in batches}
     last_alert: dict[float, float] = {}
     n_alerts = 0
@@ -610,6 +637,12 @@ def run_bus(
             if i < pub.size:
                 alert_e2e_ms.append(1e3 * (t_a - pub[i]))
     child = msgpack.unpackb(nets_health[-1], raw=False) if nets_health else {}
+    # the daemon's final health (published after its last batches): plots refused as late,
+    # and each radar's lateness at the end
+    final = msgpack.unpackb(daemon_health[-1], raw=False) if daemon_health else {}
+    plots_late = final.get("rejected", {}).get("plot_late", 0) if final else None
+    plots_accepted = final.get("counters", {}).get("plots_accepted") if final else None
+    lateness_s = {rid: r.get("lateness_s") for rid, r in final.get("radars", {}).items()} if final else {}
     return {
         "safety_nets": safety_nets,
         "alert_messages": n_alerts,
@@ -639,9 +672,24 @@ def run_bus(
         "e2e_periods": len(lat_ms),
         "data_age_p50_ms": percentile(age_ms, 50),
         "data_age_p99_ms": percentile(age_ms, 99),
+        "data_age_max_ms": max(age_ms) if age_ms else math.nan,
+        "plots_late": plots_late,
+        "plots_accepted": plots_accepted,
+        "radar_lateness_s": lateness_s,
         "data_age_periods": len(age_ms),
+        "data_age": list(zip(age_t, age_ms)),  # (TrackBatch t, age ms), for a closer look
         "daemon_peak_rss_mb": (peak_kb or 0) / 1024.0,
     }
+
+
+def late_line(b: dict[str, Any]) -> str:
+    """Plots refused as late by the daemon and each radar's lateness at the end, one phrase."""
+    if b.get("plots_late") is None:
+        return "no final health received"
+    n_in = (b["plots_accepted"] or 0) + b["plots_late"]
+    share = 100.0 * b["plots_late"] / n_in if n_in else 0.0
+    lateness = ", ".join(f"{rid} {v:g}" for rid, v in b["radar_lateness_s"].items() if v is not None)
+    return f"{b['plots_late']:,} plots late of {n_in:,} ({share:.3f} %); lateness s {lateness or 'n/a'}"
 
 
 def alert_line(b: dict[str, Any]) -> str:
@@ -688,9 +736,20 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
         f"latency percentiles; accuracy settled after {args.settle_s:g} s",
     ]
     print("\n".join(header), flush=True)
-    cases = [{"kind": "benchmark", "aircraft": n, "radars": r, "duration_s": duration_s} for n, r in sizes]
+    sectors = getattr(args, "sectors", None)
+    cases = [
+        {"kind": "benchmark", "aircraft": n, "radars": r, "duration_s": duration_s, "sectors": sectors}
+        for n, r in sizes
+    ]
     if not args.no_adsb:
-        cases.append({"kind": "adsb", "duration_s": args.adsb_duration_s, "max_aircraft": args.adsb_aircraft})
+        cases.append(
+            {
+                "kind": "adsb",
+                "duration_s": args.adsb_duration_s,
+                "max_aircraft": args.adsb_aircraft,
+                "sectors": sectors,
+            }
+        )
     if not cases:
         print("bench: nothing to compare (--sizes none and --no-adsb)", file=sys.stderr)
         return 2
@@ -738,7 +797,8 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
                     f"      replay at {args.latency_speed:g}× real time: end-to-end p50 {bp['e2e_p50_ms']:.1f} / "
                     f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods; data age (TrackBatch "
                     f"received minus its t) p50 {bp['data_age_p50_ms'] / 1e3:.2f} / p99 "
-                    f"{bp['data_age_p99_ms'] / 1e3:.2f} s over {bp['data_age_periods']} periods",
+                    f"{bp['data_age_p99_ms'] / 1e3:.2f} / max {bp['data_age_max_ms'] / 1e3:.2f} s over "
+                    f"{bp['data_age_periods']} periods; {late_line(bp)}",
                     flush=True,
                 )
                 print("      " + alert_line(bp), flush=True)

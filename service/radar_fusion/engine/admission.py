@@ -141,6 +141,7 @@ class Admission:
         buf = self.buffer
         t_s, range_m = batch.t_s, batch.range_m
         t_min_s, t_max_s = float(t_s.min()), float(t_s.max())
+        buf.arrived(i, t_min_s)  # how far behind the radar's own watermark (its lateness)
         closed_s, future_s = buf.closed_until_s, self._future_limit_s(i)
         if not math.isfinite(buf.watermark_s[i]):  # a first batch: also against its own start
             future_s = min(future_s, t_min_s + self.future_margin_s)

@@ -124,6 +124,7 @@ class Engine:
             radar_timeout_s=sysc.radar_timeout_s,
             n_radars=len(self.radar_ids),
             max_plots_per_radar=sysc.max_buffered_plots_per_radar,
+            lateness_memory_s=sysc.lateness_memory_s,
         )
         self.counters: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
@@ -881,6 +882,7 @@ class Engine:
             radars[rid] = {
                 "live": bool(live[i]),
                 "watermark_t": float(wm) if math.isfinite(wm) else None,
+                "lateness_s": float(self.buffer.lateness_s[i]),
                 "plots": r.plots,
                 "batches": r.batches,
                 "last_seq": r.last_seq,

@@ -1,11 +1,11 @@
-"""Per-period buffering of plots in event time, with a watermark per radar (DESIGN.md §2).
+"""Per-period buffering of plots in event time (DESIGN.md §2).
 
 Period k covers the event times [k·period_s, (k+1)·period_s) (UTC epoch seconds), so the
 period grid does not depend on when the daemon started or how fast a recording is
-replayed. A period closes when every *live* radar's watermark (the newest plot or status
-time received from it) has passed the period's end plus ``allowed_lateness_s``. A radar
-whose watermark lags the newest watermark of all radars by more than
-``radar_timeout_s`` is not live: a radar that falls silent stops holding periods open.
+replayed. A period closes when every *live* radar has swept past its end: its watermark
+(the newest plot or status time received from it) less its own lateness (how far behind
+its watermark its plots have been seen to arrive, at most ``allowed_lateness_s``) has
+reached the end (watermarks.py). A radar that falls silent stops holding periods open.
 Plots for an already closed period are refused as late (counted by the caller).
 
 No clock is read here: the closing decision is a function of the event times received,
@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .columns import PlotChunk
+from .watermarks import Watermarks
 
 
 @dataclass
@@ -30,7 +31,8 @@ class PeriodBuffer:
     radar_timeout_s: float
     n_radars: int
     max_plots_per_radar: int = 200_000
-    watermark_s: NDArray[np.float64] = field(init=False)
+    lateness_memory_s: float = 600.0
+    marks: Watermarks = field(init=False)
     next_period: int | None = field(init=False, default=None)  # index of the oldest open period
     _chunks: list[PlotChunk] = field(init=False, default_factory=list)
     _buffered: int = field(init=False, default=0)
@@ -38,7 +40,7 @@ class PeriodBuffer:
     _min_t_s: float = field(init=False, default=math.inf)  # earliest buffered plot time
 
     def __post_init__(self) -> None:
-        self.watermark_s = np.full(self.n_radars, -math.inf)
+        self.marks = Watermarks(self.n_radars, self.allowed_lateness_s, self.radar_timeout_s, self.lateness_memory_s)
         self._per_radar = np.zeros(self.n_radars, np.int64)
 
     # ------------------------------------------------------------------ input
@@ -55,9 +57,23 @@ class PeriodBuffer:
         """How many more plots of ``radar`` may be buffered (bounded memory per radar)."""
         return int(self.max_plots_per_radar - self._per_radar[radar])
 
+    @property
+    def watermark_s(self) -> NDArray[np.float64]:
+        """Each radar's newest event time (-inf: nothing yet)."""
+        return self.marks.watermark_s
+
+    @property
+    def lateness_s(self) -> NDArray[np.float64]:
+        """How long each radar's plots are waited for after it has reported a later time."""
+        return self.marks.lateness_s
+
     def advance_watermark(self, radar: int, t_s: float) -> None:
-        if t_s > self.watermark_s[radar]:
-            self.watermark_s[radar] = t_s
+        self.marks.advance(radar, t_s)
+
+    def arrived(self, radar: int, t_min_s: float) -> None:
+        """A batch of ``radar``'s plots arrived, its earliest detected at ``t_min_s``
+        (accepted or not, before the watermark moves): the radar's lateness learns from it."""
+        self.marks.arrived(radar, t_min_s)
 
     def add(self, chunk: PlotChunk, radar: int, t_min_s: float) -> None:
         """Buffer one radar's plots that the caller has checked are not late and fit
@@ -74,22 +90,12 @@ class PeriodBuffer:
 
     # ----------------------------------------------------------------- output
     def live_mask(self) -> NDArray[np.bool_]:
-        newest = float(self.watermark_s.max())
-        return np.isfinite(self.watermark_s) & (self.watermark_s >= newest - self.radar_timeout_s)
+        return self.marks.live_mask()
 
     def closable_until_s(self) -> float:
-        """Every period ending at or before this event time may close now: the earliest
-        watermark of the live radars (:meth:`live_mask`) less ``allowed_lateness_s``.
-        Asked at every poll, i.e. after every message: over a few radars, plain floats
-        cost a fifth of the numpy calls."""
-        w: list[float] = self.watermark_s.tolist()
-        oldest_live_s = newest_s = max(w)
-        for t_s in w:
-            if math.isfinite(t_s) and t_s >= newest_s - self.radar_timeout_s and t_s < oldest_live_s:
-                oldest_live_s = t_s
-        if not math.isfinite(oldest_live_s):
-            return -math.inf
-        return oldest_live_s - self.allowed_lateness_s
+        """Every period ending at or before this event time may close now
+        (:meth:`Watermarks.closable_until_s`)."""
+        return self.marks.closable_until_s()
 
     def pop_period(self, force: bool = False) -> tuple[int, float, PlotChunk] | None:
         """Close the oldest open period if the watermarks allow (or ``force``).
