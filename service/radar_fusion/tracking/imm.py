@@ -259,7 +259,10 @@ def _sym(P: Float) -> Float:
 
 
 class IMMFilter:
-    """IMM filter (module docstring, eq. 0-8) over N tracks of M models."""
+    """IMM filter (module docstring, eq. 0-8) over N tracks of M models.
+
+    predict() keeps its Φ and Q buffers between calls (``_scratch_matrices``): one filter
+    is for one thread at a time, as the engine runs it."""
 
     def __init__(self, params: IMMParams | None = None) -> None:
         self.params = IMMParams() if params is None else params
@@ -277,6 +280,7 @@ class IMMFilter:
         self._sigma = np.array([m.sigma_m_mps2 for m in singer])
         self._omega = np.array([m.turn_rate_rad_s for m in turns])
         self._turn_q = np.array([m.q_m2_s3 for m in turns])
+        self._scratch: tuple[Float, Float] | None = None  # predict()'s Φ and Q (_scratch_matrices)
 
     @property
     def n_models(self) -> int:
@@ -344,13 +348,29 @@ class IMMFilter:
         (N, M, 6, 6) each.  The Singer models (Shu eq. 12 exact, Q of §4; singer_filter.py)
         as one axis of (α, σ_m), the turn models (coordinated_turn.py eq. 2-4) as one of ω."""
         dt = np.atleast_1d(np.asarray(dt_s, dtype=float))
-        n, m = dt.size, self.n_models
-        phi = np.zeros((n, m, STATE_DIM, STATE_DIM))
-        Q = np.zeros((n, m, STATE_DIM, STATE_DIM))
+        phi = np.zeros((dt.size, self.n_models, STATE_DIM, STATE_DIM))
+        Q = np.zeros_like(phi)
+        self._fill_model_matrices(phi, Q, dt)
+        return phi, Q
+
+    def _fill_model_matrices(self, phi: Float, Q: Float, dt: Float) -> None:
+        """Write Φ_j and Q_j (``model_matrices``) into phi and Q, which are zero at every
+        entry the models leave zero (the same entries at every call)."""
         singer_matrices_into(phi[:, self._singer], Q[:, self._singer], dt[:, None], self._alpha, self._sigma)
         if self._omega.size:
             ct_matrices_into(phi[:, self._turns], Q[:, self._turns], dt[:, None], self._omega, self._turn_q)
-        return phi, Q
+
+    def _scratch_matrices(self, n: int) -> tuple[Float, Float]:
+        """Φ and Q buffers for n tracks, kept between calls: zeroed once, each call writes
+        the same entries (``_fill_model_matrices``), so no 2 × N·M·36 zero fill per
+        prediction. Never returned: predict() only reads them."""
+        if self._scratch is None or self._scratch[0].shape[0] < n:
+            cap = max(n, 2 * (0 if self._scratch is None else self._scratch[0].shape[0]))
+            self._scratch = (
+                np.zeros((cap, self.n_models, STATE_DIM, STATE_DIM)),
+                np.zeros((cap, self.n_models, STATE_DIM, STATE_DIM)),
+            )
+        return self._scratch[0][:n], self._scratch[1][:n]
 
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
         """Steps 1-2: mixing (eq. 1-4) and each model's prediction (step 2 above) over dt_s
@@ -361,11 +381,14 @@ class IMMFilter:
         products (``model_matrices``), the same equations as each model's ``predict``."""
         c_bar, x0, P0 = self.mix(state, dt_s)
         n = len(state)
-        phi, Q = self.model_matrices(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
+        phi, Q = self._scratch_matrices(n)
+        self._fill_model_matrices(phi, Q, np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,))))
         x_pred = np.einsum("nmij,nmj->nmi", phi, x0)
         P_pred = phi @ P0 @ np.swapaxes(phi, 2, 3)
         P_pred += Q
-        return IMMState(x_pred, _sym(P_pred), c_bar)
+        # symmetric to round-off only (Φ P⁰ Φᵀ rounds (k, l) and (l, k) differently): update()
+        # and combine() symmetrise what they return, and nothing else keeps it
+        return IMMState(x_pred, P_pred, c_bar)
 
     def log_likelihoods(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> Float:
         """log Λ_j (eq. 5) of measurements z (N,2), R (N,2,2) under each model's prediction, (N, M)."""
