@@ -461,6 +461,20 @@ def test_batched_prediction_equals_each_models_own_predict() -> None:
     np.testing.assert_allclose(asym, 0.0, atol=1e-15)
 
 
+def test_predict_position_equals_the_combined_prediction() -> None:
+    """predict_position() (the engine's output: x and the x-y covariance) equals the
+    combination (eq. 7-8) of the full prediction, restricted to x and y."""
+    imm = IMMFilter()
+    rng = np.random.default_rng(23)
+    st = _random_state(imm, 9, rng)
+    dt = np.array([0.0, 1e-3, 0.2, 0.5, 2.0, 4.0, 4.7, 12.0, 60.0])
+    x, P_xy = imm.predict_position(st, dt)
+    xc, Pc = imm.combine(imm.predict(st, dt))
+    np.testing.assert_allclose(x, xc, rtol=1e-13, atol=1e-9)
+    np.testing.assert_allclose(P_xy, Pc[:, [0, 3]][:, :, [0, 3]], rtol=1e-12, atol=1e-9)
+    np.testing.assert_array_equal(P_xy, np.swapaxes(P_xy, 1, 2))
+
+
 # ------------------------------------------------------------------ cost (printed, not asserted)
 
 

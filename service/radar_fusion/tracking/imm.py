@@ -390,6 +390,25 @@ class IMMFilter:
         # and combine() symmetrise what they return, and nothing else keeps it
         return IMMState(x_pred, P_pred, c_bar)
 
+    def predict_position(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float]:
+        """Steps 1, 2 and 5 for an output that needs only the combined state and the
+        position block of its covariance: x (N, 6) of eq. 7 and H P Hᵀ (N, 2, 2) of eq. 8,
+        from each model's H P_j Hᵀ = (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ (H picks x and y):
+        the per-model 6×6 covariances are never formed.  combine(predict(...)) restricted
+        to x and y, to round-off."""
+        c_bar, x0, P0 = self.mix(state, dt_s)
+        n, m = len(state), self.n_models
+        phi, Q = self._scratch_matrices(n)
+        self._fill_model_matrices(phi, Q, np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,))))
+        x_pred = np.einsum("nmij,nmj->nmi", phi, x0)
+        G = phi[:, :, 0::3, :]  # H Φ_j, (N, M, 2, 6); POS_IDX = [0, 3] as a slice
+        P_pos = G @ P0 @ np.swapaxes(G, 2, 3) + Q[:, :, 0::3, 0::3]
+        wr = c_bar[:, None, :]
+        x = (wr @ x_pred)[:, 0]  # eq. 7
+        d = x_pred[:, :, 0::3] - x[:, None, 0::3]
+        P = (wr @ P_pos.reshape(n, m, 4)).reshape(n, 2, 2) + np.swapaxes(c_bar[:, :, None] * d, 1, 2) @ d  # eq. 8
+        return x, _sym(P)
+
     def log_likelihoods(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> Float:
         """log Λ_j (eq. 5) of measurements z (N,2), R (N,2,2) under each model's prediction, (N, M)."""
         n, m = len(state), self.n_models
