@@ -430,8 +430,12 @@ class IMMFilter:
         S = PHt[:, 0::3, :] + np.repeat(R, m, axis=0)  # H P Hᵀ + R
         nu = np.repeat(z, m, axis=0) - x_pred[:, 0::3]  # ν = z − H x(k+1|k)
         S_inv = inv_2x2(S)
-        K = PHt @ S_inv  # eq. 9
-        x = x_pred + (K @ nu[:, :, None])[:, :, 0]  # eq. 7
+        # eq. 9 and 7 column by column (K = P Hᵀ S⁻¹ is N·M (6×2)·(2×2) products: elementwise
+        # on (N·M, 6) columns instead of that many tiny matrix products)
+        K = np.empty_like(PHt)
+        K[:, :, 0] = PHt[:, :, 0] * S_inv[:, 0, 0, None] + PHt[:, :, 1] * S_inv[:, 1, 0, None]
+        K[:, :, 1] = PHt[:, :, 0] * S_inv[:, 0, 1, None] + PHt[:, :, 1] * S_inv[:, 1, 1, None]
+        x = x_pred + K[:, :, 0] * nu[:, 0, None] + K[:, :, 1] * nu[:, 1, None]
         P = P_pred - K @ np.swapaxes(PHt, 1, 2)  # eq. 10: (I − K H) P = P − K (P Hᵀ)ᵀ
         P = _sym(P)
         log_w = _gauss_loglik(nu, S, S_inv).reshape(n, m)  # eq. 5
