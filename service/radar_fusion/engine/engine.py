@@ -653,14 +653,12 @@ class Engine:
         init = tr.initiated[rows]
         if init.any():
             # With the IMM, per model only: its output is the combination after the update,
-            # so the combined prediction at the cluster's time is not computed. Every
-            # matched row is predicted in one call, the two-point ones too (whose
-            # initiation below starts afresh): the Q series of singer_filter._g_all is one
-            # BLAS product over the rows, which rounds differently with their count.
+            # so the combined prediction at the cluster's time is not computed. Only the
+            # rows it updates are predicted (the two-point ones below start afresh).
             r = rows[init]
             if self.imm is not None:
-                prior = self.imm.predict(IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows]), dt_s)
-                st = self.imm.update(prior if init.all() else prior.select(init), z_m[init], R_m2[init])
+                prior = self.imm.predict(IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r]), dt_s[init])
+                st = self.imm.update(prior, z_m[init], R_m2[init])
                 tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
                 x_c[init], P_c[init] = self.imm.combine(st)
             else:
