@@ -315,18 +315,23 @@ class IMMFilter:
         """Interaction (eq. 1-4): predicted mode probabilities c̄ (N, M) and the mixed
         initial conditions x⁰ (N, M, 6), P⁰ (N, M, 6, 6) of each model."""
         n, m = len(state), self.n_models
-        pi = self.transition_matrix(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
-        joint = pi * state.mu[:, :, None]  # p_ij μ_i, (N, M_i, M_j)
-        c_bar = joint.sum(axis=1)  # eq. 1
+        # Π(dt) of eq. 0 (as transition_matrix) laid out as (N, M_j, M_i), so the μ_{i|j}
+        # come out contiguous for the products below: p_ij μ_i with p_ij = (1 − p_ii)/(M − 1)
+        # off the diagonal
+        dt = np.maximum(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)), 0.0)
+        stay = np.exp(-dt[:, None] / self._dwell_s[None, :])  # (N, M): p_ii
+        joint_t = np.broadcast_to((((1.0 - stay) / (m - 1)) * state.mu)[:, None, :], (n, m, m)).copy()
+        diag = np.arange(m)
+        joint_t[:, diag, diag] = stay * state.mu  # joint_t[n, j, i] = p_ij μ_i
+        c_bar = joint_t.sum(axis=2)  # eq. 1
         # eq. 2; a mode j that nothing can reach (c̄_j = 0: μ_j = 0 and dt = 0) keeps its own state
         unreachable = c_bar <= 0.0
         if unreachable.any():
-            w = np.where(
-                unreachable[:, None, :], np.eye(m)[None], joint / np.where(unreachable, 1.0, c_bar)[:, None, :]
-            )
+            joint_t = np.where(unreachable[:, :, None], np.eye(m)[None], joint_t)
+            c_bar_div = np.where(unreachable, 1.0, c_bar)
         else:
-            w = joint / c_bar[:, None, :]
-        wt = np.swapaxes(w, 1, 2)  # μ_{i|j} as (N, M_j, M_i)
+            c_bar_div = c_bar
+        wt = joint_t / c_bar_div[:, :, None]  # μ_{i|j} as (N, M_j, M_i)
         x0 = wt @ state.x_models  # eq. 3
         # eq. 4 as Σ_i μ_{i|j} (P_i + e_i e_iᵀ) − e⁰_j e⁰_jᵀ with e_i = x_i − r, e⁰_j = x⁰_j − r
         # (Σ_i μ_{i|j} = 1), for any r: one (M×M)·(M×36) product per track instead of M²
