@@ -10,7 +10,16 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from radar_fusion.tracking.coordinated_turn import CoordinatedTurnModel
+from radar_fusion.tracking.coordinated_turn import (
+    CoordinatedTurnModel,
+    ct_matrices_into,
+    ct_noise_4d,
+    ct_process_noise,
+    ct_transition,
+    ct_transition_4d,
+    lift_cov,
+    lift_rows,
+)
 
 SUB = [0, 1, 3, 4]  # x, vx, y, vy of the state [x, vx, ax, y, vy, ay]
 
@@ -82,3 +91,30 @@ def test_batch_of_tracks_with_their_own_dt() -> None:
         np.testing.assert_allclose(xb[n], x1[0], rtol=1e-12, atol=1e-9)
         np.testing.assert_allclose(Pb[n], P1[0], rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(xb[0][[0, 1, 3, 4]], x[0][[0, 1, 3, 4]], atol=1e-12)
+
+
+def test_an_axis_of_turn_rates_equals_each_rate_on_its_own() -> None:
+    """The IMM predicts its turn models as one array axis (dt (N, 1) against K rates):
+    F, Q of eq. (2-3) broadcast over the rates equal each rate's own, ω = 0 and the series
+    below |ωT| = 0.01 included; ct_matrices_into's entry-by-entry Φ and Q₆ equal the lifted
+    M·F·S and M·Q·Mᵀ of eq. (4) (lift_rows, lift_cov), and Van Loan's at one point."""
+    w = np.radians([3.0, -3.0, 1.5, -1.5, 0.0, 1e-4])
+    q = np.array([1.0, 1.0, 2.0, 2.0, 0.5, 1.0])
+    dt = np.array([0.0, 1e-3, 0.2, 0.5, 4.0, 12.0, 60.0])
+    F4 = ct_transition_4d(dt[:, None], w)
+    Q4 = ct_noise_4d(dt[:, None], w, q)
+    phi = np.zeros((dt.size, w.size, 6, 6))
+    Q6 = np.zeros_like(phi)
+    ct_matrices_into(phi, Q6, dt[:, None], w, q)
+    for k in range(w.size):
+        np.testing.assert_array_equal(F4[:, k], ct_transition_4d(dt, w[k]))
+        np.testing.assert_allclose(Q4[:, k], ct_noise_4d(dt, w[k], q[k]), rtol=1e-15, atol=0.0)
+        lifted = np.zeros((dt.size, 6, 6))
+        lifted[:, :, SUB] = lift_rows(F4[:, k], w[k])
+        np.testing.assert_allclose(phi[:, k], lifted, rtol=1e-15, atol=1e-18)
+        np.testing.assert_allclose(phi[:, k], ct_transition(dt, w[k]), rtol=1e-15, atol=1e-18)
+        np.testing.assert_allclose(Q6[:, k], lift_cov(Q4[:, k], w[k]), rtol=1e-14, atol=1e-300)
+        np.testing.assert_allclose(Q6[:, k], ct_process_noise(dt, w[k], q[k]), rtol=1e-14, atol=1e-300)
+    F, Q = van_loan_ct(w[0], q[0], 4.0)
+    np.testing.assert_allclose(phi[4, 0][np.ix_(SUB, SUB)], F, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(Q6[4, 0][np.ix_(SUB, SUB)], Q, rtol=1e-9, atol=1e-12)

@@ -437,6 +437,44 @@ def test_batch_equals_one_track_runs() -> None:
     assert np.ptp(batch.mu[:, MANOEUVRE]) > 0.1
 
 
+def test_batched_prediction_equals_each_models_own_predict() -> None:
+    """predict() runs every model as one batched Φ P Φᵀ + Q (model_matrices); each model's
+    own predict() (SingerFilter: Shu eq. 8, 11 written out per block; CoordinatedTurnModel:
+    on its 4-D sub-state, then lifted) on the mixed states of mix() gives the same, for
+    dt = 0, small dt (the turn noise's series) and long ones."""
+    imm = IMMFilter()
+    rng = np.random.default_rng(21)
+    n = 9
+    st = _random_state(imm, n, rng)
+    dt = np.array([0.0, 1e-3, 0.2, 0.5, 2.0, 4.0, 4.7, 12.0, 60.0])
+    out = imm.predict(st, dt)
+    c_bar, x0, P0 = imm.mix(st, dt)
+    np.testing.assert_array_equal(out.mu, c_bar)
+    for j, model in enumerate(imm.models):
+        x, P = model.predict(x0[:, j], P0[:, j], dt)
+        scale = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
+        np.testing.assert_allclose(out.x_models[:, j], x, rtol=1e-13, atol=1e-9)
+        np.testing.assert_allclose((out.P_models[:, j] - P) / (scale[:, :, None] * scale[:, None, :]), 0.0, atol=1e-14)
+    # symmetric to round-off (predict() leaves the symmetrisation to update() and combine())
+    scale = np.sqrt(np.diagonal(out.P_models, axis1=2, axis2=3))
+    asym = (out.P_models - np.swapaxes(out.P_models, 2, 3)) / (scale[..., :, None] * scale[..., None, :])
+    np.testing.assert_allclose(asym, 0.0, atol=1e-15)
+
+
+def test_predict_position_equals_the_combined_prediction() -> None:
+    """predict_position() (the engine's output: x and the x-y covariance) equals the
+    combination (eq. 7-8) of the full prediction, restricted to x and y."""
+    imm = IMMFilter()
+    rng = np.random.default_rng(23)
+    st = _random_state(imm, 9, rng)
+    dt = np.array([0.0, 1e-3, 0.2, 0.5, 2.0, 4.0, 4.7, 12.0, 60.0])
+    x, P_xy = imm.predict_position(st, dt)
+    xc, Pc = imm.combine(imm.predict(st, dt))
+    np.testing.assert_allclose(x, xc, rtol=1e-13, atol=1e-9)
+    np.testing.assert_allclose(P_xy, Pc[:, [0, 3]][:, :, [0, 3]], rtol=1e-12, atol=1e-9)
+    np.testing.assert_array_equal(P_xy, np.swapaxes(P_xy, 1, 2))
+
+
 # ------------------------------------------------------------------ cost (printed, not asserted)
 
 

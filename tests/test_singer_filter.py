@@ -15,6 +15,7 @@ from radar_fusion.tracking.singer_filter import (
     AltitudeFilter,
     H,
     SingerFilter,
+    singer_matrices_into,
     singer_process_noise,
     singer_sigma_m_mps2,
     singer_transition,
@@ -90,6 +91,20 @@ def test_transition_is_expm_of_continuous_model_and_block_diagonal():
         # the row Shu misprints: vy row is 0 0 0 0 1 T' (velocity from vy and ay only)
         assert phi[k, 4, 3] == 0.0 and phi[k, 4, 4] == 1.0
         assert phi[k, 4, 5] == pytest.approx(-np.expm1(-a * dt) / a, rel=1e-12)
+
+
+def test_matrices_into_an_axis_of_models_equal_each_models_own():
+    """singer_matrices_into (the IMM's Singer models as one array axis) writes what
+    singer_transition and singer_process_noise give each (α, σ_m) on its own, both sides
+    of the series switch at αT = 0.5, dt = 0 included."""
+    dts = np.array([0.0, 1e-3, 0.3, 1.0, 4.0, 4.6, 12.0, 40.0])
+    alphas, sigmas = np.array([1.0, 1 / 20, 1 / 60]), np.array([0.5, 10.0, 2.5])
+    phi = np.zeros((dts.size, alphas.size, 6, 6))
+    Q = np.zeros_like(phi)
+    singer_matrices_into(phi, Q, dts[:, None], alphas, sigmas)
+    for k, (a, s) in enumerate(zip(alphas, sigmas)):
+        np.testing.assert_allclose(phi[:, k], singer_transition(dts, a), rtol=1e-14, atol=0.0)
+        np.testing.assert_allclose(Q[:, k], singer_process_noise(dts, a, s), rtol=1e-13, atol=1e-300)
 
 
 def test_printed_transition_differs_from_exact_by_leading_alpha_terms():

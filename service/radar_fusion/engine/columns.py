@@ -519,7 +519,7 @@ class Prediction:
     """Every track's state predicted to the period's reference time (step ``predict``)."""
 
     x: np.ndarray  # (N, 6) Singer state
-    P: np.ndarray  # (N, 6, 6)
+    P: np.ndarray  # (N, 6, 6); for output with the IMM, the x-y block of updated tracks only (Engine._predict_changed)
     alt_x: np.ndarray  # (N, 2) [FL, FL/s]
     alt_P: np.ndarray  # (N, 2, 2)
     imm: IMMState | None = None  # the IMM's per-model prediction (x, P: its combination), filter = "imm"

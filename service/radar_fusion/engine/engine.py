@@ -65,7 +65,7 @@ from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
 from ..tracking.registration import RadarRegistration
-from ..tracking.singer_filter import POS_IDX, AltitudeFilter, SingerFilter
+from ..tracking.singer_filter import POS_IDX, STATE_DIM, AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
     TENTATIVE,
@@ -364,13 +364,25 @@ class Engine:
     def _predict_changed(self, pred: Prediction, changed: np.ndarray, t_ref_s: float) -> Prediction:
         """Every track at the reference time, for output: a track that got no plot keeps
         the state of ``_predict``; only the updated and the new ones are predicted again.
-        The result's rows are the track table's."""
+        The result's rows are the track table's. With the IMM, the rows predicted again
+        hold P's x-y block only (imm.predict_position), NaN elsewhere: the output reads
+        x and that block (TrackColumns.cov_xy), and nothing else reads this P."""
         n = len(self.tracks)
         out = [
             np.concatenate([a, np.empty((n - len(a),) + a.shape[1:])]) for a in (pred.x, pred.P, pred.alt_x, pred.alt_P)
         ]
         if changed.size:
-            again = self._predict_rows(changed, t_ref_s - self.tracks.t_state_s[changed])
+            dt_s = t_ref_s - self.tracks.t_state_s[changed]
+            if self.imm is not None:
+                tr = self.tracks
+                state = IMMState(tr.x_models[changed], tr.P_models[changed], tr.mu[changed])
+                x, P_xy = self.imm.predict_position(state, dt_s)
+                P = np.full((changed.size, STATE_DIM, STATE_DIM), np.nan)
+                P[:, POS_IDX[:, None], POS_IDX[None, :]] = P_xy
+                alt_x, alt_P = self.alt_filter.predict(tr.alt_x[changed], tr.alt_P[changed], dt_s)
+                again = Prediction(x, P, alt_x, alt_P)
+            else:
+                again = self._predict_rows(changed, dt_s)
             for a, b in zip(out, (again.x, again.P, again.alt_x, again.alt_P)):
                 a[changed] = b
         x, P, alt_x, alt_P = out
@@ -642,14 +654,12 @@ class Engine:
         init = tr.initiated[rows]
         if init.any():
             # With the IMM, per model only: its output is the combination after the update,
-            # so the combined prediction at the cluster's time is not computed. Every
-            # matched row is predicted in one call, the two-point ones too (whose
-            # initiation below starts afresh): the Q series of singer_filter._g_all is one
-            # BLAS product over the rows, which rounds differently with their count.
+            # so the combined prediction at the cluster's time is not computed. Only the
+            # rows it updates are predicted (the two-point ones below start afresh).
             r = rows[init]
             if self.imm is not None:
-                prior = self.imm.predict(IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows]), dt_s)
-                st = self.imm.update(prior if init.all() else prior.select(init), z_m[init], R_m2[init])
+                prior = self.imm.predict(IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r]), dt_s[init])
+                st = self.imm.update(prior, z_m[init], R_m2[init])
                 tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
                 x_c[init], P_c[init] = self.imm.combine(st)
             else:

@@ -54,74 +54,164 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["CoordinatedTurnModel", "ct_noise_4d", "ct_transition", "ct_transition_4d", "lift_cov", "lift_rows"]
+__all__ = [
+    "CoordinatedTurnModel",
+    "ct_matrices_into",
+    "ct_noise_4d",
+    "ct_process_noise",
+    "ct_transition",
+    "ct_transition_4d",
+    "lift_cov",
+    "lift_rows",
+]
 
 #: the 4-D sub-state [x, vx, y, vy] of the Singer state [x, vx, ax, y, vy, ay]
 _SUB = np.array([0, 1, 3, 4])
 
 
-def ct_transition_4d(dt_s: ArrayLike, turn_rate_rad_s: float) -> np.ndarray:
-    """F of eq. (2) on [x, vx, y, vy], (N, 4, 4), for dt_s (N,)."""
-    dt = np.atleast_1d(np.asarray(dt_s, dtype=float))
-    w = float(turn_rate_rad_s)
+def _broadcast(dt_s: ArrayLike, turn_rate_rad_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """dt_s (at least 1-D) and ω broadcast together: the leading shape of F and Q, e.g. (N,)
+    for dt (N,) and one ω, (N, K) for dt (N, 1) and K rates (the IMM's turn models)."""
+    dt, w = np.broadcast_arrays(np.atleast_1d(np.asarray(dt_s, dtype=float)), np.asarray(turn_rate_rad_s, dtype=float))
+    return dt, w
+
+
+def _transition_terms(dt: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The entries of eq. (2): sin ωT/ω, (1 − cos ωT)/ω, cos ωT, sin ωT."""
     wt = w * dt
     s, c = np.sin(wt), np.cos(wt)
-    if w != 0.0:
-        s_w, c_w = s / w, 2.0 * np.sin(0.5 * wt) ** 2 / w  # (1 − cos ωT)/ω without cancellation
-    else:  # ω → 0: the constant-velocity limit of eq. (2)
-        s_w, c_w = dt.copy(), np.zeros_like(dt)
-    F = np.zeros((dt.size, 4, 4))
-    F[:, 0, 0] = F[:, 2, 2] = 1.0
-    F[:, 0, 1], F[:, 0, 3] = s_w, -c_w
-    F[:, 1, 1], F[:, 1, 3] = c, -s
-    F[:, 2, 1], F[:, 2, 3] = c_w, s_w
-    F[:, 3, 1], F[:, 3, 3] = s, c
+    turning = w != 0.0
+    w_div = np.where(turning, w, 1.0)
+    # (1 − cos ωT)/ω as 2 sin²(ωT/2)/ω, without cancellation; ω → 0: the constant-velocity limit
+    s_w = np.where(turning, s / w_div, dt)
+    c_w = np.where(turning, 2.0 * np.sin(0.5 * wt) ** 2 / w_div, 0.0)
+    return s_w, c_w, c, s
+
+
+def _noise_terms(t: np.ndarray, w: np.ndarray, s_w: np.ndarray, c_w: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Eq. (3)'s three functions of T, 2(T − sin ωT/ω)/ω², (1 − cos ωT)/ω², (T − sin ωT/ω)/ω,
+    from eq. (2)'s T_s = sin ωT/ω and T_c = (1 − cos ωT)/ω (:func:`_transition_terms`):
+    f_po = (T − T_s)/ω, f_pp = 2 f_po/ω, f_pv = T_c/ω; by their series below |ωT| = 0.01
+    (and at ω = 0), where T − T_s cancels."""
+    small = np.abs(w * t) < 1e-2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f_po = (t - s_w) / w
+        f_pp = 2.0 * f_po / w
+        f_pv = c_w / w
+    if small.any():
+        ts, ws = t[small], w[small]
+        t2, w2 = ts * ts, ws * ws
+        f_pp[small] = t2 * ts / 3.0 - w2 * t2 * t2 * ts / 60.0
+        f_pv[small] = t2 / 2.0 - w2 * t2 * t2 / 24.0
+        f_po[small] = ws * t2 * ts / 6.0 - w2 * ws * t2 * t2 * ts / 120.0
+    return f_pp, f_pv, f_po
+
+
+def ct_transition_4d(dt_s: ArrayLike, turn_rate_rad_s: ArrayLike) -> np.ndarray:
+    """F of eq. (2) on [x, vx, y, vy], (..., 4, 4), for dt_s and ω broadcast together
+    (dt (N,) and one ω: (N, 4, 4))."""
+    dt, w = _broadcast(dt_s, turn_rate_rad_s)
+    s_w, c_w, c, s = _transition_terms(dt, w)
+    F = np.zeros(dt.shape + (4, 4))
+    F[..., 0, 0] = F[..., 2, 2] = 1.0
+    F[..., 0, 1], F[..., 0, 3] = s_w, -c_w
+    F[..., 1, 1], F[..., 1, 3] = c, -s
+    F[..., 2, 1], F[..., 2, 3] = c_w, s_w
+    F[..., 3, 1], F[..., 3, 3] = s, c
     return F
 
 
-def ct_noise_4d(dt_s: ArrayLike, turn_rate_rad_s: float, q_m2_s3: float) -> np.ndarray:
-    """Q of eq. (3) on [x, vx, y, vy], (N, 4, 4), for dt_s (N,)."""
-    t = np.atleast_1d(np.asarray(dt_s, dtype=float))
-    w = float(turn_rate_rad_s)
-    wt = w * t
-    small = np.abs(wt) < 1e-2  # and ω = 0: the series are exact there
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # eq. (3)'s three functions of T: 2(T − sin ωT/ω)/ω², (1 − cos ωT)/ω², (T − sin ωT/ω)/ω
-        f_pp = np.where(small, t**3 / 3.0 - w**2 * t**5 / 60.0, 2.0 * (t - np.sin(wt) / w) / w**2)
-        f_pv = np.where(small, t**2 / 2.0 - w**2 * t**4 / 24.0, (1.0 - np.cos(wt)) / w**2)
-        f_po = np.where(small, w * t**3 / 6.0 - w**3 * t**5 / 120.0, (t - np.sin(wt) / w) / w)
-    Q = np.zeros((t.size, 4, 4))
-    Q[:, 0, 0] = Q[:, 2, 2] = q_m2_s3 * f_pp
-    Q[:, 1, 1] = Q[:, 3, 3] = q_m2_s3 * t
-    Q[:, 0, 1] = Q[:, 1, 0] = Q[:, 2, 3] = Q[:, 3, 2] = q_m2_s3 * f_pv
-    Q[:, 0, 3] = Q[:, 3, 0] = q_m2_s3 * f_po  # Q_pv[x, vy]
-    Q[:, 2, 1] = Q[:, 1, 2] = -q_m2_s3 * f_po  # Q_pv[y, vx]
+def ct_noise_4d(dt_s: ArrayLike, turn_rate_rad_s: ArrayLike, q_m2_s3: ArrayLike) -> np.ndarray:
+    """Q of eq. (3) on [x, vx, y, vy], (..., 4, 4), for dt_s, ω (and q) broadcast together."""
+    t, w = _broadcast(dt_s, turn_rate_rad_s)
+    q = np.asarray(q_m2_s3, dtype=float)
+    s_w, c_w, _, _ = _transition_terms(t, w)
+    f_pp, f_pv, f_po = _noise_terms(t, w, s_w, c_w)
+    Q = np.zeros(t.shape + (4, 4))
+    Q[..., 0, 0] = Q[..., 2, 2] = q * f_pp
+    Q[..., 1, 1] = Q[..., 3, 3] = q * t
+    Q[..., 0, 1] = Q[..., 1, 0] = Q[..., 2, 3] = Q[..., 3, 2] = q * f_pv
+    Q[..., 0, 3] = Q[..., 3, 0] = q * f_po  # Q_pv[x, vy]
+    Q[..., 2, 1] = Q[..., 1, 2] = -q * f_po  # Q_pv[y, vx]
     return Q
 
 
-def lift_rows(a4: np.ndarray, turn_rate_rad_s: float) -> np.ndarray:
-    """M·a of eq. (4): rows [x, vx, y, vy] (axis 1 of a4, (N, 4, ...)) to the Singer state's
-    six, with ax = −ω·vy and ay = ω·vx."""
-    w = float(turn_rate_rad_s)
-    out = np.empty((a4.shape[0], 6) + a4.shape[2:])
-    out[:, _SUB] = a4
-    out[:, 2] = -w * a4[:, 3]
-    out[:, 5] = w * a4[:, 1]
+def lift_rows(a4: np.ndarray, turn_rate_rad_s: ArrayLike) -> np.ndarray:
+    """M·a of eq. (4): rows [x, vx, y, vy] (axis −2 of a4, (..., 4, k)) to the Singer
+    state's six, with ax = −ω·vy and ay = ω·vx; ω scalar or of a4's leading shape."""
+    w = np.asarray(turn_rate_rad_s, dtype=float)[..., None]
+    out = np.empty(a4.shape[:-2] + (6,) + a4.shape[-1:])
+    out[..., 0:2, :] = a4[..., 0:2, :]  # _SUB = [0, 1, 3, 4]: two slices
+    out[..., 3:5, :] = a4[..., 2:4, :]
+    out[..., 2, :] = -w * a4[..., 3, :]
+    out[..., 5, :] = w * a4[..., 1, :]
     return out
 
 
-def lift_cov(P4: np.ndarray, turn_rate_rad_s: float) -> np.ndarray:
-    """M·P·Mᵀ of eq. (4) for (N, 4, 4) covariances: (N, 6, 6)."""
-    rows = lift_rows(P4, turn_rate_rad_s)  # (N, 6, 4)
-    return np.swapaxes(lift_rows(np.swapaxes(rows, 1, 2), turn_rate_rad_s), 1, 2)
+def lift_cov(P4: np.ndarray, turn_rate_rad_s: ArrayLike) -> np.ndarray:
+    """M·P·Mᵀ of eq. (4) for (..., 4, 4) covariances: (..., 6, 6)."""
+    rows = lift_rows(P4, turn_rate_rad_s)  # (..., 6, 4)
+    return np.swapaxes(lift_rows(np.swapaxes(rows, -1, -2), turn_rate_rad_s), -1, -2)
 
 
-def ct_transition(dt_s: ArrayLike, turn_rate_rad_s: float) -> np.ndarray:
-    """Φ = M·F·S of eq. (4) on the 6-D Singer state, (N, 6, 6), for dt_s (N,)."""
+def ct_transition(dt_s: ArrayLike, turn_rate_rad_s: ArrayLike) -> np.ndarray:
+    """Φ = M·F·S of eq. (4) on the 6-D Singer state, (..., 6, 6), for dt_s and ω broadcast
+    together (dt (N,) and one ω: (N, 6, 6))."""
     F = ct_transition_4d(dt_s, turn_rate_rad_s)
-    phi = np.zeros((F.shape[0], 6, 6))
-    phi[:, :, _SUB] = lift_rows(F, turn_rate_rad_s)  # ·S: the columns ax, ay stay zero
+    phi = np.zeros(F.shape[:-2] + (6, 6))
+    phi[..., :, _SUB] = lift_rows(F, np.broadcast_to(turn_rate_rad_s, F.shape[:-2]))  # ·S: ax, ay stay zero
     return phi
+
+
+def ct_process_noise(dt_s: ArrayLike, turn_rate_rad_s: ArrayLike, q_m2_s3: ArrayLike) -> np.ndarray:
+    """Q₆ = M·Q·Mᵀ of eq. (3-4), (..., 6, 6), for dt_s, ω and q broadcast together."""
+    Q4 = ct_noise_4d(dt_s, turn_rate_rad_s, q_m2_s3)
+    return lift_cov(Q4, np.broadcast_to(turn_rate_rad_s, Q4.shape[:-2]))
+
+
+def ct_matrices_into(
+    phi: np.ndarray, Q: np.ndarray, dt_s: ArrayLike, turn_rate_rad_s: ArrayLike, q_m2_s3: ArrayLike
+) -> None:
+    """Φ = M·F·S and Q₆ = M·Q·Mᵀ of eq. (4) (:func:`ct_transition`, :func:`ct_process_noise`)
+    written into the zeroed ``phi`` and ``Q`` (..., 6, 6) entry by entry, for dt_s, ω and q
+    broadcast to their leading shape: the IMM (imm.py) predicts its turn models as one axis
+    of an (N, M, 6, 6) array.  With the state [x, vx, ax, y, vy, ay], M's rows ax = −ω·vy
+    and ay = ω·vx, F of eq. (2) and Q of eq. (3) (whose x-vy and y-vx velocity entries
+    are zero):
+
+        Φ rows   x: [1, T_s, 0, 0, −T_c, 0]     y: [0, T_c, 0, 1, T_s, 0]
+                vx: [0, c, 0, 0, −s, 0]          vy: [0, s, 0, 0, c, 0]
+                ax: −ω·(row vy)                  ay: ω·(row vx)
+        (T_s = sin ωT/ω, T_c = (1 − cos ωT)/ω, c = cos ωT, s = sin ωT)
+
+        Q₆: xx = yy = q f_pp, vxvx = vyvy = q T, x-vx = y-vy = q f_pv, x-vy = q f_po,
+            y-vx = −q f_po; x-ax = −ω q f_po, x-ay = ω q f_pv, y-ax = −ω q f_pv,
+            y-ay = −ω q f_po, vx-ay = ω q T, vy-ax = −ω q T, ax-ax = ay-ay = ω² q T
+        (f_pp, f_pv, f_po the three functions of eq. 3; every other entry zero)."""
+    lead = phi.shape[:-2]
+    dt, w = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), lead)) for v in (dt_s, turn_rate_rad_s))
+    q = np.broadcast_to(np.asarray(q_m2_s3, dtype=float), lead)
+    s_w, c_w, c, s = _transition_terms(dt, w)
+    phi[..., 0, 0] = phi[..., 3, 3] = 1.0
+    phi[..., 0, 1], phi[..., 0, 4] = s_w, -c_w
+    phi[..., 3, 1], phi[..., 3, 4] = c_w, s_w
+    phi[..., 1, 1], phi[..., 1, 4] = c, -s
+    phi[..., 4, 1], phi[..., 4, 4] = s, c
+    phi[..., 2, 1], phi[..., 2, 4] = -w * s, -w * c
+    phi[..., 5, 1], phi[..., 5, 4] = w * c, -w * s
+    f_pp, f_pv, f_po = _noise_terms(dt, w, s_w, c_w)
+    pp, pv, po, vv = q * f_pp, q * f_pv, q * f_po, q * dt
+    Q[..., 0, 0] = Q[..., 3, 3] = pp
+    Q[..., 1, 1] = Q[..., 4, 4] = vv
+    Q[..., 0, 1] = Q[..., 1, 0] = Q[..., 3, 4] = Q[..., 4, 3] = pv
+    Q[..., 0, 4] = Q[..., 4, 0] = po
+    Q[..., 3, 1] = Q[..., 1, 3] = -po
+    Q[..., 0, 2] = Q[..., 2, 0] = Q[..., 3, 5] = Q[..., 5, 3] = -w * po
+    Q[..., 0, 5] = Q[..., 5, 0] = w * pv
+    Q[..., 3, 2] = Q[..., 2, 3] = -w * pv
+    Q[..., 1, 5] = Q[..., 5, 1] = w * vv
+    Q[..., 4, 2] = Q[..., 2, 4] = -w * vv
+    Q[..., 2, 2] = Q[..., 5, 5] = w * w * vv
 
 
 @dataclass(frozen=True)
@@ -155,7 +245,7 @@ class CoordinatedTurnModel:
 
     def process_noise(self, dt_s: ArrayLike) -> np.ndarray:
         """Q₆ = M·Q·Mᵀ of eq. (3-4), (N, 6, 6)."""
-        return lift_cov(ct_noise_4d(dt_s, self.turn_rate_rad_s, self.q_m2_s3), self.turn_rate_rad_s)
+        return ct_process_noise(dt_s, self.turn_rate_rad_s, self.q_m2_s3)
 
     def predict(self, x: ArrayLike, P: ArrayLike, dt_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """x(k+1|k) = Φ x, P(k+1|k) = Φ P Φᵀ + Q₆ over dt_s (scalar or (N,)), x (N,6), P (N,6,6),

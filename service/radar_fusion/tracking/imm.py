@@ -89,8 +89,8 @@ after the last update, p_ij = Π[i, j] from mode i to mode j:
        x = Σ_j μ_j x_j                                                                  (7)
        P = Σ_j μ_j [P_j + (x_j − x)(x_j − x)ᵀ]                                         (8)
 
-Everything is vectorised over the N tracks (numpy einsum and batched products); the
-only Python loops run over the M models and over the six Singer Q entries.
+Everything is vectorised over the N tracks and the M models (batched matrix products,
+numpy einsum); the only Python loops run over the entries of Φ and Q.
 """
 
 from __future__ import annotations
@@ -102,8 +102,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from .coordinated_turn import CoordinatedTurnModel
-from .singer_filter import POS_IDX, STATE_DIM, SingerFilter, inv_2x2
+from .coordinated_turn import CoordinatedTurnModel, ct_matrices_into
+from .singer_filter import POS_IDX, STATE_DIM, SingerFilter, inv_2x2, singer_matrices_into
 
 __all__ = ["MANOEUVRE", "QUIET", "IMMFilter", "IMMParams", "IMMState"]
 
@@ -239,22 +239,48 @@ class IMMState:
 
 def _combine(x_models: Float, P_models: Float, w: Float) -> tuple[Float, Float]:
     """Moment-matched Gaussian of the mixture Σ_i w_i N(x_i, P_i), for weights w (N, M):
-    x = Σ w_i x_i, P = Σ w_i [P_i + (x_i − x)(x_i − x)ᵀ] (eq. 7-8; eq. 3-4 per target mode)."""
-    x = np.einsum("nm,nmd->nd", w, x_models)
+    x = Σ w_i x_i, P = Σ w_i [P_i + (x_i − x)(x_i − x)ᵀ] (eq. 7-8).  Both sums over i
+    are batched matrix products, (1×M)·(M×6) and (1×M)·(M×36) per track, and the spread
+    term is Dᵀ·diag(w)·D with D the (M×6) deviations x_i − x."""
+    n, m = w.shape
+    wr = w[:, None, :]
+    x = (wr @ x_models)[:, 0]
     d = x_models - x[:, None, :]
-    wd = w[:, :, None] * d
-    P = np.einsum("nm,nmde->nde", w, P_models) + np.einsum("nmd,nme->nde", wd, d)
-    return x, 0.5 * (P + np.swapaxes(P, 1, 2))
+    P = (wr @ P_models.reshape(n, m, STATE_DIM * STATE_DIM)).reshape(n, STATE_DIM, STATE_DIM)
+    P += np.swapaxes(w[:, :, None] * d, 1, 2) @ d
+    return x, _sym(P)
+
+
+def _sym(P: Float) -> Float:
+    """½ (P + Pᵀ) over the last two axes."""
+    out = P + np.swapaxes(P, -1, -2)
+    out *= 0.5
+    return out
 
 
 class IMMFilter:
-    """IMM filter (module docstring, eq. 0-8) over N tracks of M models."""
+    """IMM filter (module docstring, eq. 0-8) over N tracks of M models.
+
+    predict() keeps its Φ and Q buffers between calls (``_scratch_matrices``): one filter
+    is for one thread at a time, as the engine runs it."""
 
     def __init__(self, params: IMMParams | None = None) -> None:
         self.params = IMMParams() if params is None else params
         #: the M models, in mode order
         self.models: tuple[SingerFilter | CoordinatedTurnModel, ...] = self.params.models()
         self._dwell_s = self.params.dwell_s()
+        # step 2 runs each family as one array axis: the Singer models first, then the turns
+        singer = [m for m in self.models if isinstance(m, SingerFilter)]
+        turns = [m for m in self.models if isinstance(m, CoordinatedTurnModel)]
+        if tuple(self.models) != (*singer, *turns):
+            raise ValueError("the Singer models must come before the turn models")
+        self._singer = slice(0, len(singer))
+        self._turns = slice(len(singer), len(self.models))
+        self._alpha = np.array([m.alpha_per_s for m in singer])
+        self._sigma = np.array([m.sigma_m_mps2 for m in singer])
+        self._omega = np.array([m.turn_rate_rad_s for m in turns])
+        self._turn_q = np.array([m.q_m2_s3 for m in turns])
+        self._scratch: tuple[Float, Float] | None = None  # predict()'s Φ and Q (_scratch_matrices)
 
     @property
     def n_models(self) -> int:
@@ -289,13 +315,23 @@ class IMMFilter:
         """Interaction (eq. 1-4): predicted mode probabilities c̄ (N, M) and the mixed
         initial conditions x⁰ (N, M, 6), P⁰ (N, M, 6, 6) of each model."""
         n, m = len(state), self.n_models
-        pi = self.transition_matrix(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
-        joint = pi * state.mu[:, :, None]  # p_ij μ_i, (N, M_i, M_j)
-        c_bar = joint.sum(axis=1)  # eq. 1
+        # Π(dt) of eq. 0 (as transition_matrix) laid out as (N, M_j, M_i), so the μ_{i|j}
+        # come out contiguous for the products below: p_ij μ_i with p_ij = (1 − p_ii)/(M − 1)
+        # off the diagonal
+        dt = np.maximum(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)), 0.0)
+        stay = np.exp(-dt[:, None] / self._dwell_s[None, :])  # (N, M): p_ii
+        joint_t = np.broadcast_to((((1.0 - stay) / (m - 1)) * state.mu)[:, None, :], (n, m, m)).copy()
+        diag = np.arange(m)
+        joint_t[:, diag, diag] = stay * state.mu  # joint_t[n, j, i] = p_ij μ_i
+        c_bar = joint_t.sum(axis=2)  # eq. 1
         # eq. 2; a mode j that nothing can reach (c̄_j = 0: μ_j = 0 and dt = 0) keeps its own state
         unreachable = c_bar <= 0.0
-        w = np.where(unreachable[:, None, :], np.eye(m)[None], joint / np.where(unreachable, 1.0, c_bar)[:, None, :])
-        wt = np.swapaxes(w, 1, 2)  # μ_{i|j} as (N, M_j, M_i)
+        if unreachable.any():
+            joint_t = np.where(unreachable[:, :, None], np.eye(m)[None], joint_t)
+            c_bar_div = np.where(unreachable, 1.0, c_bar)
+        else:
+            c_bar_div = c_bar
+        wt = joint_t / c_bar_div[:, :, None]  # μ_{i|j} as (N, M_j, M_i)
         x0 = wt @ state.x_models  # eq. 3
         # eq. 4 as Σ_i μ_{i|j} (P_i + e_i e_iᵀ) − e⁰_j e⁰_jᵀ with e_i = x_i − r, e⁰_j = x⁰_j − r
         # (Σ_i μ_{i|j} = 1), for any r: one (M×M)·(M×36) product per track instead of M²
@@ -304,25 +340,79 @@ class IMMFilter:
         ref = state.x_models[:, :1, :]
         e = state.x_models - ref
         e0 = x0 - ref
-        second = state.P_models + e[:, :, :, None] * e[:, :, None, :]
+        second = np.einsum("nmk,nml->nmkl", e, e)  # the outer products (einsum: faster than broadcasting)
+        second += state.P_models
         P0 = (wt @ second.reshape(n, m, STATE_DIM * STATE_DIM)).reshape(state.P_models.shape)
-        P0 -= e0[:, :, :, None] * e0[:, :, None, :]
+        P0 -= np.einsum("nmk,nml->nmkl", e0, e0)
         # exactly symmetric as it stands (the P_i are, and every term is formed the same way
         # for (k, l) and (l, k)): no symmetrisation needed
         return c_bar, x0, P0
 
+    def model_matrices(self, dt_s: ArrayLike) -> tuple[Float, Float]:
+        """Every model's transition Φ_j and process noise Q_j over each track's dt_s:
+        (N, M, 6, 6) each.  The Singer models (Shu eq. 12 exact, Q of §4; singer_filter.py)
+        as one axis of (α, σ_m), the turn models (coordinated_turn.py eq. 2-4) as one of ω."""
+        dt = np.atleast_1d(np.asarray(dt_s, dtype=float))
+        phi = np.zeros((dt.size, self.n_models, STATE_DIM, STATE_DIM))
+        Q = np.zeros_like(phi)
+        self._fill_model_matrices(phi, Q, dt)
+        return phi, Q
+
+    def _fill_model_matrices(self, phi: Float, Q: Float, dt: Float) -> None:
+        """Write Φ_j and Q_j (``model_matrices``) into phi and Q, which are zero at every
+        entry the models leave zero (the same entries at every call)."""
+        singer_matrices_into(phi[:, self._singer], Q[:, self._singer], dt[:, None], self._alpha, self._sigma)
+        if self._omega.size:
+            ct_matrices_into(phi[:, self._turns], Q[:, self._turns], dt[:, None], self._omega, self._turn_q)
+
+    def _scratch_matrices(self, n: int) -> tuple[Float, Float]:
+        """Φ and Q buffers for n tracks, kept between calls: zeroed once, each call writes
+        the same entries (``_fill_model_matrices``), so no 2 × N·M·36 zero fill per
+        prediction. Never returned: predict() only reads them."""
+        if self._scratch is None or self._scratch[0].shape[0] < n:
+            cap = max(n, 2 * (0 if self._scratch is None else self._scratch[0].shape[0]))
+            self._scratch = (
+                np.zeros((cap, self.n_models, STATE_DIM, STATE_DIM)),
+                np.zeros((cap, self.n_models, STATE_DIM, STATE_DIM)),
+            )
+        return self._scratch[0][:n], self._scratch[1][:n]
+
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
         """Steps 1-2: mixing (eq. 1-4) and each model's prediction (step 2 above) over dt_s
-        (scalar or (N,)).  The result carries μ = c̄ (eq. 1)."""
+        (scalar or (N,)).  The result carries μ = c̄ (eq. 1).
+
+        Every model is linear, x_j = Φ_j x⁰_j, P_j = Φ_j P⁰_j Φ_jᵀ + Q_j (Shu eq. 8, 11;
+        coordinated_turn.py eq. 4), so all N·M predictions are two batched 6×6 matrix
+        products (``model_matrices``), the same equations as each model's ``predict``."""
         c_bar, x0, P0 = self.mix(state, dt_s)
         n = len(state)
-        dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
-        x_pred = np.empty_like(x0)
-        P_pred = np.empty_like(P0)
-        for j, model in enumerate(self.models):  # M models, not tracks
-            x_j, P_j = np.ascontiguousarray(x0[:, j]), np.ascontiguousarray(P0[:, j])
-            x_pred[:, j], P_pred[:, j] = model.predict(x_j, P_j, dt)
+        phi, Q = self._scratch_matrices(n)
+        self._fill_model_matrices(phi, Q, np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,))))
+        x_pred = np.einsum("nmij,nmj->nmi", phi, x0)
+        P_pred = phi @ P0 @ np.swapaxes(phi, 2, 3)
+        P_pred += Q
+        # symmetric to round-off only (Φ P⁰ Φᵀ rounds (k, l) and (l, k) differently): update()
+        # and combine() symmetrise what they return, and nothing else keeps it
         return IMMState(x_pred, P_pred, c_bar)
+
+    def predict_position(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float]:
+        """Steps 1, 2 and 5 for an output that needs only the combined state and the
+        position block of its covariance: x (N, 6) of eq. 7 and H P Hᵀ (N, 2, 2) of eq. 8,
+        from each model's H P_j Hᵀ = (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ (H picks x and y):
+        the per-model 6×6 covariances are never formed.  combine(predict(...)) restricted
+        to x and y, to round-off."""
+        c_bar, x0, P0 = self.mix(state, dt_s)
+        n, m = len(state), self.n_models
+        phi, Q = self._scratch_matrices(n)
+        self._fill_model_matrices(phi, Q, np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,))))
+        x_pred = np.einsum("nmij,nmj->nmi", phi, x0)
+        G = phi[:, :, 0::3, :]  # H Φ_j, (N, M, 2, 6); POS_IDX = [0, 3] as a slice
+        P_pos = G @ P0 @ np.swapaxes(G, 2, 3) + Q[:, :, 0::3, 0::3]
+        wr = c_bar[:, None, :]
+        x = (wr @ x_pred)[:, 0]  # eq. 7
+        d = x_pred[:, :, 0::3] - x[:, None, 0::3]
+        P = (wr @ P_pos.reshape(n, m, 4)).reshape(n, 2, 2) + np.swapaxes(c_bar[:, :, None] * d, 1, 2) @ d  # eq. 8
+        return x, _sym(P)
 
     def log_likelihoods(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> Float:
         """log Λ_j (eq. 5) of measurements z (N,2), R (N,2,2) under each model's prediction, (N, M)."""
@@ -341,14 +431,19 @@ class IMMFilter:
         P_pred = state.P_models.reshape(n * m, STATE_DIM, STATE_DIM)
         # Shu eq. 7, 9, 10 over all N·M (track, model) rows at once: the update does not
         # depend on the model's (α, σ_m).  H picks x and y, so P Hᵀ is two columns of P.
-        PHt = P_pred[:, :, POS_IDX]  # (N·M, 6, 2)
-        S = PHt[:, POS_IDX, :] + np.repeat(R, m, axis=0)  # H P Hᵀ + R
-        nu = np.repeat(z, m, axis=0) - x_pred[:, POS_IDX]  # ν = z − H x(k+1|k)
-        K = PHt @ inv_2x2(S)  # eq. 9
-        x = x_pred + np.einsum("kij,kj->ki", K, nu)  # eq. 7
+        PHt = P_pred[:, :, 0::3]  # (N·M, 6, 2); POS_IDX = [0, 3] as a slice: a view
+        S = PHt[:, 0::3, :] + np.repeat(R, m, axis=0)  # H P Hᵀ + R
+        nu = np.repeat(z, m, axis=0) - x_pred[:, 0::3]  # ν = z − H x(k+1|k)
+        S_inv = inv_2x2(S)
+        # eq. 9 and 7 column by column (K = P Hᵀ S⁻¹ is N·M (6×2)·(2×2) products: elementwise
+        # on (N·M, 6) columns instead of that many tiny matrix products)
+        K = np.empty_like(PHt)
+        K[:, :, 0] = PHt[:, :, 0] * S_inv[:, 0, 0, None] + PHt[:, :, 1] * S_inv[:, 1, 0, None]
+        K[:, :, 1] = PHt[:, :, 0] * S_inv[:, 0, 1, None] + PHt[:, :, 1] * S_inv[:, 1, 1, None]
+        x = x_pred + K[:, :, 0] * nu[:, 0, None] + K[:, :, 1] * nu[:, 1, None]
         P = P_pred - K @ np.swapaxes(PHt, 1, 2)  # eq. 10: (I − K H) P = P − K (P Hᵀ)ᵀ
-        P = 0.5 * (P + np.swapaxes(P, 1, 2))
-        log_w = _gauss_loglik(nu, S).reshape(n, m)  # eq. 5
+        P = _sym(P)
+        log_w = _gauss_loglik(nu, S, S_inv).reshape(n, m)  # eq. 5
         with np.errstate(divide="ignore"):
             log_w = log_w + np.log(state.mu)  # log Λ_j + log c̄_j
         log_w -= log_w.max(axis=1, keepdims=True)
@@ -362,8 +457,8 @@ class IMMFilter:
         return _combine(state.x_models, state.P_models, state.mu)
 
 
-def _gauss_loglik(nu: Float, S: Float) -> Float:
-    """log N(ν; 0, S) for ν (K,2), S (K,2,2) (eq. 5)."""
+def _gauss_loglik(nu: Float, S: Float, S_inv: Float | None = None) -> Float:
+    """log N(ν; 0, S) for ν (K,2), S (K,2,2) (eq. 5); S_inv: S⁻¹ if the caller has it."""
     det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-    d2 = np.einsum("ki,kij,kj->k", nu, inv_2x2(S), nu)
+    d2 = np.einsum("ki,kij,kj->k", nu, inv_2x2(S) if S_inv is None else S_inv, nu)
     return np.asarray(-0.5 * d2 - 0.5 * np.log(det) - _LOG_2PI)

@@ -61,6 +61,7 @@ __all__ = [
     "AltitudeFilter",
     "H",
     "SingerFilter",
+    "singer_matrices_into",
     "singer_process_noise",
     "singer_sigma_m_mps2",
     "singer_transition",
@@ -170,10 +171,8 @@ def _horner(coeffs: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _q_closed(ij: tuple[int, int], x: np.ndarray) -> np.ndarray:
-    """g_ij(x) from the closed form (accurate for x not small)."""
-    e1 = np.exp(-x)
-    e2 = np.exp(-2.0 * x)
+def _q_closed(ij: tuple[int, int], x: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
+    """g_ij(x) from the closed form (accurate for x not small), given e1 = e^{−x}, e2 = e^{−2x}."""
     if ij == (0, 0):
         num = 1 - e2 + 2 * x + 2 * x**3 / 3 - 2 * x**2 - 4 * x * e1
     elif ij == (0, 1):
@@ -205,8 +204,10 @@ def _g_all(x: np.ndarray) -> np.ndarray:
     if small.any():
         out[small] = (_Q_SERIES_MATRIX.T @ _powers(x[small])).T
     big = ~small
+    xb = x[big]
+    e1, e2 = np.exp(-xb), np.exp(-2.0 * xb)
     for k, ij in enumerate(_Q_KEYS):
-        out[big, k] = _q_closed(ij, x[big])
+        out[big, k] = _q_closed(ij, xb, e1, e2)
     return out
 
 
@@ -314,6 +315,28 @@ def _process_noise_terms(dt_s: np.ndarray, alpha_per_s: np.ndarray, sigma_m_mps2
     q_c = 2.0 * alpha_per_s * sigma_m_mps2**2
     powers = np.array([_Q_POWER[ij] for ij in _Q_KEYS])
     return np.asarray((q_c * _g_all(x).T * dt_s ** powers[:, None]).T)
+
+
+def singer_matrices_into(
+    phi: np.ndarray, Q: np.ndarray, dt_s: ArrayLike, alpha_per_s: ArrayLike, sigma_m_mps2: ArrayLike
+) -> None:
+    """Φ of :func:`singer_transition` (eq. 12, exact) and Q(k) of :func:`singer_process_noise`
+    written into ``phi`` and ``Q`` (..., 6, 6), whose entries outside the two per-axis
+    blocks are the caller's (zero); ``dt_s``, α and σ_m broadcast to their leading shape.
+    The IMM (imm.py) predicts its Singer models as one axis of an (N, M, 6, 6) array."""
+    lead = phi.shape[:-2]
+    dt, alpha, sigma = (
+        np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), lead)).ravel()
+        for v in (dt_s, alpha_per_s, sigma_m_mps2)
+    )
+    f02, f12, f22 = (f.reshape(lead) for f in _transition_terms(dt, alpha))
+    q = _process_noise_terms(dt, alpha, sigma)  # (K, 6)
+    t = dt.reshape(lead)
+    for o in (0, 3):  # the x and the y block
+        phi[..., o, o] = phi[..., o + 1, o + 1] = 1.0
+        phi[..., o, o + 1], phi[..., o, o + 2], phi[..., o + 1, o + 2], phi[..., o + 2, o + 2] = t, f02, f12, f22
+        for k, (i, j) in enumerate(_Q_KEYS):  # six matrix elements, not tracks
+            Q[..., o + i, o + j] = Q[..., o + j, o + i] = q[:, k].reshape(lead)
 
 
 def inv_2x2(m: np.ndarray) -> np.ndarray:
