@@ -166,7 +166,7 @@ def test_huge_arrays_and_deep_nesting_are_refused_cheaply():
             tracemalloc.stop()
         assert isinstance(r, wire.Rejection) and r.reason == "malformed_msgpack", name
         assert peak_bytes < 128 << 10, (name, peak_bytes)
-    assert wire.decode_plot_batch(claims["100k nested arrays"]).detail == "StackError"  # the depth limit
+    assert wire.decode_plot_batch(claims["100k nested arrays"]).detail.startswith("StackError")  # the depth limit
     big = pack({"v": 1, "radar_id": "app", "seq": 1, "plots": [good_plot()] * wire.MAX_PLOTS_PER_BATCH})
     r = wire.decode_plot_batch(big, max_bytes=len(big) - 1)
     assert isinstance(r, wire.Rejection) and r.reason == "oversize"

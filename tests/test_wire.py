@@ -126,3 +126,15 @@ def test_a_plot_batch_validates_against_the_published_schema():
     jsonschema.validate(msgpack.unpackb(batch([plot()])), schema)
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(msgpack.unpackb(batch([plot(azimuth_deg=400.0)])), schema)
+
+
+def test_a_malformed_payload_is_refused_with_what_and_where_for_the_log():
+    """Issue 13: a PlotBatch once arrived with a string that was not UTF-8. The rejection
+    says which error, where, and the payload's first bytes, so that the next one shows
+    whether a sender wrote it so or it was damaged on the way."""
+    good = msgpack.packb({"v": 1, "radar_id": "r1", "seq": 3, "plots": [{"t": 1.7e9, "mode_s": "4CA1F3"}]})
+    at = good.index(b"4CA1F3")
+    damaged = good[:at] + b"\xc3" + good[at + 1 :]  # one byte of the address: no longer UTF-8
+    r = wire.decode_plot_batch(damaged)
+    assert isinstance(r, wire.Rejection) and r.reason == "malformed_msgpack"
+    assert r.detail.startswith("UnicodeDecodeError") and f"[{len(damaged)} bytes: {damaged[:32].hex()}]" in r.detail
