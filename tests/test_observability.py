@@ -245,3 +245,19 @@ def test_serve_writes_json_logs_and_serves_metrics(simulation, free_port, tmp_pa
     warning = next(d for d in lines if "malformed_msgpack" in d["message"])
     assert warning["level"] == "WARNING" and warning["logger"] == "radar_fusion.bus"
     assert "stopping: flushing open periods" in messages
+
+
+def test_a_pairs_role_and_epoch_are_gauges():
+    """Issue 13: an operator alarms when no instance of a pair, or two, report active."""
+    from prometheus_client import generate_latest
+
+    from radar_fusion.metrics import DaemonMetrics
+
+    m = DaemonMetrics()
+    health = {"t": 1.7e9, "uptime_s": 3.0, "counters": {"takeovers": 1, "state_bytes": 4096}, "rejected": {}}
+    m.update_health({**health, "role": "standby", "epoch": 2, "instance": "fusion-b"})
+    text = generate_latest(m.registry).decode()
+    assert "radar_fusion_active 0.0" in text and "radar_fusion_epoch 2.0" in text
+    assert "# TYPE radar_fusion_state_bytes gauge" in text and "radar_fusion_takeovers_total 1.0" in text
+    m.update_health({**health, "role": "active", "epoch": 3})
+    assert "radar_fusion_active 1.0" in generate_latest(m.registry).decode()

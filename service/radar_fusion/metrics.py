@@ -42,7 +42,7 @@ log = logging.getLogger("radar_fusion.metrics")
 NAMESPACE = "radar_fusion"
 # Health counters that are levels, not event counts (every other one is exported as a
 # Prometheus counter: a new level in health["counters"] must be listed here).
-GAUGE_COUNTERS = frozenset({"tracks_confirmed", "plots_buffered", "queue_depth", "outbox_depth"})
+GAUGE_COUNTERS = frozenset({"tracks_confirmed", "plots_buffered", "queue_depth", "outbox_depth", "state_bytes"})
 PERIOD_BUCKETS_S = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0)
 INGEST_BUCKETS_S = (0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0)
 _RADAR_COUNTERS = {  # health radars[<id>] field → metric name suffix, help
@@ -152,6 +152,16 @@ class _HealthCollector(Collector):
             v = _number(health.get(key))
             if v is not None:
                 yield GaugeMetricFamily(f"{ns}_{name}", text, value=v)
+        # a hot-standby pair (redundancy.py): alarm when no instance, or two, report active
+        if health.get("role") in ("active", "standby"):
+            yield GaugeMetricFamily(
+                f"{ns}_active",
+                "1 while this daemon publishes (the active of a pair, or alone), 0 as a standby",
+                value=1.0 if health["role"] == "active" else 0.0,
+            )
+        epoch = _number(health.get("epoch"))
+        if epoch is not None:
+            yield GaugeMetricFamily(f"{ns}_epoch", "the active's epoch (0 without redundancy)", value=epoch)
 
 
 class DaemonMetrics:
