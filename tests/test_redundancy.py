@@ -43,6 +43,19 @@ def test_a_standby_waits_while_an_active_lives_and_takes_over_above_its_epoch():
     assert e.took_over() == 4  # above every epoch seen: epochs only grow
 
 
+def test_epochs_grow_across_a_restart_of_the_whole_pair():
+    """A display that stayed up drops what is below the highest epoch it saw: a pair that
+    restarted from nothing must not start again at 1."""
+    before = Election("a:1", started_s=0.0)
+    first = before.took_over(wall_s=1_790_000_000.4)
+    for _ in range(3):  # three take-overs within that second
+        before.active_seen("b:1", before.highest_epoch + 1, True)
+        before.took_over(wall_s=1_790_000_000.9)
+    assert first == 1_790_000_000 and before.epoch == first + 6
+    restarted = Election("a:1", started_s=0.0)  # nothing seen, seconds later
+    assert restarted.took_over(wall_s=1_790_000_020.0) > before.epoch
+
+
 def test_of_several_standbys_only_the_smallest_name_moves():
     names = ["host-b:7", "host-a:9", "host-c:1"]
     elections = {n: Election(n, started_s=0.0) for n in names}

@@ -163,16 +163,17 @@ def test_sigkill_of_the_active_the_standby_goes_on_with_every_period_once_and_th
         router.close()
     assert "Traceback" not in stderr_b, stderr_b
     batches = seen.batches
-    assert {b["epoch"] for b in batches} == {1, 2}
+    epochs = sorted({b["epoch"] for b in batches})
+    assert len(epochs) == 2 and epochs[0] >= 1
     assert current(batches) == batches  # the killed active sent nothing stale
     periods = [b["period"] for b in batches]
     assert periods == list(range(periods[0], periods[0] + len(periods))), "a period skipped or published twice"
     by_epoch = Counter((b["epoch"], b["instance"]) for b in batches)
-    assert set(by_epoch) == {(1, "fusion-a"), (2, "fusion-b")}
+    assert set(by_epoch) == {(epochs[0], "fusion-a"), (epochs[1], "fusion-b")}
     # the same id for every aircraft across the switch
     ids = ids_per_address(batches)
     assert len(ids) >= 15 and all(len(v) == 1 for v in ids.values()), ids
-    switch = next(i for i, b in enumerate(batches) if b["epoch"] == 2)
+    switch = next(i for i, b in enumerate(batches) if b["epoch"] == epochs[1])
     before = {t["track_id"] for t in batches[switch - 1]["tracks"] if t["status"] == "confirmed"}
     after = {t["track_id"] for t in batches[switch]["tracks"]}
     assert before and before <= after
@@ -289,7 +290,7 @@ def test_partition_and_heal_the_older_epoch_stands_down_and_takes_the_new_active
         proxy.cut.clear()  # heal: the cut client reconnects through the proxy by itself
         assert wait_until(lambda: a.role == "standby", 30), "two actives after the heal"
         stand_down_s = time.monotonic() - t_cut
-        assert b.role == "active" and (a.epoch, b.epoch) == (1, 2)
+        assert b.role == "active" and 1 <= a.epoch < b.epoch
         applied = a.redundancy_counters["states_applied"]
         replay_records(client, thirds[2], "atc", speed=20.0)
         assert wait_until(lambda: a.redundancy_counters["states_applied"] > applied + 3, 10)
@@ -308,8 +309,8 @@ def test_partition_and_heal_the_older_epoch_stands_down_and_takes_the_new_active
     stale = len(seen.batches) - len(kept)
     periods = [x["period"] for x in kept]
     assert periods == sorted(set(periods)), "a period twice from the current active"
-    assert {x["epoch"] for x in kept} == {1, 2}
-    assert all(x["instance"] == "fusion-b" for x in kept if x["epoch"] == 2)
+    assert len({x["epoch"] for x in kept}) == 2
+    assert all(x["instance"] == "fusion-b" for x in kept if x["epoch"] == kept[-1]["epoch"])
     ids = ids_per_address(kept)
     doubled = {k: v for k, v in ids.items() if len(v) > 1}
     print(

@@ -413,7 +413,7 @@ class FusionDaemon:
         assert election is not None
         decision = election.decide(time.monotonic())
         if decision == "take_over":
-            self.epoch = election.took_over()
+            self.epoch = election.took_over(time.time())
             self.role = "active"
             self.redundancy_counters["takeovers"] += 1
             self._not_before_period = self._published_seen

@@ -15,8 +15,8 @@ The rules, which :class:`Election` implements without any I/O:
 * **One active.** A standby takes over when it sees no active (it has asked the bus
   for the tokens alive at its start, and listened ``settle_s`` more), and is the smallest
   instance name among the standbys it sees (so of three, one moves). It takes the epoch
-  one above the highest it has seen (on tokens, TrackBatches and states), so epochs only
-  grow.
+  one above the highest it has seen (on tokens, TrackBatches and states) and at least the
+  wall clock's UTC seconds, so epochs only grow, also across a restart of the whole pair.
 * **Two actives** (a partition healed, or two standbys moved at once): the one of the
   lower epoch stands down at once; at equal epochs the larger name does. A TrackBatch or
   state of a higher epoch than its own makes an active stand down too, before the token
@@ -110,9 +110,13 @@ class Election:
             return None  # another standby comes first; if it does not move, it is not on the bus
         return "take_over"
 
-    def took_over(self) -> int:
+    def took_over(self, wall_s: float = 0.0) -> int:
+        """Become the active: the epoch is one above the highest seen, and at least the
+        wall clock's whole seconds (``wall_s``), so that epochs also grow across a restart
+        of the whole pair (a display that stayed up would otherwise drop the new active's
+        messages as stale)."""
         self.role = "active"
-        self.epoch = self.highest_epoch = self.highest_epoch + 1
+        self.epoch = self.highest_epoch = max(self.highest_epoch + 1, int(wall_s))
         self.takeovers += 1
         return self.epoch
 

@@ -141,8 +141,9 @@ class TrackBatch(_Message):
     epoch: int | None = Field(
         None,
         ge=1,
-        description="with [redundancy] on: the publishing active's epoch. It grows at every take-over; a "
-        "consumer drops a message of an epoch lower than the highest it has seen (a stale active)",
+        description="with [redundancy] on: the publishing active's epoch. It grows at every take-over (one "
+        "above the highest seen, at least the UTC seconds of the take-over, so also across a restart of the "
+        "pair); a consumer drops a message of an epoch lower than the highest it has seen (a stale active)",
     )
     instance: str | None = Field(None, description="with [redundancy] on: the publishing daemon's instance name")
 
