@@ -250,3 +250,42 @@ def test_dense_traffic_two_radars_each_plot_its_own_track():
     rms_guess = np.sqrt(np.nanmean((xa - truth[:, 0]) ** 2 + (ya - truth[:, 1]) ** 2))
     # Radar noise alone: ~50 m in range, ~0.08 deg x 35 km ~ 50 m across.
     assert rms_picked < 120.0 and rms_guess > 5.0 * rms_picked, (rms_picked, rms_guess)
+
+
+def test_reach_is_each_tracks_own_and_holds_every_pair_by_brute_force():
+    """The candidate search (tracks grouped by reach, one k-d tree per group) returns
+    exactly the pairs a brute-force loop over every (plot, track) finds within
+    half + 1 km + speed |dt| + gate sqrt(spread + var), however wide a few tracks are."""
+    from radar_fusion.tracking.primary_height import _within_reach
+
+    rng = np.random.default_rng(7)
+    n, m = 400, 120
+    xy = rng.uniform(-300e3, 300e3, (n, 2))
+    speed = rng.uniform(0.0, 300.0, n)
+    spread = rng.uniform(50.0, 500.0, n) ** 2
+    speed[:5] = [2e3, 5e3, 1e4, 0.0, 0.0]  # wild tentative tracks, as at 20,000 aircraft
+    spread[3:8] = [3e4**2, 7e4**2, 1e3**2, 1e4**2, 5e4**2]
+    pxy = rng.uniform(-300e3, 300e3, (m, 2))
+    half = rng.uniform(0.0, 5e3, m)
+    dt = rng.uniform(0.0, 4.0, m)
+    var = rng.uniform(50.0, 900.0, m) ** 2
+    pair_p, pair_t = _within_reach(xy, speed, spread, pxy, half, dt, var, 4.0)
+    dist = np.hypot(xy[None, :, 0] - pxy[:, None, 0], xy[None, :, 1] - pxy[:, None, 1])
+    reach = half[:, None] + 1e3 + speed[None] * dt[:, None] + 4.0 * np.sqrt(spread[None] + var[:, None])
+    want = {(int(i), int(j)) for i, j in zip(*np.nonzero(dist <= reach))}
+    assert set(zip(pair_p.tolist(), pair_t.tolist())) == want
+    assert len(pair_p) == len(want) and np.all(np.diff(pair_p) >= 0)
+
+
+def test_far_track_gated_by_the_plots_azimuth_noise_is_found():
+    """340 km out, 0.1 deg of azimuth noise is 590 m across: a track 2 km across the
+    plot's azimuth (3.4 sigma, inside a 4-sigma gate) must be a candidate although its own
+    position spread is small; the search once reached only 1 km plus the range noise
+    (1.6 km here) unless some other track widened it."""
+    sites = RadarSites([LAT0], [LON0], [50.0], [SIGMA_RHO_M], [0.1])
+    plane = SystemPlane(LAT0, LON0)
+    lat, lon = place(LAT0, LON0, [340e3], [30.0])
+    rho, az = measure(LAT0, LON0, 50.0, lat, lon, [350 * FL])
+    plot_az = az + np.degrees(2.0e3 / 340e3)
+    res = primary_plot_altitude(plane, sites, [0], rho, plot_az, [False], plane_xy(lat, lon), [350 * FL], iso(1, 30.0))
+    assert res.track_index.tolist() == [0]

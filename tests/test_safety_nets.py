@@ -435,6 +435,33 @@ def test_pruning_loses_no_conflict():
     assert expected and expected <= got
 
 
+def test_candidate_pairs_are_each_pairs_own_bound_by_brute_force():
+    """The pair search (tracks grouped by speed, one k-d tree per group) returns exactly
+    the pairs an all-pairs loop keeps with each pair's own speeds, sorted, however fast a
+    few (wild) tracks are: |m_i - m_j| <= S + (|v_i| + |v_j|) T/2 + 1 m on the midpoints,
+    or, with a turning member, |p_i - p_j| <= S + (|v_i| + |v_j|) T + 1 m."""
+    from radar_fusion.safety_nets.stca import candidate_pairs
+
+    rng = np.random.default_rng(11)
+    n, S, T = 500, 5 * M_PER_NM, 120.0
+    p = rng.uniform(-3e5, 3e5, (n, 2))
+    speed = rng.uniform(0.0, 280.0, n)
+    speed[:6] = [0.0, 20.0, 900.0, 2500.0, 6000.0, 11000.0]
+    hd = rng.uniform(0, 2 * np.pi, n)
+    v = speed[:, None] * np.column_stack([np.sin(hd), np.cos(hd)])
+    mid = p + v * T / 2
+    turning = rng.random(n) < 0.2
+    pairs = candidate_pairs(mid, p, speed, turning, S, T)
+    i, j = np.triu_indices(n, 1)
+    d_mid = np.hypot(*(mid[i] - mid[j]).T)
+    d_now = np.hypot(*(p[i] - p[j]).T)
+    keep = (d_mid <= S + (speed[i] + speed[j]) * T / 2 + 1.0) | (
+        (turning[i] | turning[j]) & (d_now <= S + (speed[i] + speed[j]) * T + 1.0)
+    )
+    np.testing.assert_array_equal(pairs, np.column_stack([i[keep], j[keep]]))  # triu order: sorted by i, j
+    assert candidate_pairs(mid[:1], p[:1], speed[:1], turning[:1], S, T).shape == (0, 2)
+
+
 # ------------------------------------------------------------------ hooks
 
 

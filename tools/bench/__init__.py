@@ -32,6 +32,15 @@ Goals (issue 3): ≥ 100,000 plots/s at 4,000 aircraft × 10 radars; period p99 
 at 4,000 aircraft; cost growing no faster than about linearly with the number of
 aircraft. Figures from a shared machine are noisy: compare ratios from one run.
 
+World scale (issue 16 item 4): ``radar-fusion bench --sizes 4000x10,20000x30
+--no-gate-compare`` (about a minute at 120 s) adds, per size, the period p99 as a share
+of the period and how many times faster than real time the engine ran (simulated
+seconds / engine seconds), and for 20,000 × 30 a verdict: every period, the warm-up's
+included, processed within the period, with the peak RSS and the resident memory after
+the warm-up and at the end (flat: memory bounded). The daemon's end-to-end figures at
+that size: ``--compare --sizes 20000x30 --no-reference --no-accuracy --no-adsb`` (3-4
+minutes at 60 s). Neither is in the default sizes.
+
     radar-fusion bench [--sizes 100x3,1000x10] [--duration-s 120] [--seed 0]
                        [--no-gate-compare] [--out reports/bench.md] [--quick]
                        [--profile 4000x10]

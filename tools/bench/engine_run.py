@@ -96,6 +96,7 @@ def write_engine_inputs(scenario, sim, path: str) -> dict[str, Any]:
     data = {
         "config_toml": sim_mod.config_toml(scenario),
         "start_t_s": float(scenario.start_t_s),
+        "duration_s": float(scenario.duration_s),
         "events": [(e[1], e[3]) for e in events],
         "n_plots": n_plots,
     }
@@ -143,6 +144,7 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     # Keep only each period's figures: holding every TrackBatch (thousands of dicts per
     # period) would make Python's cyclic GC slower and slower and distort the timings.
     periods: list[tuple[float, float, int, int]] = []  # (t_s, processing_ms, plots, tracks)
+    rss_mb: list[tuple[float, float]] = []  # (t_s, resident MB) after each period: memory bounded?
 
     msg_ms: list[float] = []  # TrackBatch msgpack-encoded from the columns, per period
 
@@ -152,6 +154,8 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
             _ = o.track_batch_bytes  # what the daemon's publisher sends
             msg_ms.append((perf() - t0) * 1e3)
             periods.append((o.t_s, o.processing_s * 1e3, o.n_plots, len(o.track_columns)))
+        if outs:
+            rss_mb.append((outs[-1].t_s, (rss_kb("VmRSS") or 0) / 1024.0))
 
     profiler = None
     if profile_top:
@@ -194,6 +198,8 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
     tracks_per_period = [p[3] for p in periods if p[0] >= warm_end]
     status = engine.tracks.status
     n_plots = data["n_plots"]
+    period_s = float(settings.system.period_s)
+    rss_steady = [m for t, m in rss_mb if t >= warm_end]
     result = {
         "gate": gate,
         "plots": n_plots,
@@ -202,6 +208,9 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
         "status_s": t_status,
         "poll_s": t_poll,
         "plots_per_s": n_plots / t_total if t_total > 0 else math.nan,
+        "period_s": period_s,
+        "duration_s": float(data.get("duration_s", len(periods) * period_s)),
+        "real_time_x": float(data.get("duration_s", len(periods) * period_s)) / t_total if t_total > 0 else math.nan,
         "ingest_us_per_plot": 1e6 * t_ingest / max(n_plots, 1),
         "ingest_share": t_ingest / t_total if t_total > 0 else math.nan,
         "periods": len(periods),
@@ -223,6 +232,8 @@ def run_engine(path: str, gate: bool, warmup_s: float, profile_top: int = 0) -> 
         "plots_accepted": int(engine.counters.get("plots_accepted", 0)),
         "rss_base_mb": (rss_base_kb or 0) / 1024.0,
         "peak_rss_mb": (peak_kb or 0) / 1024.0,
+        "rss_steady_first_mb": rss_steady[0] if rss_steady else math.nan,
+        "rss_end_mb": rss_steady[-1] if rss_steady else math.nan,
         "peak_source": peak_source,
         "maxrss_before_mb": (maxrss_before_kb or 0) / 1024.0,
     }

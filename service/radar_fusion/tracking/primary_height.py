@@ -45,14 +45,18 @@ with S_rho_j = sigma_rho^2 + var_rho_j + halfwidth_j^2 / 3 (a track without alti
 spreads its slant range uniformly over its interval): so a plot right on a track with
 altitude is not taken by a track without altitude whose wide interval also holds it,
 as the bare distance to the interval (zero inside) would do. Candidates: the tracks in
-the plane within reach of the plot's ground-range interval over [min, max] altitude (one
-k-d tree over all tracks, one ball query per plot, all radars at once), of which the
-``n_candidates`` nearest in the radar's slant-range plane rho (sin theta, cos theta)
-compete (|p_i - p_j|^2 = drho^2 + 4 rho_i rho_j sin^2(dtheta / 2) ~ drho^2 +
-(rho dtheta)^2, no wrap at north): O(M log N) for M plots and N tracks, plus a few numpy
-operations per candidate pair (one ``Geod.inv`` per (radar, track within the reach of its
-plots) pair and a k-d tree per radar before: ~20 ms per period at 4,000 aircraft and 10
-radars, now ~3-5 ms).
+the plane within reach of the plot's ground-range interval over [min, max] altitude, each
+track with its own reach (its motion over the plot's time offset, its gate over its spread
+and the plot's noise; k-d trees over the tracks grouped by reach, one ball query per plot
+and group, all radars at once), of which the ``n_candidates`` nearest in the radar's
+slant-range plane rho (sin theta, cos theta) compete (|p_i - p_j|^2 = drho^2 + 4 rho_i
+rho_j sin^2(dtheta / 2) ~ drho^2 + (rho dtheta)^2, no wrap at north): O(M log N) for M
+plots and N tracks, plus a few numpy operations per candidate pair (one ``Geod.inv`` per
+(radar, track within the reach of its plots) pair and a k-d tree per radar before: ~20 ms
+per period at 4,000 aircraft and 10 radars, now ~3-5 ms). One reach for all tracks, the
+largest, grew faster than the traffic: at 20,000 aircraft a few tentative tracks tens of
+kilometres wide or at several km/s gave every primary plot thousands of candidates
+(~130 ms a period, up to 0.9 s; issue 16).
 """
 
 from __future__ import annotations
@@ -164,11 +168,11 @@ def primary_plot_altitude(
 
     # Candidates, all radars at once: a plot lies in the plane within its ground-range
     # interval over [min, max] altitude along its azimuth. From the interval's middle
-    # (put in the plane exactly, on the conformal sphere), half its width plus a slack for
-    # the track's motion over the plot's time offset, its gate and 1 km for the sphere's
-    # and the plane's approximations (< 1 m per 100 km; the plane's scale k - 1 < 0.6 %
-    # of the half width) reach every track that may gate the plot. One k-d tree over the
-    # tracks' plane positions.
+    # (put in the plane exactly, on the conformal sphere), half its width plus the track's
+    # own reach (its motion over the plot's time offset, its gate over its position and
+    # altitude spread and the plot's noise, range and across, and 1 km for the sphere's and
+    # the plane's approximations: < 1 m per 100 km; the plane's scale k - 1 < 0.6 % of the
+    # half width) holds every track that may gate the plot.
     plots = np.flatnonzero(need)
     rp, tp, pr = rho_p[plots], theta_p[plots], radar[plots]
     r_arr, h_arr = sites.earth_radius_m[pr], sites.alt_m[pr]
@@ -179,19 +183,20 @@ def primary_plot_altitude(
     g_mid = np.where(np.isfinite(g_mid), g_mid, rp)
     g_half_m = 0.5 * np.abs(g_low - g_top)
     g_half_m = np.where(np.isfinite(g_half_m), g_half_m, rp)
-    slack_m = (
-        1e3
-        + float(np.max(np.hypot(vel_u[:, 0], vel_u[:, 1]))) * float(np.max(np.abs(dt_p[plots])))
-        + gate_sigmas * float(np.sqrt(np.max(cov_u[:, 0, 0] + cov_u[:, 1, 1]) + np.max(sites.sigma_range_m[pr]) ** 2))
-    )
     chi_m, lam_m = conformal_sphere_destination(r_c, site_chi[pr], site_lam[pr], np.degrees(tp), g_mid)
     where = np.stack(plane.from_conformal_sphere(chi_m, lam_m), axis=1)
-    hits = cKDTree(xy_u).query_ball_point(where, g_half_m + slack_m, return_sorted=False)
-    lens = np.fromiter(map(len, hits), dtype=np.intp, count=len(hits))
-    if not lens.sum():
+    pair_p, pair_t = _within_reach(
+        xy_u,
+        np.hypot(vel_u[:, 0], vel_u[:, 1]),
+        cov_u[:, 0, 0] + cov_u[:, 1, 1] + var_h_u,
+        where,
+        g_half_m,
+        np.abs(dt_p[plots]),
+        sites.sigma_range_m[pr] ** 2 + (sites.sigma_azimuth_rad[pr] * rp) ** 2,
+        gate_sigmas,
+    )
+    if not pair_p.size:
         return PrimaryHeight(track_index, np.full(m, np.nan))
-    pair_p = np.repeat(np.arange(plots.size), lens)  # index into ``plots``
-    pair_t = np.fromiter(itertools.chain.from_iterable(hits), dtype=np.intp, count=int(lens.sum()))
 
     # What the plot's radar measures of each candidate track (at min_altitude_m for a
     # track without altitude), and the slant-range interval of a track without altitude
@@ -269,3 +274,56 @@ def primary_plot_altitude(
     altitude_m = np.full(m, np.nan)
     altitude_m[matched] = alt[track_index[matched]]
     return PrimaryHeight(track_index, altitude_m)
+
+
+def _within_reach(
+    track_xy_m: NDArray[np.float64],
+    track_speed_mps: NDArray[np.float64],
+    track_spread_m2: NDArray[np.float64],
+    plot_xy_m: NDArray[np.float64],
+    plot_half_m: NDArray[np.float64],
+    plot_abs_dt_s: NDArray[np.float64],
+    plot_var_m2: NDArray[np.float64],
+    gate_sigmas: float,
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The (plot, track) pairs, sorted by plot, with the track within the plot's reach:
+
+        |xy_t - xy_p| <= half_p + 1 km + speed_t |dt_p| + gate sqrt(spread_t + var_p)
+
+    (``track_spread_m2``: the trace of the track's position covariance plus its altitude
+    variance; ``plot_var_m2``: the plot's range variance plus its azimuth variance times
+    the squared range, the sum of its noise ellipse's axes). The tracks are
+    grouped by their largest reach over the plots (1-2 km, 2-4 km, 4-8 km, ...), one k-d
+    tree and one ball query per plot for each group, and the pairs are then cut to the
+    exact reach. One reach for all tracks (the largest) made the search grow faster than
+    the traffic: at 20,000 tracks a few tentative tracks with a position spread of tens of
+    kilometres or a velocity of several km/s, and every primary plot had thousands of
+    candidates (a second a period; issue 16)."""
+    if not plot_xy_m.shape[0] or not track_xy_m.shape[0]:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    reach_max = (
+        1e3
+        + track_speed_mps * float(np.max(plot_abs_dt_s))
+        + gate_sigmas * np.sqrt(track_spread_m2 + float(np.max(plot_var_m2)))
+    )
+    level = np.ceil(np.log2(np.maximum(reach_max / 1e3, 1.0))).astype(np.intp)
+    pp, tt = [], []
+    for lv in np.unique(level).tolist():
+        members = np.flatnonzero(level == lv)
+        hits = cKDTree(track_xy_m[members]).query_ball_point(
+            plot_xy_m, plot_half_m + 1e3 * 2.0**lv, return_sorted=False
+        )
+        lens = np.fromiter(map(len, hits), dtype=np.intp, count=len(hits))
+        pp.append(np.repeat(np.arange(plot_xy_m.shape[0]), lens))
+        tt.append(members[np.fromiter(itertools.chain.from_iterable(hits), dtype=np.intp, count=int(lens.sum()))])
+    pair_p, pair_t = np.concatenate(pp), np.concatenate(tt)
+    d = track_xy_m[pair_t] - plot_xy_m[pair_p]
+    reach = (
+        plot_half_m[pair_p]
+        + 1e3
+        + track_speed_mps[pair_t] * plot_abs_dt_s[pair_p]
+        + gate_sigmas * np.sqrt(track_spread_m2[pair_t] + plot_var_m2[pair_p])
+    )
+    keep = np.hypot(d[:, 0], d[:, 1]) <= reach
+    order = np.argsort(pair_p[keep], kind="stable")
+    return pair_p[keep][order], pair_t[keep][order]
