@@ -78,6 +78,20 @@ def test_duplicate_radar_ids_refused(tmp_path):
         load_settings(write(tmp_path, text))
 
 
+def test_a_pair_of_peers_must_be_reachable(tmp_path):
+    """Zenoh routers do not relay between peers: a pair's peer with no listen endpoint
+    never sees the other's election tokens, and both would publish (seen in a trial run)."""
+    pair = "\n[redundancy]\nenabled = true\n"
+    peer_unreachable = GOOD.replace('mode = "router"\nlisten = ["tcp/127.0.0.1:7447"]', 'mode = "peer"\nlisten = []')
+    with pytest.raises(ConfigError, match="listen endpoints"):
+        load_settings(write(tmp_path, peer_unreachable + pair))
+    assert load_settings(write(tmp_path, peer_unreachable)).bus.mode == "peer"  # alone: fine
+    peer = GOOD.replace('mode = "router"', 'mode = "peer"')
+    assert load_settings(write(tmp_path, peer + pair)).redundancy.enabled
+    client = GOOD.replace('mode = "router"\nlisten = ["tcp/127.0.0.1:7447"]', 'mode = "client"\nlisten = []')
+    assert load_settings(write(tmp_path, client + pair)).redundancy.enabled
+
+
 def test_missing_and_invalid_files(tmp_path):
     with pytest.raises(ConfigError, match="not found"):
         load_settings(tmp_path / "nope.toml")

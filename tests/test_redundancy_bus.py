@@ -381,3 +381,48 @@ def test_the_standby_keeps_up_with_1000_aircraft_and_10_radars(tmp_path, free_po
     assert counters["states_applied"] >= 0.8 * a.engine.periods_closed
     assert depth["max"] < 1000
     assert b.states_saved > 0 and load_state(Engine(settings), tmp_path / "fusion-b") == len(b.engine.tracks)
+
+
+def test_a_pair_of_peers_that_listen_elects_one_active(demo_140s, free_port):
+    """The issue's other bus shape: the pair as Zenoh peers (each with a listen endpoint,
+    as peers mesh directly) beside a router the radars reach."""
+    out, simulation = demo_140s
+    settings = load_settings(pair_config(out, free_port))
+    router = open_session(zenoh_config("router", listen=[f"tcp/127.0.0.1:{free_port}"]))
+    ports = []
+    for _ in range(2):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            ports.append(s.getsockname()[1])
+
+    def daemon(instance: str, port: int) -> FusionDaemon:
+        bus = settings.bus.model_copy(update={"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]})
+        red = settings.redundancy.model_copy(update={"instance": instance})
+        return FusionDaemon(settings.model_copy(update={"bus": bus, "redundancy": red}))
+
+    a, b = daemon("fusion-a", ports[0]), daemon("fusion-b", ports[1])
+    client = open_session(zenoh_config("client", connect=[f"tcp/127.0.0.1:{free_port}"]))
+    seen = TrackCollector(client, "atc")
+    records = [Record(t, k, p) for t, k, p in simulation.messages]
+    try:
+        a.start()
+        assert wait_until(lambda: a.role == "active", 10)
+        b.start()
+        time.sleep(1.5)
+        replay_records(client, records[: len(records) // 2], "atc", speed=None)
+        assert wait_until(lambda: b.redundancy_counters["states_applied"] > 0, 10)
+        assert b.role == "standby" and a.role == "active"
+        a.stop()
+        assert wait_until(lambda: b.role == "active", 10)
+        replay_records(client, records[len(records) // 2 :], "atc", speed=None)
+        assert wait_until(lambda: b.messages_processed >= len(records) - len(records) // 2, 20)
+    finally:
+        for d in (a, b):
+            if not d.stopped.is_set():
+                d.stop()
+        seen.close()
+        client.close()
+        router.close()
+    periods = [x["period"] for x in seen.batches]
+    assert periods == list(range(periods[0], periods[0] + len(periods)))
+    assert len({x["instance"] for x in seen.batches}) == 2

@@ -280,6 +280,17 @@ class Settings(BaseSettings):
             raise ValueError("radar (sac, sic) pairs must be unique")
         return self
 
+    @model_validator(mode="after")
+    def _pair_peers_listen(self) -> Settings:
+        # Zenoh routers do not route between peers (peers mesh directly): a peer of a pair
+        # that no one can reach never sees the other's election tokens, and both go active
+        if self.redundancy.enabled and self.bus.mode == "peer" and not self.bus.listen:
+            raise ValueError(
+                "[redundancy] with [bus] mode = 'peer' needs listen endpoints: peers of a pair reach each "
+                "other directly (a router does not relay between peers); or use mode = 'client'"
+            )
+        return self
+
     @property
     def longest_rotation_s(self) -> float:
         return max(r.rotation_period_s for r in self.radars)
