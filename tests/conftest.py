@@ -29,6 +29,20 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+@pytest.fixture(scope="session")
+def demo_case():
+    """(settings, simulation) of the default demo scenario, simulated once for the session
+    (the restart-from-state and hot-standby tests feed engines from it)."""
+    import tomllib
+
+    from radar_fusion.config import settings_from_dict
+    from radar_fusion.tools import simulate as sim
+
+    scenario = sim.preset("demo")
+    simulation = sim.simulate(scenario)
+    return settings_from_dict(tomllib.loads(sim.config_toml(scenario))), simulation
+
+
 @pytest.fixture(autouse=True)
 def zenoh_sessions_only_in_bus_tests(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
     """A test that opens a Zenoh session without the ``bus`` marker fails, saying so: the

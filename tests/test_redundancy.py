@@ -4,22 +4,19 @@ and the stamp an active puts on its TrackBatches reads back on every path."""
 
 from __future__ import annotations
 
-import tomllib
-
 import msgpack
 import numpy as np
 import pytest
 
 from radar_fusion.bus import batch_stamp
-from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
 from radar_fusion.engine.state import StateMismatch, restore, snapshot
 from radar_fusion.geo.coordinates import SystemPlane
 from radar_fusion.redundancy import Election, default_instance
 from radar_fusion.safety_nets.track_input import TrackBatchReader
 from radar_fusion.tools import evaluate as ev
-from radar_fusion.tools import simulate as sim
-from radar_fusion.wire import RadarStatus, TrackBatch, decode_message, decode_plot_batch
+from radar_fusion.tools.replay import ingest_record
+from radar_fusion.wire import TrackBatch
 
 # ------------------------------------------------------------------ the election
 
@@ -110,35 +107,20 @@ def test_the_default_instance_is_host_and_pid_in_key_characters():
 # ----------------------------------------------------- a standby applying states
 
 
-@pytest.fixture(scope="module")
-def demo():
-    scenario = sim.preset("demo")
-    simulation = sim.simulate(scenario)
-    settings = settings_from_dict(tomllib.loads(sim.config_toml(scenario)))
-    return settings, simulation
-
-
-def ingest(engine: Engine, key: str, payload: bytes) -> None:
-    if key.endswith("/plots"):
-        engine.ingest_plots(decode_plot_batch(payload))
-    else:
-        engine.ingest_status(decode_message(payload, RadarStatus))
-
-
 @pytest.mark.slow
-def test_a_standby_that_applies_each_state_takes_over_with_bit_identical_tracks(demo):
+def test_a_standby_that_applies_each_state_takes_over_with_bit_identical_tracks(demo_case):
     """The standby ingests the same plots, closes no period and applies the active's
     state after each of the active's periods; from the take-over on it closes the
     periods itself. Its outputs are exactly those the active would have produced."""
-    settings, simulation = demo
+    settings, simulation = demo_case
     msgs = simulation.messages
     cut = len(msgs) // 2
     active, standby = Engine(settings), Engine(settings)
     before: list = []
     states = 0
     for _t, key, payload in msgs[:cut]:
-        ingest(active, key, payload)
-        ingest(standby, key, payload)
+        ingest_record(active, key, payload)
+        ingest_record(standby, key, payload)
         out = active.poll()
         before += out
         if out:
@@ -150,8 +132,8 @@ def test_a_standby_that_applies_each_state_takes_over_with_bit_identical_tracks(
     assert standby.buffer.buffered_plots == active.buffer.buffered_plots > 0
     continued, taken_over = [], []
     for _t, key, payload in msgs[cut:]:
-        ingest(active, key, payload)
-        ingest(standby, key, payload)
+        ingest_record(active, key, payload)
+        ingest_record(standby, key, payload)
         continued += active.poll()
         taken_over += standby.poll()
     continued += active.flush()
@@ -168,11 +150,11 @@ def test_a_standby_that_applies_each_state_takes_over_with_bit_identical_tracks(
     assert scores.track_ids_per_target_mean == 1.0 and scores.false_tracks == 0
 
 
-def test_a_standby_refuses_a_state_of_another_configuration_and_keeps_its_own(demo):
-    settings, simulation = demo
+def test_a_standby_refuses_a_state_of_another_configuration_and_keeps_its_own(demo_case):
+    settings, simulation = demo_case
     active = Engine(settings)
     for _t, key, payload in simulation.messages[:2000]:
-        ingest(active, key, payload)
+        ingest_record(active, key, payload)
         active.poll()
     other = settings.model_copy(update={"radars": settings.radars[:2]})
     standby = Engine(other)
@@ -184,12 +166,12 @@ def test_a_standby_refuses_a_state_of_another_configuration_and_keeps_its_own(de
 # ------------------------------------------------------------------- the stamp
 
 
-def test_an_actives_stamp_goes_out_in_the_trackbatch_and_reads_back_on_every_path(demo):
-    settings, simulation = demo
+def test_an_actives_stamp_goes_out_in_the_trackbatch_and_reads_back_on_every_path(demo_case):
+    settings, simulation = demo_case
     engine = Engine(settings)
     outputs = []
     for _t, key, payload in simulation.messages[:3000]:
-        ingest(engine, key, payload)
+        ingest_record(engine, key, payload)
         outputs += engine.poll()
     columns = outputs[-1].track_columns
     assert len(columns) >= 20

@@ -4,48 +4,23 @@ period published twice, and the accuracy of the uninterrupted run."""
 
 from __future__ import annotations
 
-import tomllib
-
 import pytest
 
-from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
 from radar_fusion.engine.state import StateMismatch, load_state, restore, save_state, set_state_aside, snapshot
 from radar_fusion.tools import evaluate as ev
-from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.replay import replay_into_engine
-from radar_fusion.wire import RadarStatus, decode_message, decode_plot_batch
-
-
-@pytest.fixture(scope="module")
-def demo():
-    scenario = sim.preset("demo")
-    simulation = sim.simulate(scenario)
-    settings = settings_from_dict(tomllib.loads(sim.config_toml(scenario)))
-    return settings, simulation
-
-
-def feed_without_flush(engine: Engine, records) -> list:
-    """The first daemon's life: messages in, periods out, stopped without a flush (killed)."""
-    outputs = []
-    for _t, key, payload in records:
-        if key.endswith("/plots"):
-            engine.ingest_plots(decode_plot_batch(payload))
-        else:
-            engine.ingest_status(decode_message(payload, RadarStatus))
-        outputs += engine.poll()
-    return outputs
 
 
 @pytest.mark.slow
-def test_a_restored_engine_keeps_every_track_and_id(demo, tmp_path):
-    settings, simulation = demo
+def test_a_restored_engine_keeps_every_track_and_id(demo_case, tmp_path):
+    settings, simulation = demo_case
     msgs = simulation.messages
     cut = len(msgs) // 2
     full = replay_into_engine(Engine(settings), msgs)
 
     first = Engine(settings)
-    before = feed_without_flush(first, msgs[:cut])
+    before = replay_into_engine(first, msgs[:cut], flush=False)
     n_tracks = len(first.tracks)
     save_state(first, tmp_path)
 
@@ -76,10 +51,10 @@ def test_a_restored_engine_keeps_every_track_and_id(demo, tmp_path):
     assert restarted.track_ids_per_target_mean > 1.8
 
 
-def test_a_state_of_another_configuration_or_no_state_is_refused(demo, tmp_path):
-    settings, simulation = demo
+def test_a_state_of_another_configuration_or_no_state_is_refused(demo_case, tmp_path):
+    settings, simulation = demo_case
     engine = Engine(settings)
-    feed_without_flush(engine, simulation.messages[:400])
+    replay_into_engine(engine, simulation.messages[:400], flush=False)
     data = snapshot(engine)
     other = settings.model_copy(update={"radars": settings.radars[:2]})
     with pytest.raises(StateMismatch, match="radars"):

@@ -96,25 +96,32 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def replay_into_engine(engine, records: Iterable[tuple[float, str, bytes]]) -> list:
-    """Feed (t_s, key, payload) messages to an Engine in process, decoding them as the
-    daemon does, polling after each; returns every PeriodOutput including the flush.
-    The same path as the bus minus Zenoh: for tests, experiments and benchmarks."""
+def ingest_record(engine, key: str, payload: bytes) -> None:
+    """One recorded message into an Engine, decoded as the daemon decodes it (a refused one
+    is counted by reason; a key that is neither plots nor status is ignored)."""
     from radar_fusion.wire import RadarStatus, Rejection, decode_message, decode_plot_batch
 
+    if key.endswith("/plots"):
+        plots = decode_plot_batch(payload)
+        if isinstance(plots, Rejection):
+            engine.reject(plots.reason)
+        else:
+            engine.ingest_plots(plots)
+    elif key.endswith("/status"):
+        status = decode_message(payload, RadarStatus)
+        if isinstance(status, Rejection):
+            engine.reject(status.reason)
+        else:
+            engine.ingest_status(status)
+
+
+def replay_into_engine(engine, records: Iterable[tuple[float, str, bytes]], flush: bool = True) -> list:
+    """Feed (t_s, key, payload) messages to an Engine in process, decoding them as the
+    daemon does, polling after each; returns every PeriodOutput including the flush
+    (without ``flush``: as a daemon killed after the last message would have left them).
+    The same path as the bus minus Zenoh: for tests, experiments and benchmarks."""
     outputs = []
     for _t_s, key, payload in records:
-        if key.endswith("/plots"):
-            plots = decode_plot_batch(payload)
-            if isinstance(plots, Rejection):
-                engine.reject(plots.reason)
-                continue
-            engine.ingest_plots(plots)
-        elif key.endswith("/status"):
-            status = decode_message(payload, RadarStatus)
-            if isinstance(status, Rejection):
-                engine.reject(status.reason)
-                continue
-            engine.ingest_status(status)
+        ingest_record(engine, key, payload)
         outputs += engine.poll()
-    return outputs + engine.flush()
+    return (outputs + engine.flush()) if flush else outputs
