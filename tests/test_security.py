@@ -357,6 +357,22 @@ def test_one_site_the_safety_nets_child_joins_with_its_own_certificate(pki, scen
             s.close()
 
 
+def site_routers(pki: Path, tmp_path: Path, a: str, b: str) -> list[zenoh.Session]:
+    """The two site routers of deploy/zenoh as they are, router-b connecting to router-a."""
+    routers = []
+    try:
+        for name, listen, connect in (("router-site-a.json5", a, []), ("router-site-b.json5", b, [a])):
+            cfg = zenoh.Config.from_file(str(deploy_config(name, pki, tmp_path)))
+            cfg.insert_json5("listen/endpoints", json.dumps([listen]))
+            cfg.insert_json5("connect/endpoints", json.dumps(connect))
+            routers.append(open_session(cfg))
+    except BaseException:
+        for r in routers:
+            r.close()
+        raise
+    return routers
+
+
 def test_two_sites_linked_over_tls_each_router_enforcing_its_site(pki, scenario, free_port, tmp_path):
     simulation, base = scenario
     a, b = f"tls/127.0.0.1:{free_port}", f"tls/127.0.0.1:{other_free_port()}"
@@ -364,11 +380,7 @@ def test_two_sites_linked_over_tls_each_router_enforcing_its_site(pki, scenario,
     sessions: dict[str, zenoh.Session] = {}
     daemon = collector = None
     try:
-        for name, listen, connect in (("router-site-a.json5", a, []), ("router-site-b.json5", b, [a])):
-            cfg = zenoh.Config.from_file(str(deploy_config(name, pki, tmp_path)))
-            cfg.insert_json5("listen/endpoints", json.dumps([listen]))
-            cfg.insert_json5("connect/endpoints", json.dumps(connect))
-            routers.append(open_session(cfg))
+        routers += site_routers(pki, tmp_path, a, b)
         settings = daemon_settings(
             base,
             mode="client",
@@ -429,11 +441,7 @@ def test_two_sites_a_hot_standby_pair_one_daemon_per_site(pki, scenario, free_po
     daemons: dict[str, FusionDaemon] = {}
     collector = None
     try:
-        for name, listen, connect in (("router-site-a.json5", a, []), ("router-site-b.json5", b, [a])):
-            cfg = zenoh.Config.from_file(str(deploy_config(name, pki, tmp_path)))
-            cfg.insert_json5("listen/endpoints", json.dumps([listen]))
-            cfg.insert_json5("connect/endpoints", json.dumps(connect))
-            routers.append(open_session(cfg))
+        routers += site_routers(pki, tmp_path, a, b)
         for site, endpoint in (("a", a), ("b", b)):
             settings = daemon_settings(
                 base,
