@@ -194,8 +194,6 @@ class FusionDaemon:
         self.redundancy_counters: Counter[str] = Counter(
             dict.fromkeys(
                 (
-                    "takeovers",
-                    "stand_downs",
                     "states_published",
                     "states_applied",
                     "states_refused",
@@ -403,7 +401,7 @@ class FusionDaemon:
                 instance, epoch, period = item[1:]
                 election.epoch_seen(instance, epoch)
                 if epoch >= election.highest_epoch:
-                    self._published_seen = max(period, self._published_seen or period)
+                    self._saw_published(period)
             elif kind == "state":
                 self._take_state(item[1])  # decides first: an active may have to stand down
         self._decide()  # on everything the bus showed, not event by event (a member seen before its active token)
@@ -415,7 +413,6 @@ class FusionDaemon:
         if decision == "take_over":
             self.epoch = election.took_over(time.time())
             self.role = "active"
-            self.redundancy_counters["takeovers"] += 1
             self._not_before_period = self._published_seen
             if self._election_bus is not None:
                 self._election_bus.declare_active(self.epoch)
@@ -428,10 +425,13 @@ class FusionDaemon:
         elif decision == "stand_down":
             election.stood_down()
             self.role = "standby"
-            self.redundancy_counters["stand_downs"] += 1
             if self._election_bus is not None:
                 self._election_bus.withdraw_active()
             log.warning("%s stands down: an active of epoch %d is on the bus", self.instance, election.highest_epoch)
+
+    def _saw_published(self, period: int) -> None:
+        """Another active published ``period`` (its TrackBatch, or the state after it)."""
+        self._published_seen = period if self._published_seen is None else max(period, self._published_seen)
 
     def _take_state(self, payload: bytes) -> None:
         """Another active's state: a standby applies it (its tracks become the active's)."""
@@ -463,7 +463,7 @@ class FusionDaemon:
         self.redundancy_counters["states_applied"] += 1
         self._save_state(payload)  # a pair restarted whole comes back with its tracks on either host
         if type(period) is int:
-            self._published_seen = max(period, self._published_seen or period)
+            self._saw_published(period)
 
     # ------------------------------------------------------------------ input
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -704,7 +704,11 @@ class FusionDaemon:
             publish_errors=self.publish_errors,
         )
         if self.election is not None:
-            h["counters"].update(self.redundancy_counters)
+            h["counters"].update(
+                self.redundancy_counters,
+                takeovers=self.election.takeovers,
+                stand_downs=self.election.stand_downs,
+            )
         if self.state_dir is not None:  # serve --state-dir
             h["counters"].update(
                 states_saved=self.states_saved,
