@@ -75,3 +75,10 @@ def pytest_configure(config):
     from radar_fusion.cli import one_blas_thread
 
     one_blas_thread()
+    # The IMM's numba kernels compiled (or loaded from their cache) before any test starts
+    # a daemon in a child process: on a clean clone the first compilation takes ~10 s,
+    # which would otherwise fall inside some test's wait for its daemon, in several
+    # children at once.
+    from radar_fusion.tracking.imm import IMMFilter
+
+    IMMFilter()

@@ -340,8 +340,9 @@ class Engine:
         tr = self.tracks
         imm = None
         if self.imm is not None:
-            imm = self.imm.predict(IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows]), dt_s)
-            x, P = self.imm.combine(imm)
+            imm, x_c, P_c = self.imm.predict_combined(IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows]), dt_s)
+            assert x_c is not None and P_c is not None
+            x, P = x_c, P_c
         else:
             x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
         alt_x, alt_P = self.alt_filter.predict(tr.alt_x[rows], tr.alt_P[rows], dt_s)
@@ -659,9 +660,9 @@ class Engine:
             r = rows[init]
             if self.imm is not None:
                 prior = self.imm.predict(IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r]), dt_s[init])
-                st = self.imm.update(prior, z_m[init], R_m2[init])
+                st, x_u, P_u = self.imm.update_combined(prior, z_m[init], R_m2[init])
                 tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
-                x_c[init], P_c[init] = self.imm.combine(st)
+                x_c[init], P_c[init] = x_u, P_u
             else:
                 x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
                 x, P, nu, S = self.filter.update(x[init], P[init], z_m[init], R_m2[init])

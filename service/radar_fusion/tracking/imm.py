@@ -89,8 +89,10 @@ after the last update, p_ij = Π[i, j] from mode i to mode j:
        x = Σ_j μ_j x_j                                                                  (7)
        P = Σ_j μ_j [P_j + (x_j − x)(x_j − x)ᵀ]                                         (8)
 
-Everything is vectorised over the N tracks and the M models (batched matrix products,
-numpy einsum); the only Python loops run over the entries of Φ and Q.
+Steps 1-5 run in compiled loops (imm_kernels.py, numba), one pass over each track's M
+models, with Φ_j and Q_j laid out from their distinct entries (``model_terms``, computed
+here with the models' own formulas).  ``mix`` and ``model_matrices`` state eq. 1-4 and the
+models' matrices as batched numpy products, for reading and for the tests.
 """
 
 from __future__ import annotations
@@ -102,6 +104,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from . import coordinated_turn, imm_kernels, singer_filter
 from .coordinated_turn import CoordinatedTurnModel, ct_matrices_into
 from .singer_filter import POS_IDX, STATE_DIM, SingerFilter, inv_2x2, singer_matrices_into
 
@@ -237,32 +240,9 @@ class IMMState:
         return IMMState(self.x_models[idx].copy(), self.P_models[idx].copy(), self.mu[idx].copy())
 
 
-def _combine(x_models: Float, P_models: Float, w: Float) -> tuple[Float, Float]:
-    """Moment-matched Gaussian of the mixture Σ_i w_i N(x_i, P_i), for weights w (N, M):
-    x = Σ w_i x_i, P = Σ w_i [P_i + (x_i − x)(x_i − x)ᵀ] (eq. 7-8).  Both sums over i
-    are batched matrix products, (1×M)·(M×6) and (1×M)·(M×36) per track, and the spread
-    term is Dᵀ·diag(w)·D with D the (M×6) deviations x_i − x."""
-    n, m = w.shape
-    wr = w[:, None, :]
-    x = (wr @ x_models)[:, 0]
-    d = x_models - x[:, None, :]
-    P = (wr @ P_models.reshape(n, m, STATE_DIM * STATE_DIM)).reshape(n, STATE_DIM, STATE_DIM)
-    P += np.swapaxes(w[:, :, None] * d, 1, 2) @ d
-    return x, _sym(P)
-
-
-def _sym(P: Float) -> Float:
-    """½ (P + Pᵀ) over the last two axes."""
-    out = P + np.swapaxes(P, -1, -2)
-    out *= 0.5
-    return out
-
-
 class IMMFilter:
-    """IMM filter (module docstring, eq. 0-8) over N tracks of M models.
-
-    predict() keeps its Φ and Q buffers between calls (``_scratch_matrices``): one filter
-    is for one thread at a time, as the engine runs it."""
+    """IMM filter (module docstring, eq. 0-8) over N tracks of M models; it keeps no
+    state between calls (any thread may use it)."""
 
     def __init__(self, params: IMMParams | None = None) -> None:
         self.params = IMMParams() if params is None else params
@@ -280,7 +260,30 @@ class IMMFilter:
         self._sigma = np.array([m.sigma_m_mps2 for m in singer])
         self._omega = np.array([m.turn_rate_rad_s for m in turns])
         self._turn_q = np.array([m.q_m2_s3 for m in turns])
-        self._scratch: tuple[Float, Float] | None = None  # predict()'s Φ and Q (_scratch_matrices)
+        # the compiled cycle (imm_kernels.py): each model's family and turn rate, the order of
+        # the Singer q_ij, and Φ's non-zero columns per row (the union over a range of dt, so
+        # no structural zero is missed and no entry that can be non-zero is skipped)
+        self._family = np.array([imm_kernels.SINGER] * len(singer) + [imm_kernels.CT] * len(turns), dtype=np.int64)
+        self._omega_all = np.array([0.0] * len(singer) + [m.turn_rate_rad_s for m in turns])
+        self._q_keys = np.array(singer_filter._Q_KEYS, dtype=np.int64)
+        phi, _ = self.model_matrices(np.array([1e-3, 0.7, 4.0, 12.0, 300.0]))
+        nonzero = np.any(phi != 0.0, axis=0)  # (M, 6, 6)
+        self._nz_count = nonzero.sum(axis=2).astype(np.int64)
+        self._nz_cols = np.zeros((self.n_models, STATE_DIM, max(1, int(self._nz_count.max()))), dtype=np.int64)
+        for j, a in np.ndindex(self.n_models, STATE_DIM):
+            cols = np.flatnonzero(nonzero[j, a])
+            self._nz_cols[j, a, : cols.size] = cols
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Run every compiled kernel once on one track: numba compiles them (or loads them
+        from its cache) at their first call, which would otherwise fall in the first period
+        a daemon processes (0.3 s from the cache, seconds when compiling)."""
+        st = self.initiate(np.zeros((1, STATE_DIM)), np.eye(STATE_DIM)[None])
+        self.predict_combined(st, np.ones(1))
+        self.predict_position(st, np.ones(1))
+        self.update_combined(st, np.zeros((1, 2)), np.eye(2)[None])
+        self.combine(st)
 
     @property
     def n_models(self) -> int:
@@ -365,54 +368,100 @@ class IMMFilter:
         if self._omega.size:
             ct_matrices_into(phi[:, self._turns], Q[:, self._turns], dt[:, None], self._omega, self._turn_q)
 
-    def _scratch_matrices(self, n: int) -> tuple[Float, Float]:
-        """Φ and Q buffers for n tracks, kept between calls: zeroed once, each call writes
-        the same entries (``_fill_model_matrices``), so no 2 × N·M·36 zero fill per
-        prediction. Never returned: predict() only reads them."""
-        if self._scratch is None or self._scratch[0].shape[0] < n:
-            cap = max(n, 2 * (0 if self._scratch is None else self._scratch[0].shape[0]))
-            self._scratch = (
-                np.zeros((cap, self.n_models, STATE_DIM, STATE_DIM)),
-                np.zeros((cap, self.n_models, STATE_DIM, STATE_DIM)),
-            )
-        return self._scratch[0][:n], self._scratch[1][:n]
+    def model_terms(self, dt_s: Float) -> Float:
+        """The distinct entries of every model's Φ_j and Q_j over each track's dt_s, (N, M,
+        imm_kernels.TERMS), by the models' own formulas: the Singer models' Φ entries of Shu
+        eq. 12 and q_ij of §4 (singer_filter.py), the turns' T_s, T_c, cos ωT, sin ωT of eq. 2
+        and q f_pp, q f_pv, q f_po, q T of eq. 3 (coordinated_turn.py).  imm_kernels lays
+        them out as 6×6 matrices, as ``_fill_model_matrices`` does."""
+        n, m = dt_s.size, self.n_models
+        terms = np.zeros((n, m, imm_kernels.TERMS))
+        ms = self._alpha.size
+        if ms:
+            dt = np.repeat(dt_s, ms)
+            alpha, sigma = np.tile(self._alpha, n), np.tile(self._sigma, n)
+            f02, f12, f22 = singer_filter._transition_terms(dt, alpha)
+            sub = terms[:, self._singer]
+            sub[:, :, 0] = dt_s[:, None]
+            sub[:, :, 1], sub[:, :, 2], sub[:, :, 3] = (f.reshape(n, ms) for f in (f02, f12, f22))
+            sub[:, :, 4:] = singer_filter._process_noise_terms(dt, alpha, sigma).reshape(n, ms, 6)
+        if self._omega.size:
+            dt, w = coordinated_turn._broadcast(dt_s[:, None], self._omega)
+            s_w, c_w, c, s = coordinated_turn._transition_terms(dt, w)
+            f_pp, f_pv, f_po = coordinated_turn._noise_terms(dt, w, s_w, c_w)
+            q = self._turn_q
+            sub = terms[:, self._turns]
+            for k, v in enumerate((s_w, c_w, c, s, q * f_pp, q * f_pv, q * f_po, q * dt)):
+                sub[:, :, k] = v
+        return terms
+
+    def _dt(self, dt_s: ArrayLike, n: int) -> Float:
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
 
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
         """Steps 1-2: mixing (eq. 1-4) and each model's prediction (step 2 above) over dt_s
         (scalar or (N,)).  The result carries μ = c̄ (eq. 1).
 
         Every model is linear, x_j = Φ_j x⁰_j, P_j = Φ_j P⁰_j Φ_jᵀ + Q_j (Shu eq. 8, 11;
-        coordinated_turn.py eq. 4), so all N·M predictions are two batched 6×6 matrix
-        products (``model_matrices``), the same equations as each model's ``predict``."""
-        c_bar, x0, P0 = self.mix(state, dt_s)
-        n = len(state)
-        phi, Q = self._scratch_matrices(n)
-        self._fill_model_matrices(phi, Q, np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,))))
-        x_pred = np.einsum("nmij,nmj->nmi", phi, x0)
-        P_pred = phi @ P0 @ np.swapaxes(phi, 2, 3)
-        P_pred += Q
-        # symmetric to round-off only (Φ P⁰ Φᵀ rounds (k, l) and (l, k) differently): update()
-        # and combine() symmetrise what they return, and nothing else keeps it
-        return IMMState(x_pred, P_pred, c_bar)
+        coordinated_turn.py eq. 4): the same equations as each model's ``predict``, run per
+        track by imm_kernels.predict_kernel (one pass over each track's models)."""
+        return self.predict_combined(state, dt_s, combine=False)[0]
+
+    def predict_combined(
+        self, state: IMMState, dt_s: ArrayLike, combine: bool = True
+    ) -> tuple[IMMState, Float | None, Float | None]:
+        """predict(), and with ``combine`` the combination (eq. 7-8) of the predicted states
+        weighted by c̄, x (N, 6) and P (N, 6, 6), from the same pass: combine(predict(...))."""
+        n, m = len(state), self.n_models
+        dt = self._dt(dt_s, n)
+        x_pred = np.empty((n, m, STATE_DIM))
+        P_pred = np.empty((n, m, STATE_DIM, STATE_DIM))
+        c_bar = np.empty((n, m))
+        x = np.empty((n if combine else 0, STATE_DIM))
+        P = np.empty((n if combine else 0, STATE_DIM, STATE_DIM))
+        imm_kernels.predict_kernel(
+            *_arrays(state),
+            dt,
+            self._dwell_s,
+            self.model_terms(dt),
+            self._family,
+            self._omega_all,
+            self._q_keys,
+            self._nz_cols,
+            self._nz_count,
+            x_pred,
+            P_pred,
+            c_bar,
+            combine,
+            x,
+            P,
+        )
+        return IMMState(x_pred, P_pred, c_bar), (x if combine else None), (P if combine else None)
 
     def predict_position(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float]:
         """Steps 1, 2 and 5 for an output that needs only the combined state and the
         position block of its covariance: x (N, 6) of eq. 7 and H P Hᵀ (N, 2, 2) of eq. 8,
         from each model's H P_j Hᵀ = (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ (H picks x and y):
-        the per-model 6×6 covariances are never formed.  combine(predict(...)) restricted
-        to x and y, to round-off."""
-        c_bar, x0, P0 = self.mix(state, dt_s)
-        n, m = len(state), self.n_models
-        phi, Q = self._scratch_matrices(n)
-        self._fill_model_matrices(phi, Q, np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,))))
-        x_pred = np.einsum("nmij,nmj->nmi", phi, x0)
-        G = phi[:, :, 0::3, :]  # H Φ_j, (N, M, 2, 6); POS_IDX = [0, 3] as a slice
-        P_pos = G @ P0 @ np.swapaxes(G, 2, 3) + Q[:, :, 0::3, 0::3]
-        wr = c_bar[:, None, :]
-        x = (wr @ x_pred)[:, 0]  # eq. 7
-        d = x_pred[:, :, 0::3] - x[:, None, 0::3]
-        P = (wr @ P_pos.reshape(n, m, 4)).reshape(n, 2, 2) + np.swapaxes(c_bar[:, :, None] * d, 1, 2) @ d  # eq. 8
-        return x, _sym(P)
+        the per-model 6×6 covariances are never formed (imm_kernels.predict_position_kernel).
+        combine(predict(...)) restricted to x and y, to round-off."""
+        n = len(state)
+        dt = self._dt(dt_s, n)
+        x = np.empty((n, STATE_DIM))
+        P = np.empty((n, 2, 2))
+        imm_kernels.predict_position_kernel(
+            *_arrays(state),
+            dt,
+            self._dwell_s,
+            self.model_terms(dt),
+            self._family,
+            self._omega_all,
+            self._q_keys,
+            self._nz_cols,
+            self._nz_count,
+            x,
+            P,
+        )
+        return x, P
 
     def log_likelihoods(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> Float:
         """log Λ_j (eq. 5) of measurements z (N,2), R (N,2,2) under each model's prediction, (N, M)."""
@@ -424,37 +473,41 @@ class IMMFilter:
     def update(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> IMMState:
         """Steps 3-4: each model's Kalman update (Shu eq. 7, 9, 10) with the fused
         measurement z (N,2) of covariance R (N,2,2), and the mode probabilities (eq. 5-6)."""
+        return self.update_combined(state, z, R, combine=False)[0]
+
+    def update_combined(
+        self, state: IMMState, z: ArrayLike, R: ArrayLike, combine: bool = True
+    ) -> tuple[IMMState, Float | None, Float | None]:
+        """update(), and with ``combine`` the combination (eq. 7-8) of the updated states,
+        x (N, 6) and P (N, 6, 6), from the same pass (imm_kernels.update_kernel)."""
         n, m = len(state), self.n_models
-        z = np.asarray(z, dtype=float)
-        R = np.asarray(R, dtype=float)
-        x_pred = state.x_models.reshape(n * m, STATE_DIM)
-        P_pred = state.P_models.reshape(n * m, STATE_DIM, STATE_DIM)
-        # Shu eq. 7, 9, 10 over all N·M (track, model) rows at once: the update does not
-        # depend on the model's (α, σ_m).  H picks x and y, so P Hᵀ is two columns of P.
-        PHt = P_pred[:, :, 0::3]  # (N·M, 6, 2); POS_IDX = [0, 3] as a slice: a view
-        S = PHt[:, 0::3, :] + np.repeat(R, m, axis=0)  # H P Hᵀ + R
-        nu = np.repeat(z, m, axis=0) - x_pred[:, 0::3]  # ν = z − H x(k+1|k)
-        S_inv = inv_2x2(S)
-        # eq. 9 and 7 column by column (K = P Hᵀ S⁻¹ is N·M (6×2)·(2×2) products: elementwise
-        # on (N·M, 6) columns instead of that many tiny matrix products)
-        K = np.empty_like(PHt)
-        K[:, :, 0] = PHt[:, :, 0] * S_inv[:, 0, 0, None] + PHt[:, :, 1] * S_inv[:, 1, 0, None]
-        K[:, :, 1] = PHt[:, :, 0] * S_inv[:, 0, 1, None] + PHt[:, :, 1] * S_inv[:, 1, 1, None]
-        x = x_pred + K[:, :, 0] * nu[:, 0, None] + K[:, :, 1] * nu[:, 1, None]
-        P = P_pred - K @ np.swapaxes(PHt, 1, 2)  # eq. 10: (I − K H) P = P − K (P Hᵀ)ᵀ
-        P = _sym(P)
-        log_w = _gauss_loglik(nu, S, S_inv).reshape(n, m)  # eq. 5
-        with np.errstate(divide="ignore"):
-            log_w = log_w + np.log(state.mu)  # log Λ_j + log c̄_j
-        log_w -= log_w.max(axis=1, keepdims=True)
-        w = np.exp(log_w)
-        mu = w / w.sum(axis=1, keepdims=True)  # eq. 6
-        return IMMState(x.reshape(n, m, STATE_DIM), P.reshape(n, m, STATE_DIM, STATE_DIM), mu)
+        x_upd = np.empty((n, m, STATE_DIM))
+        P_upd = np.empty((n, m, STATE_DIM, STATE_DIM))
+        mu = np.empty((n, m))
+        x = np.empty((n if combine else 0, STATE_DIM))
+        P = np.empty((n if combine else 0, STATE_DIM, STATE_DIM))
+        zc, Rc = _c64(z), _c64(R)
+        imm_kernels.update_kernel(*_arrays(state), zc, Rc, x_upd, P_upd, mu, combine, x, P)
+        return IMMState(x_upd, P_upd, mu), (x if combine else None), (P if combine else None)
 
     @staticmethod
     def combine(state: IMMState) -> tuple[Float, Float]:
         """Step 5 (eq. 7-8): the combined estimate x (N,6), P (N,6,6), for output and gating."""
-        return _combine(state.x_models, state.P_models, state.mu)
+        n = len(state)
+        x = np.empty((n, STATE_DIM))
+        P = np.empty((n, STATE_DIM, STATE_DIM))
+        imm_kernels.combine_kernel(*_arrays(state), x, P)
+        return x, P
+
+
+def _c64(a: ArrayLike) -> Float:
+    """float64, C-contiguous: what the compiled kernels take (one signature each; no copy
+    in the usual case)."""
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _arrays(state: IMMState) -> tuple[Float, Float, Float]:
+    return _c64(state.x_models), _c64(state.P_models), _c64(state.mu)
 
 
 def _gauss_loglik(nu: Float, S: Float, S_inv: Float | None = None) -> Float:

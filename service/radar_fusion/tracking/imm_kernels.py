@@ -1,0 +1,446 @@
+"""The IMM cycle of imm.py (eq. 0-8) as compiled loops: one pass over each track's models.
+
+imm.py states the algorithm and its equations; this module is how the engine runs them
+at thousands of tracks.  Written as batched numpy products, one IMM prediction of 4,000
+tracks × 6 models made a dozen passes over (N, M, 6, 6) arrays (the mixed covariances,
+the outer products, Φ and Q, Φ P⁰, Φ P⁰ Φᵀ), 7 MB each: it was bound by memory traffic,
+not arithmetic, and was the largest part of the engine's period (issue 15's throughput
+goal).  Here each track's M states are read once, everything in between lives in a few
+6×6 scratch matrices in the L1 cache, and only the results are written:
+
+* :func:`predict_kernel`, steps 1-2 (eq. 0-4 and each model's prediction), optionally with
+  step 5 (eq. 7-8) on the predicted states;
+* :func:`predict_position_kernel`, steps 1, 2 and 5 for the output: combined x and the x-y
+  block of the combined covariance only (imm.IMMFilter.predict_position);
+* :func:`update_kernel`, steps 3-5 (eq. 5-8): every model's Kalman update (Shu eq. 7,
+  9, 10), the mode probabilities and the combination;
+* :func:`combine_kernel`, step 5 (eq. 7-8) alone.
+
+Φ_j and Q_j are not stored as (N, M, 6, 6) arrays either: imm.py computes their distinct
+entries with the models' own formulas (singer_filter.py Shu eq. 12 and §4,
+coordinated_turn.py eq. 2-4), ``TERMS`` numbers per track and model, and
+:func:`_model_phi_q` lays them out in a 6×6 pair, the same placement as
+singer_filter.singer_matrices_into and coordinated_turn.ct_matrices_into.  Products with
+Φ skip its structural zeros (each row has at most three non-zero entries: ``nz_cols``).
+
+Compiled by numba on first use and cached on disk (``_compiled``), so a process pays the
+compilation (a few seconds) only when the code changed, and imm.IMMFilter runs each
+kernel once when it is made, so that this happens at start-up, not in the first period;
+``nogil`` lets the daemon's receiving threads run while the engine is in here.  Arithmetic is the
+same as the numpy formulation's up to the order of additions (round-off, ~1e-13
+relative); the tests compare every kernel with independent computations (test_imm.py:
+a per-track hand computation with Van Loan's Φ and Q, and filterpy's IMMEstimator).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TypeVar, cast
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "CT",
+    "SINGER",
+    "TERMS",
+    "combine_kernel",
+    "predict_kernel",
+    "predict_position_kernel",
+    "update_kernel",
+]
+
+#: model families (``family`` argument): a Singer model, a coordinated turn of known rate
+SINGER = 0
+CT = 1
+#: distinct entries of Φ and Q per track and model (the longer family's count):
+#: Singer: T, Φ02, Φ12, Φ22 of one axis block, then Q's six q_ij in ``q_keys`` order;
+#: coordinated turn: T_s, T_c, cos ωT, sin ωT, then q f_pp, q f_pv, q f_po, q T
+TERMS = 10
+
+_D = 6  # the state [x, vx, ax, y, vy, ay]
+
+_F = TypeVar("_F", bound=Callable[..., None])
+
+
+def _compiled(fn: _F) -> _F:
+    """numba's ``njit``, cached on disk, releasing the GIL; floating-point sums may be
+    reordered and multiply-adds fused (``reassoc``, ``contract``: round-off only; no
+    assumption about NaN or infinity, which update_kernel relies on).  Typed as the
+    Python function it compiles (numba's own annotations type it as a Dispatcher).
+
+    The cache is the package's ``__pycache__``, else ``NUMBA_CACHE_DIR``, else the user's
+    cache directory (numba's order); where none is writable (a read-only install run by a
+    user without a home: deploy/ sets NUMBA_CACHE_DIR) numba refuses ``cache=True`` at
+    import, and each process compiles the kernels instead, a few seconds at start-up."""
+    flags = {"reassoc", "contract"}
+    try:
+        return cast(_F, njit(cache=True, nogil=True, fastmath=flags)(fn))
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return cast(_F, njit(cache=False, nogil=True, fastmath=flags)(fn))
+
+
+@_compiled
+def _model_phi_q(family: int, t: np.ndarray, omega: float, q_keys: np.ndarray, phi: np.ndarray, Q: np.ndarray) -> None:
+    """Φ and Q (6×6) of one model from its ``TERMS`` numbers t.
+
+    Singer (singer_filter.singer_matrices_into): per axis block [[1, T, Φ02], [0, 1, Φ12],
+    [0, 0, Φ22]] and Q's block from q_ij, for x and y alike.  Coordinated turn
+    (coordinated_turn.ct_matrices_into, eq. 4): the rows and Q₆ entries listed there."""
+    phi[:, :] = 0.0
+    Q[:, :] = 0.0
+    if family == SINGER:
+        for o in (0, 3):
+            phi[o, o] = 1.0
+            phi[o + 1, o + 1] = 1.0
+            phi[o, o + 1] = t[0]
+            phi[o, o + 2] = t[1]
+            phi[o + 1, o + 2] = t[2]
+            phi[o + 2, o + 2] = t[3]
+            for k in range(6):
+                i = o + q_keys[k, 0]
+                j = o + q_keys[k, 1]
+                Q[i, j] = t[4 + k]
+                Q[j, i] = t[4 + k]
+        return
+    s_w, c_w, c, s = t[0], t[1], t[2], t[3]
+    pp, pv, po, vv = t[4], t[5], t[6], t[7]
+    w = omega
+    phi[0, 0] = 1.0
+    phi[3, 3] = 1.0
+    phi[0, 1] = s_w
+    phi[0, 4] = -c_w
+    phi[3, 1] = c_w
+    phi[3, 4] = s_w
+    phi[1, 1] = c
+    phi[1, 4] = -s
+    phi[4, 1] = s
+    phi[4, 4] = c
+    phi[2, 1] = -w * s
+    phi[2, 4] = -w * c
+    phi[5, 1] = w * c
+    phi[5, 4] = -w * s
+    Q[0, 0] = pp
+    Q[3, 3] = pp
+    Q[1, 1] = vv
+    Q[4, 4] = vv
+    Q[0, 1] = Q[1, 0] = Q[3, 4] = Q[4, 3] = pv
+    Q[0, 4] = Q[4, 0] = po
+    Q[3, 1] = Q[1, 3] = -po
+    Q[0, 2] = Q[2, 0] = Q[3, 5] = Q[5, 3] = -w * po
+    Q[0, 5] = Q[5, 0] = w * pv
+    Q[3, 2] = Q[2, 3] = -w * pv
+    Q[1, 5] = Q[5, 1] = w * vv
+    Q[4, 2] = Q[2, 4] = -w * vv
+    Q[2, 2] = Q[5, 5] = w * w * vv
+
+
+@_compiled
+def _mix_one(
+    xm: np.ndarray,
+    Pm: np.ndarray,
+    mu: np.ndarray,
+    dt: float,
+    tau: np.ndarray,
+    wt: np.ndarray,
+    e: np.ndarray,
+    S: np.ndarray,
+) -> None:
+    """Eq. 0-2 for one track: μ_{i|j} into wt[j, i] (c̄_j into wt[j, M] beforehand read by
+    the caller as ``cbar``), and the terms of eq. 3-4 about model 0's state: e_i = x_i − x_0
+    and S_i = P_i + e_i e_iᵀ (upper triangle), so that x⁰_j = x_0 + Σ μ_{i|j} e_i and
+    P⁰_j = Σ μ_{i|j} S_i − e⁰_j e⁰_jᵀ (imm.IMMFilter.mix: Σ_i μ_{i|j} = 1)."""
+    m = xm.shape[0]
+    d = max(dt, 0.0)
+    for i in range(m):
+        e[i, 0] = math.exp(-d / tau[i])  # eq. 0: p_ii (e is scratch until its use below)
+    for j in range(m):
+        c = 0.0
+        for i in range(m):
+            p = e[i, 0] if i == j else (1.0 - e[i, 0]) / (m - 1)
+            wt[j, i] = p * mu[i]
+            c += wt[j, i]
+        wt[j, m] = c  # eq. 1
+        if c > 0.0:
+            for i in range(m):
+                wt[j, i] /= c  # eq. 2
+        else:  # a mode nothing can reach keeps its own state
+            for i in range(m):
+                wt[j, i] = 1.0 if i == j else 0.0
+    for i in range(m):
+        for a in range(_D):
+            e[i, a] = xm[i, a] - xm[0, a]
+        for a in range(_D):
+            for b in range(a, _D):
+                S[i, a, b] = Pm[i, a, b] + e[i, a] * e[i, b]
+
+
+@_compiled
+def _mixed_j(
+    j: int, xm: np.ndarray, wt: np.ndarray, e: np.ndarray, S: np.ndarray, x0: np.ndarray, P0: np.ndarray
+) -> None:
+    """Eq. 3-4 for model j: x⁰_j and P⁰_j (full, symmetric)."""
+    m = xm.shape[0]
+    for a in range(_D):
+        acc = 0.0
+        for i in range(m):
+            acc += wt[j, i] * e[i, a]
+        x0[a] = acc
+    for a in range(_D):
+        for b in range(a, _D):
+            acc = 0.0
+            for i in range(m):
+                acc += wt[j, i] * S[i, a, b]
+            P0[a, b] = acc - x0[a] * x0[b]
+            P0[b, a] = P0[a, b]
+    for a in range(_D):
+        x0[a] += xm[0, a]
+
+
+@_compiled
+def _predict_j(
+    phi: np.ndarray,
+    Q: np.ndarray,
+    cols: np.ndarray,
+    ncols: np.ndarray,
+    x0: np.ndarray,
+    P0: np.ndarray,
+    T: np.ndarray,
+    xp: np.ndarray,
+    Pp: np.ndarray,
+) -> None:
+    """x = Φ x⁰, P = Φ P⁰ Φᵀ + Q (Shu eq. 8, 11; coordinated_turn.py eq. 4), over Φ's
+    non-zero entries (row a: cols[a, :ncols[a]]); P exactly symmetric."""
+    for a in range(_D):
+        acc = 0.0
+        for q in range(ncols[a]):
+            c = cols[a, q]
+            acc += phi[a, c] * x0[c]
+        xp[a] = acc
+    for a in range(_D):
+        for b in range(_D):
+            acc = 0.0
+            for q in range(ncols[a]):
+                c = cols[a, q]
+                acc += phi[a, c] * P0[c, b]
+            T[a, b] = acc
+    for a in range(_D):
+        for b in range(a, _D):
+            acc = 0.0
+            for q in range(ncols[b]):
+                c = cols[b, q]
+                acc += T[a, c] * phi[b, c]
+            Pp[a, b] = acc + Q[a, b]
+            Pp[b, a] = Pp[a, b]
+
+
+@_compiled
+def _combine_one(xm: np.ndarray, Pm: np.ndarray, w: np.ndarray, x: np.ndarray, P: np.ndarray) -> None:
+    """Eq. 7-8 for one track: x = Σ w_j x_j, P = Σ w_j [P_j + (x_j − x)(x_j − x)ᵀ]."""
+    m = xm.shape[0]
+    for a in range(_D):
+        acc = 0.0
+        for j in range(m):
+            acc += w[j] * xm[j, a]
+        x[a] = acc
+    for a in range(_D):
+        for b in range(a, _D):
+            acc = 0.0
+            for j in range(m):
+                acc += w[j] * (Pm[j, a, b] + (xm[j, a] - x[a]) * (xm[j, b] - x[b]))
+            P[a, b] = acc
+            P[b, a] = acc
+
+
+@_compiled
+def predict_kernel(
+    xm: np.ndarray,
+    Pm: np.ndarray,
+    mu: np.ndarray,
+    dt: np.ndarray,
+    tau: np.ndarray,
+    terms: np.ndarray,
+    family: np.ndarray,
+    omega: np.ndarray,
+    q_keys: np.ndarray,
+    nz_cols: np.ndarray,
+    nz_count: np.ndarray,
+    out_xm: np.ndarray,
+    out_Pm: np.ndarray,
+    out_cbar: np.ndarray,
+    combine: bool,
+    out_x: np.ndarray,
+    out_P: np.ndarray,
+) -> None:
+    """Steps 1-2 (eq. 0-4, each model's prediction) for N tracks, and with ``combine``
+    step 5 (eq. 7-8) of the predicted states weighted by c̄ into out_x (N,6), out_P (N,6,6).
+    xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (M,) dwell times, terms (N,M,TERMS),
+    family and omega (M,), q_keys (6,2) the Singer q_ij order, nz_cols (M,6,3) and
+    nz_count (M,6) Φ's non-zero columns per row."""
+    n, m = mu.shape
+    wt = np.empty((m, m + 1))
+    e = np.empty((m, _D))
+    S = np.empty((m, _D, _D))
+    x0 = np.empty(_D)
+    P0 = np.empty((_D, _D))
+    T = np.empty((_D, _D))
+    phi = np.empty((_D, _D))
+    Q = np.empty((_D, _D))
+    for k in range(n):
+        _mix_one(xm[k], Pm[k], mu[k], dt[k], tau, wt, e, S)
+        for j in range(m):
+            out_cbar[k, j] = wt[j, m]
+            _mixed_j(j, xm[k], wt, e, S, x0, P0)
+            _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
+            _predict_j(phi, Q, nz_cols[j], nz_count[j], x0, P0, T, out_xm[k, j], out_Pm[k, j])
+        if combine:
+            _combine_one(out_xm[k], out_Pm[k], out_cbar[k], out_x[k], out_P[k])
+
+
+@_compiled
+def predict_position_kernel(
+    xm: np.ndarray,
+    Pm: np.ndarray,
+    mu: np.ndarray,
+    dt: np.ndarray,
+    tau: np.ndarray,
+    terms: np.ndarray,
+    family: np.ndarray,
+    omega: np.ndarray,
+    q_keys: np.ndarray,
+    nz_cols: np.ndarray,
+    nz_count: np.ndarray,
+    out_x: np.ndarray,
+    out_Pxy: np.ndarray,
+) -> None:
+    """Steps 1, 2 and 5 for the output (imm.IMMFilter.predict_position): the combined x
+    (N,6) of eq. 7 and the x-y block (N,2,2) of eq. 8, from each model's H P_j Hᵀ =
+    (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ: the rows x and y of Φ only."""
+    n, m = mu.shape
+    wt = np.empty((m, m + 1))
+    e = np.empty((m, _D))
+    S = np.empty((m, _D, _D))
+    x0 = np.empty(_D)
+    P0 = np.empty((_D, _D))
+    phi = np.empty((_D, _D))
+    Q = np.empty((_D, _D))
+    xp = np.empty((m, _D))
+    Pxy = np.empty((m, 3))  # xx, xy, yy
+    G = np.empty((2, _D))  # the rows x and y of Φ P⁰
+    pos = (0, 3)
+    for k in range(n):
+        _mix_one(xm[k], Pm[k], mu[k], dt[k], tau, wt, e, S)
+        for j in range(m):
+            _mixed_j(j, xm[k], wt, e, S, x0, P0)
+            _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
+            cols, ncols = nz_cols[j], nz_count[j]
+            for a in range(_D):
+                acc = 0.0
+                for q in range(ncols[a]):
+                    c = cols[a, q]
+                    acc += phi[a, c] * x0[c]
+                xp[j, a] = acc
+            for r in range(2):
+                a = pos[r]
+                for b in range(_D):
+                    acc = 0.0
+                    for q in range(ncols[a]):
+                        c = cols[a, q]
+                        acc += phi[a, c] * P0[c, b]
+                    G[r, b] = acc
+            for r, (ra, rb) in enumerate(((0, 0), (0, 1), (1, 1))):
+                b = pos[rb]
+                acc = 0.0
+                for q in range(ncols[b]):
+                    c = cols[b, q]
+                    acc += G[ra, c] * phi[b, c]
+                Pxy[j, r] = acc + Q[pos[ra], b]
+        # eq. 7-8 with c̄ (the predicted mode probabilities) as the weights
+        for a in range(_D):
+            acc = 0.0
+            for j in range(m):
+                acc += wt[j, m] * xp[j, a]
+            out_x[k, a] = acc
+        for r, (ra, rb) in enumerate(((0, 0), (0, 1), (1, 1))):
+            a, b = pos[ra], pos[rb]
+            acc = 0.0
+            for j in range(m):
+                acc += wt[j, m] * (Pxy[j, r] + (xp[j, a] - out_x[k, a]) * (xp[j, b] - out_x[k, b]))
+            out_Pxy[k, ra, rb] = acc
+            out_Pxy[k, rb, ra] = acc
+
+
+@_compiled
+def update_kernel(
+    xm: np.ndarray,
+    Pm: np.ndarray,
+    cbar: np.ndarray,
+    z: np.ndarray,
+    R: np.ndarray,
+    out_xm: np.ndarray,
+    out_Pm: np.ndarray,
+    out_mu: np.ndarray,
+    combine: bool,
+    out_x: np.ndarray,
+    out_P: np.ndarray,
+) -> None:
+    """Steps 3-4 (and with ``combine`` step 5) for N tracks: each model's Kalman update
+    with the measurement z (N,2) of covariance R (N,2,2), H picking x and y:
+
+        S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x ← x + K ν, P ← P − K (P Hᵀ)ᵀ     (Shu eq. 7, 9, 10)
+
+    its log-likelihood log Λ_j (eq. 5) and μ_j ∝ Λ_j c̄_j (eq. 6, by log-sum-exp; c̄_j =
+    0 gives μ_j = 0).  P is symmetrised (½ (P + Pᵀ)) as imm.IMMFilter.update does."""
+    n, m = cbar.shape
+    log_w = np.empty(m)
+    K = np.empty((_D, 2))
+    PHt = np.empty((_D, 2))
+    log_2pi = math.log(2.0 * math.pi)
+    for k in range(n):
+        for j in range(m):
+            P = Pm[k, j]
+            x = xm[k, j]
+            for a in range(_D):
+                PHt[a, 0] = P[a, 0]
+                PHt[a, 1] = P[a, 3]
+            s00 = PHt[0, 0] + R[k, 0, 0]
+            s01 = PHt[0, 1] + R[k, 0, 1]
+            s10 = PHt[3, 0] + R[k, 1, 0]
+            s11 = PHt[3, 1] + R[k, 1, 1]
+            det = s00 * s11 - s01 * s10
+            i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+            nu0 = z[k, 0] - x[0]
+            nu1 = z[k, 1] - x[3]
+            for a in range(_D):
+                K[a, 0] = PHt[a, 0] * i00 + PHt[a, 1] * i10
+                K[a, 1] = PHt[a, 0] * i01 + PHt[a, 1] * i11
+            ox = out_xm[k, j]
+            for a in range(_D):
+                ox[a] = x[a] + K[a, 0] * nu0 + K[a, 1] * nu1
+            oP = out_Pm[k, j]
+            for a in range(_D):
+                for b in range(a, _D):
+                    pab = P[a, b] - (K[a, 0] * PHt[b, 0] + K[a, 1] * PHt[b, 1])
+                    pba = P[b, a] - (K[b, 0] * PHt[a, 0] + K[b, 1] * PHt[a, 1])
+                    oP[a, b] = 0.5 * (pab + pba)
+                    oP[b, a] = oP[a, b]
+            d2 = nu0 * (i00 * nu0 + i01 * nu1) + nu1 * (i10 * nu0 + i11 * nu1)
+            log_w[j] = -0.5 * d2 - 0.5 * math.log(det) - log_2pi  # eq. 5
+            log_w[j] += math.log(cbar[k, j]) if cbar[k, j] > 0.0 else -np.inf
+        top = log_w.max()
+        total = 0.0
+        for j in range(m):
+            out_mu[k, j] = math.exp(log_w[j] - top)
+            total += out_mu[k, j]
+        for j in range(m):
+            out_mu[k, j] /= total  # eq. 6
+        if combine:
+            _combine_one(out_xm[k], out_Pm[k], out_mu[k], out_x[k], out_P[k])
+
+
+@_compiled
+def combine_kernel(xm: np.ndarray, Pm: np.ndarray, w: np.ndarray, out_x: np.ndarray, out_P: np.ndarray) -> None:
+    """Step 5 (eq. 7-8) for N tracks with weights w (N,M)."""
+    for k in range(w.shape[0]):
+        _combine_one(xm[k], Pm[k], w[k], out_x[k], out_P[k])
