@@ -477,6 +477,47 @@ def test_predict_position_equals_the_combined_prediction() -> None:
     np.testing.assert_array_equal(P_xy, np.swapaxes(P_xy, 1, 2))
 
 
+def test_predict_gate_equals_the_full_prediction_on_what_association_reads() -> None:
+    """predict_gate() (association's prediction) gives each model's predicted position and
+    its covariance, and the combination's position and velocity block, as the full
+    prediction does (predict(), checked against the hand computation above), and NaN in
+    the entries it does not form."""
+    imm = IMMFilter()
+    rng = np.random.default_rng(29)
+    st = _random_state(imm, 9, rng)
+    dt = np.array([0.0, 1e-3, 0.2, 0.5, 2.0, 4.0, 4.7, 12.0, 60.0])
+    x, P, xy, cov = imm.predict_gate(st, dt)
+    full = imm.predict(st, dt)
+    xc, Pc = imm.combine(full)
+    np.testing.assert_allclose(xy, full.x_models[:, :, [0, 3]], rtol=1e-13, atol=1e-9)
+    np.testing.assert_allclose(cov, full.P_models[:, :, [0, 3]][:, :, :, [0, 3]], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(x, xc, rtol=1e-13, atol=1e-9)
+    block = np.array([0, 1, 3, 4])
+    np.testing.assert_allclose(P[:, block][:, :, block], Pc[:, block][:, :, block], rtol=1e-12, atol=1e-9)
+    other = np.array([2, 5])
+    assert np.isnan(P[:, other]).all() and np.isnan(P[:, :, other]).all()
+
+
+def test_predict_update_equals_update_of_predict() -> None:
+    """predict_update() (the engine's cycle for a track with a plot) is update_combined(
+    predict(...)) in one pass."""
+    imm = IMMFilter()
+    rng = np.random.default_rng(31)
+    st = _random_state(imm, 9, rng)
+    dt = np.array([0.0, 1e-3, 0.2, 0.5, 2.0, 4.0, 4.7, 12.0, 60.0])
+    z = st.x_models[:, 0, [0, 3]] + rng.normal(0.0, 300.0, (9, 2))
+    b = rng.normal(size=(9, 2, 2))
+    R = b @ np.swapaxes(b, 1, 2) * 900.0 + 100.0 * np.eye(2)
+    one, x1, P1 = imm.predict_update(st, dt, z, R)
+    two, x2, P2 = imm.update_combined(imm.predict(st, dt), z, R)
+    assert x2 is not None and P2 is not None
+    np.testing.assert_allclose(one.mu, two.mu, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(one.x_models, two.x_models, rtol=1e-13, atol=1e-9)
+    np.testing.assert_allclose(one.P_models, two.P_models, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(x1, x2, rtol=1e-13, atol=1e-9)
+    np.testing.assert_allclose(P1, P2, rtol=1e-12, atol=1e-9)
+
+
 # ------------------------------------------------------------------ cost (printed, not asserted)
 
 

@@ -25,7 +25,6 @@ import msgpack
 import numpy as np
 
 from ..geo.coordinates import SystemPlane
-from ..tracking.imm import IMMState
 from ..tracking.track_management import STATUS_NAMES, TENTATIVE
 from ..wire import mode_s_to_str
 from ..wire_columns import MapRows, array_header, map_header
@@ -519,7 +518,12 @@ class Prediction:
     """Every track's state predicted to the period's reference time (step ``predict``)."""
 
     x: np.ndarray  # (N, 6) Singer state
-    P: np.ndarray  # (N, 6, 6); for output with the IMM, the x-y block of updated tracks only (Engine._predict_changed)
+    # (N, 6, 6); with the IMM only the blocks that association, fusion and output read, NaN
+    # elsewhere: position and velocity (imm.IMMFilter.predict_gate), and for the updated
+    # tracks the x-y block (Engine._predict_changed)
+    P: np.ndarray
     alt_x: np.ndarray  # (N, 2) [FL, FL/s]
     alt_P: np.ndarray  # (N, 2, 2)
-    imm: IMMState | None = None  # the IMM's per-model prediction (x, P: its combination), filter = "imm"
+    # filter = "imm": each model's predicted position (N, M, 2) and its covariance (N, M, 2, 2)
+    gate_xy: np.ndarray | None = None
+    gate_cov: np.ndarray | None = None

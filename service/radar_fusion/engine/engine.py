@@ -338,15 +338,16 @@ class Engine:
         (Shu eq. 8, 11), with raised process noise for the manoeuvring ones; with the IMM,
         its mixing and per-model prediction (imm.py eq. 1-4), x and P their combination."""
         tr = self.tracks
-        imm = None
+        gate_xy = gate_cov = None
         if self.imm is not None:
-            imm, x_c, P_c = self.imm.predict_combined(IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows]), dt_s)
-            assert x_c is not None and P_c is not None
-            x, P = x_c, P_c
+            # what association and fusion read: each model's position and its covariance (the
+            # gates), the combined position and velocity (imm.IMMFilter.predict_gate)
+            state = IMMState(tr.x_models[rows], tr.P_models[rows], tr.mu[rows])
+            x, P, gate_xy, gate_cov = self.imm.predict_gate(state, dt_s)
         else:
             x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
         alt_x, alt_P = self.alt_filter.predict(tr.alt_x[rows], tr.alt_P[rows], dt_s)
-        return Prediction(x, P, alt_x, alt_P, imm)
+        return Prediction(x, P, alt_x, alt_P, gate_xy, gate_cov)
 
     def _imm_initiate(self, rows: Any, x: np.ndarray, P: np.ndarray) -> None:
         """With the IMM, new (or two-point initiated) states x, P in every model, prior μ."""
@@ -397,10 +398,9 @@ class Engine:
         joins it; a tentative track gates on its combined prediction only, so that clutter
         does not confirm it (with every track's models, the primary-high scenario confirmed
         a clutter track in 2 of its 3 test seeds)."""
-        if pred.imm is None:
+        if pred.gate_xy is None or pred.gate_cov is None:
             return None
-        xy = pred.imm.x_models[:, :, POS_IDX]
-        cov = pred.imm.P_models[:, :, POS_IDX[:, None], POS_IDX[None, :]]
+        xy, cov = pred.gate_xy, pred.gate_cov
         young = np.flatnonzero(self.tracks.status == TENTATIVE)
         xy[young] = position_m(pred.x[young])[:, None, :]
         cov[young] = cov_pos_m2(pred.P[young])[:, None]
@@ -659,8 +659,8 @@ class Engine:
             # rows it updates are predicted (the two-point ones below start afresh).
             r = rows[init]
             if self.imm is not None:
-                prior = self.imm.predict(IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r]), dt_s[init])
-                st, x_u, P_u = self.imm.update_combined(prior, z_m[init], R_m2[init])
+                state = IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r])
+                st, x_u, P_u = self.imm.predict_update(state, dt_s[init], z_m[init], R_m2[init])
                 tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
                 x_c[init], P_c[init] = x_u, P_u
             else:

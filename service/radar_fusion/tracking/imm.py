@@ -99,6 +99,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -117,6 +118,9 @@ QUIET = 0
 MANOEUVRE = 1
 
 _LOG_2PI = math.log(2.0 * math.pi)
+
+#: xm, Pm, mu, dt, tau, terms, family, omega, q_keys, nz_cols, nz_count (imm_kernels.predict_kernel)
+_KernelArgs = tuple[Float, Float, Float, Float, Float, Float, Any, Float, Any, Any, Any]
 
 
 class IMMParams(BaseModel):
@@ -282,6 +286,8 @@ class IMMFilter:
         st = self.initiate(np.zeros((1, STATE_DIM)), np.eye(STATE_DIM)[None])
         self.predict_combined(st, np.ones(1))
         self.predict_position(st, np.ones(1))
+        self.predict_gate(st, np.ones(1))
+        self.predict_update(st, np.ones(1), np.zeros((1, 2)), np.eye(2)[None])
         self.update_combined(st, np.zeros((1, 2)), np.eye(2)[None])
         self.combine(st)
 
@@ -398,6 +404,21 @@ class IMMFilter:
     def _dt(self, dt_s: ArrayLike, n: int) -> Float:
         return np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
 
+    def _kernel_args(self, state: IMMState, dt: Float) -> _KernelArgs:
+        """The leading arguments of every predicting kernel: the state, dt, the dwell times
+        and the models' Φ and Q (imm_kernels.predict_kernel)."""
+        return (
+            *_arrays(state),
+            dt,
+            self._dwell_s,
+            self.model_terms(dt),
+            self._family,
+            self._omega_all,
+            self._q_keys,
+            self._nz_cols,
+            self._nz_count,
+        )
+
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
         """Steps 1-2: mixing (eq. 1-4) and each model's prediction (step 2 above) over dt_s
         (scalar or (N,)).  The result carries μ = c̄ (eq. 1).
@@ -419,23 +440,7 @@ class IMMFilter:
         c_bar = np.empty((n, m))
         x = np.empty((n if combine else 0, STATE_DIM))
         P = np.empty((n if combine else 0, STATE_DIM, STATE_DIM))
-        imm_kernels.predict_kernel(
-            *_arrays(state),
-            dt,
-            self._dwell_s,
-            self.model_terms(dt),
-            self._family,
-            self._omega_all,
-            self._q_keys,
-            self._nz_cols,
-            self._nz_count,
-            x_pred,
-            P_pred,
-            c_bar,
-            combine,
-            x,
-            P,
-        )
+        imm_kernels.predict_kernel(*self._kernel_args(state, dt), x_pred, P_pred, c_bar, combine, x, P)
         return IMMState(x_pred, P_pred, c_bar), (x if combine else None), (P if combine else None)
 
     def predict_position(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float]:
@@ -448,20 +453,39 @@ class IMMFilter:
         dt = self._dt(dt_s, n)
         x = np.empty((n, STATE_DIM))
         P = np.empty((n, 2, 2))
-        imm_kernels.predict_position_kernel(
-            *_arrays(state),
-            dt,
-            self._dwell_s,
-            self.model_terms(dt),
-            self._family,
-            self._omega_all,
-            self._q_keys,
-            self._nz_cols,
-            self._nz_count,
-            x,
-            P,
-        )
+        imm_kernels.predict_position_kernel(*self._kernel_args(state, dt), x, P)
         return x, P
+
+    def predict_gate(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float, Float, Float]:
+        """Steps 1, 2 and 5 for association, in one pass (imm_kernels.predict_gate_kernel):
+        each model's predicted position (N, M, 2) and its covariance (N, M, 2, 2), for the
+        model-conditioned gates ("Gating" above), and the combination of eq. 7-8: x (N, 6)
+        and P (N, 6, 6) with its position and velocity rows and columns, NaN elsewhere.
+        combine(predict(...)) and predict()'s positions, to round-off, without forming the
+        per-model 6×6 covariances."""
+        n, m = len(state), self.n_models
+        dt = self._dt(dt_s, n)
+        xy = np.empty((n, m, 2))
+        cov = np.empty((n, m, 2, 2))
+        x = np.empty((n, STATE_DIM))
+        P = np.empty((n, STATE_DIM, STATE_DIM))
+        imm_kernels.predict_gate_kernel(*self._kernel_args(state, dt), xy, cov, x, P)
+        return x, P, xy, cov
+
+    def predict_update(
+        self, state: IMMState, dt_s: ArrayLike, z: ArrayLike, R: ArrayLike
+    ) -> tuple[IMMState, Float, Float]:
+        """A whole cycle in one pass (imm_kernels.predict_update_kernel): update_combined(
+        predict(state, dt_s), z, R), without the prediction written out."""
+        n, m = len(state), self.n_models
+        dt = self._dt(dt_s, n)
+        x_upd = np.empty((n, m, STATE_DIM))
+        P_upd = np.empty((n, m, STATE_DIM, STATE_DIM))
+        mu = np.empty((n, m))
+        x = np.empty((n, STATE_DIM))
+        P = np.empty((n, STATE_DIM, STATE_DIM))
+        imm_kernels.predict_update_kernel(*self._kernel_args(state, dt), _c64(z), _c64(R), x_upd, P_upd, mu, x, P)
+        return IMMState(x_upd, P_upd, mu), x, P
 
     def log_likelihoods(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> Float:
         """log Λ_j (eq. 5) of measurements z (N,2), R (N,2,2) under each model's prediction, (N, M)."""

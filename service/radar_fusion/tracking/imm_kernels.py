@@ -12,8 +12,11 @@ goal).  Here each track's M states are read once, everything in between lives in
   step 5 (eq. 7-8) on the predicted states;
 * :func:`predict_position_kernel`, steps 1, 2 and 5 for the output: combined x and the x-y
   block of the combined covariance only (imm.IMMFilter.predict_position);
+* :func:`predict_gate_kernel`, steps 1, 2 and 5 for association: each model's predicted
+  position and its covariance (the gates), the combined position and velocity;
 * :func:`update_kernel`, steps 3-5 (eq. 5-8): every model's Kalman update (Shu eq. 7,
   9, 10), the mode probabilities and the combination;
+* :func:`predict_update_kernel`, steps 1-5 at once, for the tracks that got a plot;
 * :func:`combine_kernel`, step 5 (eq. 7-8) alone.
 
 Φ_j and Q_j are not stored as (N, M, 6, 6) arrays either: imm.py computes their distinct
@@ -46,8 +49,10 @@ __all__ = [
     "SINGER",
     "TERMS",
     "combine_kernel",
+    "predict_gate_kernel",
     "predict_kernel",
     "predict_position_kernel",
+    "predict_update_kernel",
     "update_kernel",
 ]
 
@@ -136,66 +141,77 @@ def _model_phi_q(family: int, t: np.ndarray, omega: float, q_keys: np.ndarray, p
     Q[2, 2] = Q[5, 5] = w * w * vv
 
 
+#: the packed upper triangle of a symmetric 6×6 matrix: entry q is (_UT[q, 0], _UT[q, 1])
+_UT = np.array([(a, b) for a in range(_D) for b in range(a, _D)], dtype=np.int64)
+_NP = _D + _UT.shape[0]  # a mixing row: the 6 deviations, then the 21 packed covariances
+
+
 @_compiled
-def _mix_one(
+def _mix(
     xm: np.ndarray,
     Pm: np.ndarray,
     mu: np.ndarray,
     dt: float,
     tau: np.ndarray,
     wt: np.ndarray,
-    e: np.ndarray,
+    cbar: np.ndarray,
     S: np.ndarray,
+    X0: np.ndarray,
 ) -> None:
-    """Eq. 0-2 for one track: μ_{i|j} into wt[j, i] (c̄_j into wt[j, M] beforehand read by
-    the caller as ``cbar``), and the terms of eq. 3-4 about model 0's state: e_i = x_i − x_0
-    and S_i = P_i + e_i e_iᵀ (upper triangle), so that x⁰_j = x_0 + Σ μ_{i|j} e_i and
-    P⁰_j = Σ μ_{i|j} S_i − e⁰_j e⁰_jᵀ (imm.IMMFilter.mix: Σ_i μ_{i|j} = 1)."""
+    """Eq. 0-4 for one track's M models: c̄ (M,) into cbar and, per model j, the mixed
+    initial condition into X0[j] (``_NP`` numbers): x⁰_j − x_0 (6), then P⁰_j packed (21).
+
+    With e_i = x_i − x_0 (model 0's state as the reference, so nothing of the size of a
+    position cancels) and Σ_i μ_{i|j} = 1, eq. 3-4 are
+
+        x⁰_j = x_0 + Σ_i μ_{i|j} e_i,   P⁰_j = Σ_i μ_{i|j} (P_i + e_i e_iᵀ) − e⁰_j e⁰_jᵀ
+
+    (imm.IMMFilter.mix), i.e. one (M×M)·(M×27) product of the μ_{i|j} with the rows
+    S_i = [e_i, packed(P_i + e_i e_iᵀ)]: its inner loops run over contiguous rows."""
     m = xm.shape[0]
     d = max(dt, 0.0)
     for i in range(m):
-        e[i, 0] = math.exp(-d / tau[i])  # eq. 0: p_ii (e is scratch until its use below)
+        X0[i, 0] = math.exp(-d / tau[i])  # eq. 0: p_ii (X0 is scratch until it is filled)
     for j in range(m):
         c = 0.0
         for i in range(m):
-            p = e[i, 0] if i == j else (1.0 - e[i, 0]) / (m - 1)
+            p = X0[i, 0] if i == j else (1.0 - X0[i, 0]) / (m - 1)
             wt[j, i] = p * mu[i]
             c += wt[j, i]
-        wt[j, m] = c  # eq. 1
-        if c > 0.0:
+        cbar[j] = c  # eq. 1
+    for j in range(m):
+        if cbar[j] > 0.0:
             for i in range(m):
-                wt[j, i] /= c  # eq. 2
-        else:  # a mode nothing can reach keeps its own state
+                wt[j, i] /= cbar[j]  # eq. 2
+        else:  # a mode nothing can reach (c̄_j = 0) keeps its own state
             for i in range(m):
                 wt[j, i] = 1.0 if i == j else 0.0
     for i in range(m):
         for a in range(_D):
-            e[i, a] = xm[i, a] - xm[0, a]
-        for a in range(_D):
-            for b in range(a, _D):
-                S[i, a, b] = Pm[i, a, b] + e[i, a] * e[i, b]
+            S[i, a] = xm[i, a] - xm[0, a]
+        for q in range(_UT.shape[0]):
+            a, b = _UT[q, 0], _UT[q, 1]
+            S[i, _D + q] = Pm[i, a, b] + S[i, a] * S[i, b]
+    for j in range(m):
+        for q in range(_NP):
+            X0[j, q] = 0.0
+        for i in range(m):
+            w = wt[j, i]
+            for q in range(_NP):
+                X0[j, q] += w * S[i, q]  # eq. 3 and the sum of eq. 4
+        for q in range(_UT.shape[0]):
+            X0[j, _D + q] -= X0[j, _UT[q, 0]] * X0[j, _UT[q, 1]]  # − e⁰_j e⁰_jᵀ
 
 
 @_compiled
-def _mixed_j(
-    j: int, xm: np.ndarray, wt: np.ndarray, e: np.ndarray, S: np.ndarray, x0: np.ndarray, P0: np.ndarray
-) -> None:
-    """Eq. 3-4 for model j: x⁰_j and P⁰_j (full, symmetric)."""
-    m = xm.shape[0]
+def _unpack(X0j: np.ndarray, x_ref: np.ndarray, x0: np.ndarray, P0: np.ndarray) -> None:
+    """x⁰_j (6) and P⁰_j (6×6, symmetric) from a mixing row of ``_mix``."""
     for a in range(_D):
-        acc = 0.0
-        for i in range(m):
-            acc += wt[j, i] * e[i, a]
-        x0[a] = acc
-    for a in range(_D):
-        for b in range(a, _D):
-            acc = 0.0
-            for i in range(m):
-                acc += wt[j, i] * S[i, a, b]
-            P0[a, b] = acc - x0[a] * x0[b]
-            P0[b, a] = P0[a, b]
-    for a in range(_D):
-        x0[a] += xm[0, a]
+        x0[a] = x_ref[a] + X0j[a]
+    for q in range(_UT.shape[0]):
+        a, b = _UT[q, 0], _UT[q, 1]
+        P0[a, b] = X0j[_D + q]
+        P0[b, a] = X0j[_D + q]
 
 
 @_compiled
@@ -279,23 +295,113 @@ def predict_kernel(
     family and omega (M,), q_keys (6,2) the Singer q_ij order, nz_cols (M,6,3) and
     nz_count (M,6) Φ's non-zero columns per row."""
     n, m = mu.shape
-    wt = np.empty((m, m + 1))
-    e = np.empty((m, _D))
-    S = np.empty((m, _D, _D))
+    wt = np.empty((m, m))
+    S = np.empty((m, _NP))
+    X0 = np.empty((m, _NP))
     x0 = np.empty(_D)
     P0 = np.empty((_D, _D))
     T = np.empty((_D, _D))
     phi = np.empty((_D, _D))
     Q = np.empty((_D, _D))
     for k in range(n):
-        _mix_one(xm[k], Pm[k], mu[k], dt[k], tau, wt, e, S)
+        _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, out_cbar[k], S, X0)
         for j in range(m):
-            out_cbar[k, j] = wt[j, m]
-            _mixed_j(j, xm[k], wt, e, S, x0, P0)
+            _unpack(X0[j], xm[k, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
             _predict_j(phi, Q, nz_cols[j], nz_count[j], x0, P0, T, out_xm[k, j], out_Pm[k, j])
         if combine:
             _combine_one(out_xm[k], out_Pm[k], out_cbar[k], out_x[k], out_P[k])
+
+
+#: the rows of the state that association and fusion read: position and velocity
+_GATE_ROWS = np.array([0, 1, 3, 4], dtype=np.int64)
+
+
+@_compiled
+def predict_gate_kernel(
+    xm: np.ndarray,
+    Pm: np.ndarray,
+    mu: np.ndarray,
+    dt: np.ndarray,
+    tau: np.ndarray,
+    terms: np.ndarray,
+    family: np.ndarray,
+    omega: np.ndarray,
+    q_keys: np.ndarray,
+    nz_cols: np.ndarray,
+    nz_count: np.ndarray,
+    out_xy: np.ndarray,
+    out_cov_xy: np.ndarray,
+    out_x: np.ndarray,
+    out_P: np.ndarray,
+) -> None:
+    """Steps 1, 2 and 5 for association (imm.IMMFilter.predict_gate): each model's
+    predicted position out_xy (N,M,2) and its covariance out_cov_xy (N,M,2,2) (the
+    model-conditioned gates, imm.py "Gating"), and the combination (eq. 7-8, weights c̄)
+    x (N,6) with the position and velocity rows and columns of P (N,6,6), the rest NaN:
+    only the rows x, vx, y, vy of each Φ_j P⁰_j Φ_jᵀ are formed."""
+    n, m = mu.shape
+    nr = _GATE_ROWS.size
+    wt = np.empty((m, m))
+    cbar = np.empty(m)
+    S = np.empty((m, _NP))
+    X0 = np.empty((m, _NP))
+    x0 = np.empty(_D)
+    P0 = np.empty((_D, _D))
+    phi = np.empty((_D, _D))
+    Q = np.empty((_D, _D))
+    xp = np.empty((m, _D))
+    T = np.empty((nr, _D))  # rows _GATE_ROWS of Φ P⁰
+    B = np.empty((m, nr, nr))  # the block of Φ P⁰ Φᵀ + Q
+    for k in range(n):
+        _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, cbar, S, X0)
+        for j in range(m):
+            _unpack(X0[j], xm[k, 0], x0, P0)
+            _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
+            cols, ncols = nz_cols[j], nz_count[j]
+            for a in range(_D):
+                acc = 0.0
+                for q in range(ncols[a]):
+                    acc += phi[a, cols[a, q]] * x0[cols[a, q]]
+                xp[j, a] = acc
+            for r in range(nr):
+                a = _GATE_ROWS[r]
+                for b in range(_D):
+                    acc = 0.0
+                    for q in range(ncols[a]):
+                        acc += phi[a, cols[a, q]] * P0[cols[a, q], b]
+                    T[r, b] = acc
+            for r in range(nr):
+                for u in range(r, nr):
+                    b = _GATE_ROWS[u]
+                    acc = 0.0
+                    for q in range(ncols[b]):
+                        acc += T[r, cols[b, q]] * phi[b, cols[b, q]]
+                    B[j, r, u] = acc + Q[_GATE_ROWS[r], b]
+                    B[j, u, r] = B[j, r, u]
+            out_xy[k, j, 0] = xp[j, 0]
+            out_xy[k, j, 1] = xp[j, 3]
+            out_cov_xy[k, j, 0, 0] = B[j, 0, 0]
+            out_cov_xy[k, j, 0, 1] = B[j, 0, 2]
+            out_cov_xy[k, j, 1, 0] = B[j, 2, 0]
+            out_cov_xy[k, j, 1, 1] = B[j, 2, 2]
+        for a in range(_D):  # eq. 7 with c̄
+            acc = 0.0
+            for j in range(m):
+                acc += cbar[j] * xp[j, a]
+            out_x[k, a] = acc
+        for a in range(_D):
+            for b in range(_D):
+                out_P[k, a, b] = np.nan
+        for r in range(nr):  # eq. 8 on the block
+            a = _GATE_ROWS[r]
+            for u in range(r, nr):
+                b = _GATE_ROWS[u]
+                acc = 0.0
+                for j in range(m):
+                    acc += cbar[j] * (B[j, r, u] + (xp[j, a] - out_x[k, a]) * (xp[j, b] - out_x[k, b]))
+                out_P[k, a, b] = acc
+                out_P[k, b, a] = acc
 
 
 @_compiled
@@ -318,57 +424,161 @@ def predict_position_kernel(
     (N,6) of eq. 7 and the x-y block (N,2,2) of eq. 8, from each model's H P_j Hᵀ =
     (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ: the rows x and y of Φ only."""
     n, m = mu.shape
-    wt = np.empty((m, m + 1))
-    e = np.empty((m, _D))
-    S = np.empty((m, _D, _D))
+    wt = np.empty((m, m))
+    cbar = np.empty(m)
+    S = np.empty((m, _NP))
+    X0 = np.empty((m, _NP))
     x0 = np.empty(_D)
     P0 = np.empty((_D, _D))
     phi = np.empty((_D, _D))
     Q = np.empty((_D, _D))
     xp = np.empty((m, _D))
-    Pxy = np.empty((m, 3))  # xx, xy, yy
+    Pxy = np.empty((m, 2, 2))
     G = np.empty((2, _D))  # the rows x and y of Φ P⁰
-    pos = (0, 3)
     for k in range(n):
-        _mix_one(xm[k], Pm[k], mu[k], dt[k], tau, wt, e, S)
+        _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, cbar, S, X0)
         for j in range(m):
-            _mixed_j(j, xm[k], wt, e, S, x0, P0)
+            _unpack(X0[j], xm[k, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
             cols, ncols = nz_cols[j], nz_count[j]
             for a in range(_D):
                 acc = 0.0
                 for q in range(ncols[a]):
-                    c = cols[a, q]
-                    acc += phi[a, c] * x0[c]
+                    acc += phi[a, cols[a, q]] * x0[cols[a, q]]
                 xp[j, a] = acc
             for r in range(2):
-                a = pos[r]
+                a = 3 * r
                 for b in range(_D):
                     acc = 0.0
                     for q in range(ncols[a]):
-                        c = cols[a, q]
-                        acc += phi[a, c] * P0[c, b]
+                        acc += phi[a, cols[a, q]] * P0[cols[a, q], b]
                     G[r, b] = acc
-            for r, (ra, rb) in enumerate(((0, 0), (0, 1), (1, 1))):
-                b = pos[rb]
-                acc = 0.0
-                for q in range(ncols[b]):
-                    c = cols[b, q]
-                    acc += G[ra, c] * phi[b, c]
-                Pxy[j, r] = acc + Q[pos[ra], b]
-        # eq. 7-8 with c̄ (the predicted mode probabilities) as the weights
-        for a in range(_D):
+            for r in range(2):
+                for u in range(r, 2):
+                    b = 3 * u
+                    acc = 0.0
+                    for q in range(ncols[b]):
+                        acc += G[r, cols[b, q]] * phi[b, cols[b, q]]
+                    Pxy[j, r, u] = acc + Q[3 * r, b]
+                    Pxy[j, u, r] = Pxy[j, r, u]
+        for a in range(_D):  # eq. 7-8 with c̄ (the predicted mode probabilities) as the weights
             acc = 0.0
             for j in range(m):
-                acc += wt[j, m] * xp[j, a]
+                acc += cbar[j] * xp[j, a]
             out_x[k, a] = acc
-        for r, (ra, rb) in enumerate(((0, 0), (0, 1), (1, 1))):
-            a, b = pos[ra], pos[rb]
-            acc = 0.0
-            for j in range(m):
-                acc += wt[j, m] * (Pxy[j, r] + (xp[j, a] - out_x[k, a]) * (xp[j, b] - out_x[k, b]))
-            out_Pxy[k, ra, rb] = acc
-            out_Pxy[k, rb, ra] = acc
+        for r in range(2):
+            for u in range(r, 2):
+                acc = 0.0
+                for j in range(m):
+                    acc += cbar[j] * (
+                        Pxy[j, r, u] + (xp[j, 3 * r] - out_x[k, 3 * r]) * (xp[j, 3 * u] - out_x[k, 3 * u])
+                    )
+                out_Pxy[k, r, u] = acc
+                out_Pxy[k, u, r] = acc
+
+
+@_compiled
+def _update_one(
+    xm: np.ndarray,
+    Pm: np.ndarray,
+    cbar: np.ndarray,
+    z: np.ndarray,
+    R: np.ndarray,
+    out_xm: np.ndarray,
+    out_Pm: np.ndarray,
+    out_mu: np.ndarray,
+    log_w: np.ndarray,
+    K: np.ndarray,
+    PHt: np.ndarray,
+) -> None:
+    """Steps 3-4 for one track (update_kernel)."""
+    m = cbar.shape[0]
+    log_2pi = math.log(2.0 * math.pi)
+    for j in range(m):
+        P = Pm[j]
+        x = xm[j]
+        for a in range(_D):
+            PHt[a, 0] = P[a, 0]
+            PHt[a, 1] = P[a, 3]
+        s00 = PHt[0, 0] + R[0, 0]
+        s01 = PHt[0, 1] + R[0, 1]
+        s10 = PHt[3, 0] + R[1, 0]
+        s11 = PHt[3, 1] + R[1, 1]
+        det = s00 * s11 - s01 * s10
+        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+        nu0 = z[0] - x[0]
+        nu1 = z[1] - x[3]
+        for a in range(_D):
+            K[a, 0] = PHt[a, 0] * i00 + PHt[a, 1] * i10
+            K[a, 1] = PHt[a, 0] * i01 + PHt[a, 1] * i11
+        ox = out_xm[j]
+        for a in range(_D):
+            ox[a] = x[a] + K[a, 0] * nu0 + K[a, 1] * nu1
+        oP = out_Pm[j]
+        for a in range(_D):
+            for b in range(a, _D):
+                pab = P[a, b] - (K[a, 0] * PHt[b, 0] + K[a, 1] * PHt[b, 1])
+                pba = P[b, a] - (K[b, 0] * PHt[a, 0] + K[b, 1] * PHt[a, 1])
+                oP[a, b] = 0.5 * (pab + pba)
+                oP[b, a] = oP[a, b]
+        d2 = nu0 * (i00 * nu0 + i01 * nu1) + nu1 * (i10 * nu0 + i11 * nu1)
+        log_w[j] = -0.5 * d2 - 0.5 * math.log(det) - log_2pi  # eq. 5
+        log_w[j] += math.log(cbar[j]) if cbar[j] > 0.0 else -np.inf
+    top = log_w.max()
+    total = 0.0
+    for j in range(m):
+        out_mu[j] = math.exp(log_w[j] - top)
+        total += out_mu[j]
+    for j in range(m):
+        out_mu[j] /= total  # eq. 6
+
+
+@_compiled
+def predict_update_kernel(
+    xm: np.ndarray,
+    Pm: np.ndarray,
+    mu: np.ndarray,
+    dt: np.ndarray,
+    tau: np.ndarray,
+    terms: np.ndarray,
+    family: np.ndarray,
+    omega: np.ndarray,
+    q_keys: np.ndarray,
+    nz_cols: np.ndarray,
+    nz_count: np.ndarray,
+    z: np.ndarray,
+    R: np.ndarray,
+    out_xm: np.ndarray,
+    out_Pm: np.ndarray,
+    out_mu: np.ndarray,
+    out_x: np.ndarray,
+    out_P: np.ndarray,
+) -> None:
+    """One whole cycle per track, steps 1-5: predict_kernel over dt, then update_kernel
+    with z, R and the combination, without writing the prediction out."""
+    n, m = mu.shape
+    wt = np.empty((m, m))
+    cbar = np.empty(m)
+    S = np.empty((m, _NP))
+    X0 = np.empty((m, _NP))
+    x0 = np.empty(_D)
+    P0 = np.empty((_D, _D))
+    T = np.empty((_D, _D))
+    phi = np.empty((_D, _D))
+    Q = np.empty((_D, _D))
+    xp = np.empty((m, _D))
+    Pp = np.empty((m, _D, _D))
+    log_w = np.empty(m)
+    K = np.empty((_D, 2))
+    PHt = np.empty((_D, 2))
+    for k in range(n):
+        _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, cbar, S, X0)
+        for j in range(m):
+            _unpack(X0[j], xm[k, 0], x0, P0)
+            _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
+            _predict_j(phi, Q, nz_cols[j], nz_count[j], x0, P0, T, xp[j], Pp[j])
+        _update_one(xp, Pp, cbar, z[k], R[k], out_xm[k], out_Pm[k], out_mu[k], log_w, K, PHt)
+        _combine_one(out_xm[k], out_Pm[k], out_mu[k], out_x[k], out_P[k])
 
 
 @_compiled
@@ -396,45 +606,8 @@ def update_kernel(
     log_w = np.empty(m)
     K = np.empty((_D, 2))
     PHt = np.empty((_D, 2))
-    log_2pi = math.log(2.0 * math.pi)
     for k in range(n):
-        for j in range(m):
-            P = Pm[k, j]
-            x = xm[k, j]
-            for a in range(_D):
-                PHt[a, 0] = P[a, 0]
-                PHt[a, 1] = P[a, 3]
-            s00 = PHt[0, 0] + R[k, 0, 0]
-            s01 = PHt[0, 1] + R[k, 0, 1]
-            s10 = PHt[3, 0] + R[k, 1, 0]
-            s11 = PHt[3, 1] + R[k, 1, 1]
-            det = s00 * s11 - s01 * s10
-            i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
-            nu0 = z[k, 0] - x[0]
-            nu1 = z[k, 1] - x[3]
-            for a in range(_D):
-                K[a, 0] = PHt[a, 0] * i00 + PHt[a, 1] * i10
-                K[a, 1] = PHt[a, 0] * i01 + PHt[a, 1] * i11
-            ox = out_xm[k, j]
-            for a in range(_D):
-                ox[a] = x[a] + K[a, 0] * nu0 + K[a, 1] * nu1
-            oP = out_Pm[k, j]
-            for a in range(_D):
-                for b in range(a, _D):
-                    pab = P[a, b] - (K[a, 0] * PHt[b, 0] + K[a, 1] * PHt[b, 1])
-                    pba = P[b, a] - (K[b, 0] * PHt[a, 0] + K[b, 1] * PHt[a, 1])
-                    oP[a, b] = 0.5 * (pab + pba)
-                    oP[b, a] = oP[a, b]
-            d2 = nu0 * (i00 * nu0 + i01 * nu1) + nu1 * (i10 * nu0 + i11 * nu1)
-            log_w[j] = -0.5 * d2 - 0.5 * math.log(det) - log_2pi  # eq. 5
-            log_w[j] += math.log(cbar[k, j]) if cbar[k, j] > 0.0 else -np.inf
-        top = log_w.max()
-        total = 0.0
-        for j in range(m):
-            out_mu[k, j] = math.exp(log_w[j] - top)
-            total += out_mu[k, j]
-        for j in range(m):
-            out_mu[k, j] /= total  # eq. 6
+        _update_one(xm[k], Pm[k], cbar[k], z[k], R[k], out_xm[k], out_Pm[k], out_mu[k], log_w, K, PHt)
         if combine:
             _combine_one(out_xm[k], out_Pm[k], out_mu[k], out_x[k], out_P[k])
 
