@@ -119,8 +119,8 @@ MANOEUVRE = 1
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
-#: xm, Pm, mu, dt, tau, terms, family, omega, q_keys, nz_cols, nz_count (imm_kernels.predict_kernel)
-_KernelArgs = tuple[Float, Float, Float, Float, Float, Float, Any, Float, Any, Any, Any]
+#: xm, Pm, mu, dt, tau, terms, family, omega, q_keys (imm_kernels.predict_kernel)
+_KernelArgs = tuple[Float, Float, Float, Float, Float, Float, Any, Float, Any]
 
 
 class IMMParams(BaseModel):
@@ -265,18 +265,10 @@ class IMMFilter:
         self._omega = np.array([m.turn_rate_rad_s for m in turns])
         self._turn_q = np.array([m.q_m2_s3 for m in turns])
         # the compiled cycle (imm_kernels.py): each model's family and turn rate, the order of
-        # the Singer q_ij, and Φ's non-zero columns per row (the union over a range of dt, so
-        # no structural zero is missed and no entry that can be non-zero is skipped)
+        # the Singer q_ij
         self._family = np.array([imm_kernels.SINGER] * len(singer) + [imm_kernels.CT] * len(turns), dtype=np.int64)
         self._omega_all = np.array([0.0] * len(singer) + [m.turn_rate_rad_s for m in turns])
         self._q_keys = np.array(singer_filter._Q_KEYS, dtype=np.int64)
-        phi, _ = self.model_matrices(np.array([1e-3, 0.7, 4.0, 12.0, 300.0]))
-        nonzero = np.any(phi != 0.0, axis=0)  # (M, 6, 6)
-        self._nz_count = nonzero.sum(axis=2).astype(np.int64)
-        self._nz_cols = np.zeros((self.n_models, STATE_DIM, max(1, int(self._nz_count.max()))), dtype=np.int64)
-        for j, a in np.ndindex(self.n_models, STATE_DIM):
-            cols = np.flatnonzero(nonzero[j, a])
-            self._nz_cols[j, a, : cols.size] = cols
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -415,8 +407,6 @@ class IMMFilter:
             self._family,
             self._omega_all,
             self._q_keys,
-            self._nz_cols,
-            self._nz_count,
         )
 
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:

@@ -23,8 +23,7 @@ goal).  Here each track's M states are read once, everything in between lives in
 entries with the models' own formulas (singer_filter.py Shu eq. 12 and §4,
 coordinated_turn.py eq. 2-4), ``TERMS`` numbers per track and model, and
 :func:`_model_phi_q` lays them out in a 6×6 pair, the same placement as
-singer_filter.singer_matrices_into and coordinated_turn.ct_matrices_into.  Products with
-Φ skip its structural zeros (each row has at most three non-zero entries: ``nz_cols``).
+singer_filter.singer_matrices_into and coordinated_turn.ct_matrices_into.
 
 Compiled by numba on first use and cached on disk (``_compiled``), so a process pays the
 compilation (a few seconds) only when the code changed, and imm.IMMFilter runs each
@@ -218,36 +217,39 @@ def _unpack(X0j: np.ndarray, x_ref: np.ndarray, x0: np.ndarray, P0: np.ndarray) 
 def _predict_j(
     phi: np.ndarray,
     Q: np.ndarray,
-    cols: np.ndarray,
-    ncols: np.ndarray,
     x0: np.ndarray,
     P0: np.ndarray,
     T: np.ndarray,
+    phiT: np.ndarray,
     xp: np.ndarray,
     Pp: np.ndarray,
 ) -> None:
-    """x = Φ x⁰, P = Φ P⁰ Φᵀ + Q (Shu eq. 8, 11; coordinated_turn.py eq. 4), over Φ's
-    non-zero entries (row a: cols[a, :ncols[a]]); P exactly symmetric."""
+    """x = Φ x⁰, P = Φ P⁰ Φᵀ + Q (Shu eq. 8, 11; coordinated_turn.py eq. 4); P exactly
+    symmetric.  Dense 6×6 products written as row updates (T[a, :] += Φ[a, c] P⁰[c, :]),
+    which the compiler vectorises: faster than skipping Φ's zeros entry by entry."""
     for a in range(_D):
         acc = 0.0
-        for q in range(ncols[a]):
-            c = cols[a, q]
+        for c in range(_D):
             acc += phi[a, c] * x0[c]
         xp[a] = acc
+        for c in range(_D):
+            phiT[c, a] = phi[a, c]
     for a in range(_D):
         for b in range(_D):
-            acc = 0.0
-            for q in range(ncols[a]):
-                c = cols[a, q]
-                acc += phi[a, c] * P0[c, b]
-            T[a, b] = acc
+            T[a, b] = 0.0
+        for c in range(_D):
+            f = phi[a, c]
+            for b in range(_D):
+                T[a, b] += f * P0[c, b]
     for a in range(_D):
-        for b in range(a, _D):
-            acc = 0.0
-            for q in range(ncols[b]):
-                c = cols[b, q]
-                acc += T[a, c] * phi[b, c]
-            Pp[a, b] = acc + Q[a, b]
+        for b in range(_D):
+            Pp[a, b] = Q[a, b]
+        for c in range(_D):
+            t = T[a, c]
+            for b in range(_D):
+                Pp[a, b] += t * phiT[c, b]
+    for a in range(_D):
+        for b in range(a + 1, _D):
             Pp[b, a] = Pp[a, b]
 
 
@@ -280,8 +282,6 @@ def predict_kernel(
     family: np.ndarray,
     omega: np.ndarray,
     q_keys: np.ndarray,
-    nz_cols: np.ndarray,
-    nz_count: np.ndarray,
     out_xm: np.ndarray,
     out_Pm: np.ndarray,
     out_cbar: np.ndarray,
@@ -292,8 +292,7 @@ def predict_kernel(
     """Steps 1-2 (eq. 0-4, each model's prediction) for N tracks, and with ``combine``
     step 5 (eq. 7-8) of the predicted states weighted by c̄ into out_x (N,6), out_P (N,6,6).
     xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (M,) dwell times, terms (N,M,TERMS),
-    family and omega (M,), q_keys (6,2) the Singer q_ij order, nz_cols (M,6,3) and
-    nz_count (M,6) Φ's non-zero columns per row."""
+    family and omega (M,), q_keys (6,2) the Singer q_ij order."""
     n, m = mu.shape
     wt = np.empty((m, m))
     S = np.empty((m, _NP))
@@ -301,6 +300,7 @@ def predict_kernel(
     x0 = np.empty(_D)
     P0 = np.empty((_D, _D))
     T = np.empty((_D, _D))
+    phiT = np.empty((_D, _D))
     phi = np.empty((_D, _D))
     Q = np.empty((_D, _D))
     for k in range(n):
@@ -308,7 +308,7 @@ def predict_kernel(
         for j in range(m):
             _unpack(X0[j], xm[k, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
-            _predict_j(phi, Q, nz_cols[j], nz_count[j], x0, P0, T, out_xm[k, j], out_Pm[k, j])
+            _predict_j(phi, Q, x0, P0, T, phiT, out_xm[k, j], out_Pm[k, j])
         if combine:
             _combine_one(out_xm[k], out_Pm[k], out_cbar[k], out_x[k], out_P[k])
 
@@ -328,8 +328,6 @@ def predict_gate_kernel(
     family: np.ndarray,
     omega: np.ndarray,
     q_keys: np.ndarray,
-    nz_cols: np.ndarray,
-    nz_count: np.ndarray,
     out_xy: np.ndarray,
     out_cov_xy: np.ndarray,
     out_x: np.ndarray,
@@ -358,25 +356,25 @@ def predict_gate_kernel(
         for j in range(m):
             _unpack(X0[j], xm[k, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
-            cols, ncols = nz_cols[j], nz_count[j]
             for a in range(_D):
                 acc = 0.0
-                for q in range(ncols[a]):
-                    acc += phi[a, cols[a, q]] * x0[cols[a, q]]
+                for c in range(_D):
+                    acc += phi[a, c] * x0[c]
                 xp[j, a] = acc
             for r in range(nr):
                 a = _GATE_ROWS[r]
                 for b in range(_D):
-                    acc = 0.0
-                    for q in range(ncols[a]):
-                        acc += phi[a, cols[a, q]] * P0[cols[a, q], b]
-                    T[r, b] = acc
+                    T[r, b] = 0.0
+                for c in range(_D):
+                    f = phi[a, c]
+                    for b in range(_D):
+                        T[r, b] += f * P0[c, b]
             for r in range(nr):
                 for u in range(r, nr):
                     b = _GATE_ROWS[u]
                     acc = 0.0
-                    for q in range(ncols[b]):
-                        acc += T[r, cols[b, q]] * phi[b, cols[b, q]]
+                    for c in range(_D):
+                        acc += T[r, c] * phi[b, c]
                     B[j, r, u] = acc + Q[_GATE_ROWS[r], b]
                     B[j, u, r] = B[j, r, u]
             out_xy[k, j, 0] = xp[j, 0]
@@ -415,8 +413,6 @@ def predict_position_kernel(
     family: np.ndarray,
     omega: np.ndarray,
     q_keys: np.ndarray,
-    nz_cols: np.ndarray,
-    nz_count: np.ndarray,
     out_x: np.ndarray,
     out_Pxy: np.ndarray,
 ) -> None:
@@ -440,25 +436,25 @@ def predict_position_kernel(
         for j in range(m):
             _unpack(X0[j], xm[k, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
-            cols, ncols = nz_cols[j], nz_count[j]
             for a in range(_D):
                 acc = 0.0
-                for q in range(ncols[a]):
-                    acc += phi[a, cols[a, q]] * x0[cols[a, q]]
+                for c in range(_D):
+                    acc += phi[a, c] * x0[c]
                 xp[j, a] = acc
             for r in range(2):
                 a = 3 * r
                 for b in range(_D):
-                    acc = 0.0
-                    for q in range(ncols[a]):
-                        acc += phi[a, cols[a, q]] * P0[cols[a, q], b]
-                    G[r, b] = acc
+                    G[r, b] = 0.0
+                for c in range(_D):
+                    f = phi[a, c]
+                    for b in range(_D):
+                        G[r, b] += f * P0[c, b]
             for r in range(2):
                 for u in range(r, 2):
                     b = 3 * u
                     acc = 0.0
-                    for q in range(ncols[b]):
-                        acc += G[r, cols[b, q]] * phi[b, cols[b, q]]
+                    for c in range(_D):
+                        acc += G[r, c] * phi[b, c]
                     Pxy[j, r, u] = acc + Q[3 * r, b]
                     Pxy[j, u, r] = Pxy[j, r, u]
         for a in range(_D):  # eq. 7-8 with c̄ (the predicted mode probabilities) as the weights
@@ -544,8 +540,6 @@ def predict_update_kernel(
     family: np.ndarray,
     omega: np.ndarray,
     q_keys: np.ndarray,
-    nz_cols: np.ndarray,
-    nz_count: np.ndarray,
     z: np.ndarray,
     R: np.ndarray,
     out_xm: np.ndarray,
@@ -564,6 +558,7 @@ def predict_update_kernel(
     x0 = np.empty(_D)
     P0 = np.empty((_D, _D))
     T = np.empty((_D, _D))
+    phiT = np.empty((_D, _D))
     phi = np.empty((_D, _D))
     Q = np.empty((_D, _D))
     xp = np.empty((m, _D))
@@ -576,7 +571,7 @@ def predict_update_kernel(
         for j in range(m):
             _unpack(X0[j], xm[k, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
-            _predict_j(phi, Q, nz_cols[j], nz_count[j], x0, P0, T, xp[j], Pp[j])
+            _predict_j(phi, Q, x0, P0, T, phiT, xp[j], Pp[j])
         _update_one(xp, Pp, cbar, z[k], R[k], out_xm[k], out_Pm[k], out_mu[k], log_w, K, PHt)
         _combine_one(out_xm[k], out_Pm[k], out_mu[k], out_x[k], out_P[k])
 
