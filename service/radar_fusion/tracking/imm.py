@@ -105,7 +105,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from . import coordinated_turn, imm_kernels, singer_filter
+from . import imm_kernels, singer_filter
 from .coordinated_turn import CoordinatedTurnModel, ct_matrices_into
 from .singer_filter import POS_IDX, STATE_DIM, SingerFilter, inv_2x2, singer_matrices_into
 
@@ -269,6 +269,19 @@ class IMMFilter:
         self._family = np.array([imm_kernels.SINGER] * len(singer) + [imm_kernels.CT] * len(turns), dtype=np.int64)
         self._omega_all = np.array([0.0] * len(singer) + [m.turn_rate_rad_s for m in turns])
         self._q_keys = np.array(singer_filter._Q_KEYS, dtype=np.int64)
+        ns, nt = len(singer), len(turns)
+        self._terms_args = (
+            self._family,
+            np.concatenate([self._alpha, np.zeros(nt)]),
+            np.concatenate([self._sigma, np.zeros(nt)]),
+            self._omega_all,
+            np.concatenate([np.zeros(ns), self._turn_q]),
+            self._q_keys,
+            np.array([singer_filter._Q_POWER[ij] for ij in singer_filter._Q_KEYS], dtype=np.int64),
+            singer_filter._H2_SERIES,
+            np.ascontiguousarray(singer_filter._Q_SERIES_MATRIX),
+            singer_filter._SERIES_SWITCH_AT,
+        )
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -368,30 +381,14 @@ class IMMFilter:
 
     def model_terms(self, dt_s: Float) -> Float:
         """The distinct entries of every model's Φ_j and Q_j over each track's dt_s, (N, M,
-        imm_kernels.TERMS), by the models' own formulas: the Singer models' Φ entries of Shu
-        eq. 12 and q_ij of §4 (singer_filter.py), the turns' T_s, T_c, cos ωT, sin ωT of eq. 2
-        and q f_pp, q f_pv, q f_po, q T of eq. 3 (coordinated_turn.py).  imm_kernels lays
+        imm_kernels.TERMS), by the models' formulas: the Singer models' Φ entries of Shu
+        eq. 12 and q_ij of §4 (singer_filter.py, its series and switch), the turns' T_s, T_c,
+        cos ωT, sin ωT of eq. 2 and q f_pp, q f_pv, q f_po, q T of eq. 3
+        (coordinated_turn.py); compiled (imm_kernels.model_terms_kernel).  imm_kernels lays
         them out as 6×6 matrices, as ``_fill_model_matrices`` does."""
-        n, m = dt_s.size, self.n_models
-        terms = np.zeros((n, m, imm_kernels.TERMS))
-        ms = self._alpha.size
-        if ms:
-            dt = np.repeat(dt_s, ms)
-            alpha, sigma = np.tile(self._alpha, n), np.tile(self._sigma, n)
-            f02, f12, f22 = singer_filter._transition_terms(dt, alpha)
-            sub = terms[:, self._singer]
-            sub[:, :, 0] = dt_s[:, None]
-            sub[:, :, 1], sub[:, :, 2], sub[:, :, 3] = (f.reshape(n, ms) for f in (f02, f12, f22))
-            sub[:, :, 4:] = singer_filter._process_noise_terms(dt, alpha, sigma).reshape(n, ms, 6)
-        if self._omega.size:
-            dt, w = coordinated_turn._broadcast(dt_s[:, None], self._omega)
-            s_w, c_w, c, s = coordinated_turn._transition_terms(dt, w)
-            f_pp, f_pv, f_po = coordinated_turn._noise_terms(dt, w, s_w, c_w)
-            q = self._turn_q
-            sub = terms[:, self._turns]
-            for k, v in enumerate((s_w, c_w, c, s, q * f_pp, q * f_pv, q * f_po, q * dt)):
-                sub[:, :, k] = v
-        return terms
+        out = np.empty((dt_s.size, self.n_models, imm_kernels.TERMS))
+        imm_kernels.model_terms_kernel(_c64(dt_s), *self._terms_args, out)
+        return out
 
     def _dt(self, dt_s: ArrayLike, n: int) -> Float:
         return np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))

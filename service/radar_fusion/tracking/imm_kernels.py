@@ -48,6 +48,7 @@ __all__ = [
     "SINGER",
     "TERMS",
     "combine_kernel",
+    "model_terms_kernel",
     "predict_gate_kernel",
     "predict_kernel",
     "predict_position_kernel",
@@ -65,7 +66,7 @@ TERMS = 10
 
 _D = 6  # the state [x, vx, ax, y, vy, ay]
 
-_F = TypeVar("_F", bound=Callable[..., None])
+_F = TypeVar("_F", bound=Callable[..., object])
 
 
 def _compiled(fn: _F) -> _F:
@@ -138,6 +139,122 @@ def _model_phi_q(family: int, t: np.ndarray, omega: float, q_keys: np.ndarray, p
     Q[1, 5] = Q[5, 1] = w * vv
     Q[4, 2] = Q[2, 4] = -w * vv
     Q[2, 2] = Q[5, 5] = w * w * vv
+
+
+@_compiled
+def _horner(coeffs: np.ndarray, x: float) -> float:
+    acc = 0.0
+    for i in range(coeffs.shape[0] - 1, -1, -1):
+        acc = acc * x + coeffs[i]
+    return acc
+
+
+@_compiled
+def _singer_terms(
+    dt: float,
+    alpha: float,
+    sigma: float,
+    q_keys: np.ndarray,
+    q_power: np.ndarray,
+    h2_series: np.ndarray,
+    q_series: np.ndarray,
+    switch: float,
+    out: np.ndarray,
+) -> None:
+    """A Singer model's ``TERMS`` over dt (singer_filter._transition_terms and
+    _process_noise_terms, Shu eq. 12 and §4 with the misprints fixed): T, Φ02 = T² h2(αT),
+    Φ12 = T h1(αT), Φ22 = e^{−αT}, then q_ij = 2ασ_m² T^p g_ij(αT), each g_ij by its
+    Taylor series below αT = ``switch`` (where the closed form cancels) and in closed form
+    above, the same split and the same series coefficients as singer_filter.py."""
+    x = alpha * dt
+    small = x < switch
+    h2 = _horner(h2_series, x) if small else (x - 1.0 + math.exp(-x)) / (x * x)
+    h1 = -math.expm1(-x) / x if x > 0.0 else 1.0
+    out[0] = dt
+    out[1] = dt * dt * h2
+    out[2] = dt * h1
+    out[3] = math.exp(-x)
+    q_c = 2.0 * alpha * sigma * sigma
+    e1 = math.exp(-x)
+    e2 = math.exp(-2.0 * x)
+    for k in range(6):
+        i, j, p = q_keys[k, 0], q_keys[k, 1], q_power[k]
+        if small:
+            g = _horner(q_series[:, k], x)
+        else:  # singer_filter._q_closed
+            if i == 0 and j == 0:
+                num = 1.0 - e2 + 2.0 * x + 2.0 * x**3 / 3.0 - 2.0 * x**2 - 4.0 * x * e1
+            elif i == 0 and j == 1:
+                num = 1.0 + e2 - 2.0 * e1 + 2.0 * x * e1 - 2.0 * x + x**2
+            elif i == 0 and j == 2:
+                num = 1.0 - e2 - 2.0 * x * e1
+            elif i == 1 and j == 1:
+                num = 4.0 * e1 - 3.0 - e2 + 2.0 * x
+            elif i == 1 and j == 2:
+                num = 1.0 + e2 - 2.0 * e1
+            else:
+                num = 1.0 - e2
+            g = num / (2.0 * x**p)
+        out[4 + k] = q_c * g * dt**p
+
+
+@_compiled
+def _turn_terms(dt: float, w: float, q: float, out: np.ndarray) -> None:
+    """A coordinated turn's ``TERMS`` over dt (coordinated_turn._transition_terms and
+    _noise_terms, eq. 2-3): T_s = sin ωT/ω, T_c = (1 − cos ωT)/ω = 2 sin²(ωT/2)/ω, cos ωT,
+    sin ωT, then q f_pp, q f_pv, q f_po and q T, by their series below |ωT| = 0.01."""
+    wt = w * dt
+    s = math.sin(wt)
+    c = math.cos(wt)
+    if w != 0.0:
+        s_w = s / w
+        c_w = 2.0 * math.sin(0.5 * wt) ** 2 / w
+    else:
+        s_w = dt
+        c_w = 0.0
+    if abs(wt) < 1e-2:
+        t2 = dt * dt
+        w2 = w * w
+        f_pp = t2 * dt / 3.0 - w2 * t2 * t2 * dt / 60.0
+        f_pv = t2 / 2.0 - w2 * t2 * t2 / 24.0
+        f_po = w * t2 * dt / 6.0 - w2 * w * t2 * t2 * dt / 120.0
+    else:
+        f_po = (dt - s_w) / w
+        f_pp = 2.0 * f_po / w
+        f_pv = c_w / w
+    out[0] = s_w
+    out[1] = c_w
+    out[2] = c
+    out[3] = s
+    out[4] = q * f_pp
+    out[5] = q * f_pv
+    out[6] = q * f_po
+    out[7] = q * dt
+
+
+@_compiled
+def model_terms_kernel(
+    dt: np.ndarray,
+    family: np.ndarray,
+    alpha: np.ndarray,
+    sigma: np.ndarray,
+    omega: np.ndarray,
+    turn_q: np.ndarray,
+    q_keys: np.ndarray,
+    q_power: np.ndarray,
+    h2_series: np.ndarray,
+    q_series: np.ndarray,
+    switch: float,
+    out: np.ndarray,
+) -> None:
+    """Every model's ``TERMS`` over each track's dt: out (N, M, TERMS); per model (M,) its
+    family, Singer α and σ_m, turn rate ω and turn noise q (the other family's unused)."""
+    for k in range(dt.shape[0]):
+        for j in range(family.shape[0]):
+            if family[j] == SINGER:
+                _singer_terms(dt[k], alpha[j], sigma[j], q_keys, q_power, h2_series, q_series, switch, out[k, j])
+            else:
+                _turn_terms(dt[k], omega[j], turn_q[j], out[k, j])
 
 
 #: the packed upper triangle of a symmetric 6×6 matrix: entry q is (_UT[q, 0], _UT[q, 1])
