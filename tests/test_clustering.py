@@ -608,3 +608,27 @@ def test_a_plot_a_turn_model_expects_joins_outside_the_combined_gate():
     # a plot no model expects stays out
     far = cluster_plots(*make_plots([[900.0, 0.0]], [0]), *tracks, T_REF, None, track_models=(models_xy, models_cov))
     assert far.cluster_track.tolist() == [-1]
+
+
+def test_plot_search_finds_exactly_the_pairs_within_each_radius() -> None:
+    """The candidate search (association._within_radius, a grid) against all pairs by brute
+    force: clustered and scattered points, radii from 0 to beyond the whole area and
+    infinite, centres outside it, points exactly on a circle (|p − c| = r is in, as in a
+    k-d tree's ball)."""
+    from radar_fusion.tracking.association import _within_radius
+
+    rng = np.random.default_rng(5)
+    for n_p, n_c in ((0, 5), (5, 0), (1, 1), (400, 300), (3000, 1000)):
+        xy = np.concatenate([rng.normal(0.0, 3e4, (n_p // 2, 2)), rng.uniform(-2e5, 2e5, (n_p - n_p // 2, 2))])
+        centres = rng.uniform(-2.5e5, 2.5e5, (n_c, 2))
+        radius = rng.choice([0.0, 500.0, 3000.0, 2e4, 1e6, np.inf], n_c, p=[0.1, 0.3, 0.3, 0.2, 0.09, 0.01])
+        radius = radius * rng.uniform(0.5, 1.0, n_c)
+        if n_p and n_c:  # a point exactly on a centre's circle (dx = r, dy = 0, exact in binary)
+            xy[0], centres[0], radius[0] = [1000.0, 2000.0], [500.0, 2000.0], 500.0
+        got_p, got_c = _within_radius(xy, centres, radius)
+        d2 = ((xy[None, :, :] - centres[:, None, :]) ** 2).sum(axis=2)
+        want_c, want_p = np.nonzero(d2 <= radius[:, None] ** 2)
+        assert sorted(zip(got_c.tolist(), got_p.tolist())) == sorted(zip(want_c.tolist(), want_p.tolist()))
+        assert (np.diff(got_c) >= 0).all()  # grouped by centre, in order
+        if n_p and n_c:
+            assert (0, 0) in set(zip(got_c.tolist(), got_p.tolist()))

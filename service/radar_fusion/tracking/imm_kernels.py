@@ -25,7 +25,7 @@ coordinated_turn.py eq. 2-4), ``TERMS`` numbers per track and model, and
 :func:`_model_phi_q` lays them out in a 6×6 pair, the same placement as
 singer_filter.singer_matrices_into and coordinated_turn.ct_matrices_into.
 
-Compiled by numba on first use and cached on disk (``_compiled``), so a process pays the
+Compiled by numba on first use and cached on disk (compiled.py), so a process pays the
 compilation (a few seconds) only when the code changed, and imm.IMMFilter runs each
 kernel once when it is made, so that this happens at start-up, not in the first period;
 ``nogil`` lets the daemon's receiving threads run while the engine is in here.  Arithmetic is the
@@ -37,11 +37,10 @@ a per-track hand computation with Van Loan's Φ and Q, and filterpy's IMMEstimat
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import TypeVar, cast
 
 import numpy as np
-from numba import njit
+
+from .compiled import compiled as _compiled
 
 __all__ = [
     "CT",
@@ -65,25 +64,6 @@ CT = 1
 TERMS = 10
 
 _D = 6  # the state [x, vx, ax, y, vy, ay]
-
-_F = TypeVar("_F", bound=Callable[..., object])
-
-
-def _compiled(fn: _F) -> _F:
-    """numba's ``njit``, cached on disk, releasing the GIL; floating-point sums may be
-    reordered and multiply-adds fused (``reassoc``, ``contract``: round-off only; no
-    assumption about NaN or infinity, which update_kernel relies on).  Typed as the
-    Python function it compiles (numba's own annotations type it as a Dispatcher).
-
-    The cache is the package's ``__pycache__``, else ``NUMBA_CACHE_DIR``, else the user's
-    cache directory (numba's order); where none is writable (a read-only install run by a
-    user without a home: deploy/ sets NUMBA_CACHE_DIR) numba refuses ``cache=True`` at
-    import, and each process compiles the kernels instead, a few seconds at start-up."""
-    flags = {"reassoc", "contract"}
-    try:
-        return cast(_F, njit(cache=True, nogil=True, fastmath=flags)(fn))
-    except RuntimeError:  # "cannot cache function ...: no locator available"
-        return cast(_F, njit(cache=False, nogil=True, fastmath=flags)(fn))
 
 
 @_compiled
