@@ -518,6 +518,36 @@ def test_predict_update_equals_update_of_predict() -> None:
     np.testing.assert_allclose(P1, P2, rtol=1e-12, atol=1e-9)
 
 
+def test_row_variants_work_in_place_on_the_chosen_rows_only() -> None:
+    """predict_update_rows() updates the chosen rows of a track table's columns in place,
+    as predict_update() of those rows would, and leaves the other rows as they were;
+    predict_position_rows() is predict_position() of the chosen rows."""
+    imm = IMMFilter()
+    rng = np.random.default_rng(37)
+    st = _random_state(imm, 12, rng)
+    rows = np.array([7, 2, 10, 3])
+    dt = rng.uniform(0.5, 8.0, rows.size)
+    z = st.x_models[rows, 0][:, [0, 3]] + rng.normal(0.0, 200.0, (rows.size, 2))
+    R = np.broadcast_to(R50, (rows.size, 2, 2)).copy()
+    x_p, P_p = imm.predict_position_rows(st, rows, dt)
+    x_sel, P_sel = imm.predict_position(st.select(rows), dt)
+    np.testing.assert_array_equal(x_p, x_sel)
+    np.testing.assert_array_equal(P_p, P_sel)
+    want, x_w, P_w = imm.predict_update(st.select(rows), dt, z, R)
+    before = st.select(slice(None))
+    x_u, P_u = imm.predict_update_rows(st, rows, dt, z, R)
+    np.testing.assert_array_equal(x_u, x_w)
+    np.testing.assert_array_equal(P_u, P_w)
+    np.testing.assert_array_equal(st.x_models[rows], want.x_models)
+    np.testing.assert_array_equal(st.P_models[rows], want.P_models)
+    np.testing.assert_array_equal(st.mu[rows], want.mu)
+    others = np.setdiff1d(np.arange(12), rows)
+    np.testing.assert_array_equal(st.P_models[others], before.P_models[others])
+    np.testing.assert_array_equal(st.mu[others], before.mu[others])
+    with pytest.raises(ValueError, match="in place"):
+        imm.predict_update_rows(IMMState(st.x_models[:, :, ::-1], st.P_models, st.mu), rows, dt, z, R)
+
+
 # ------------------------------------------------------------------ cost (printed, not asserted)
 
 

@@ -377,8 +377,7 @@ class Engine:
             dt_s = t_ref_s - self.tracks.t_state_s[changed]
             if self.imm is not None:
                 tr = self.tracks
-                state = IMMState(tr.x_models[changed], tr.P_models[changed], tr.mu[changed])
-                x, P_xy = self.imm.predict_position(state, dt_s)
+                x, P_xy = self.imm.predict_position_rows(IMMState(tr.x_models, tr.P_models, tr.mu), changed, dt_s)
                 P = np.full((changed.size, STATE_DIM, STATE_DIM), np.nan)
                 P[:, POS_IDX[:, None], POS_IDX[None, :]] = P_xy
                 alt_x, alt_P = self.alt_filter.predict(tr.alt_x[changed], tr.alt_P[changed], dt_s)
@@ -659,10 +658,9 @@ class Engine:
             # rows it updates are predicted (the two-point ones below start afresh).
             r = rows[init]
             if self.imm is not None:
-                state = IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r])
-                st, x_u, P_u = self.imm.predict_update(state, dt_s[init], z_m[init], R_m2[init])
-                tr.x_models[r], tr.P_models[r], tr.mu[r] = st.x_models, st.P_models, st.mu
-                x_c[init], P_c[init] = x_u, P_u
+                # in place: the rows r of the table's model columns become their updated states
+                state = IMMState(tr.x_models, tr.P_models, tr.mu)
+                x_c[init], P_c[init] = self.imm.predict_update_rows(state, r, dt_s[init], z_m[init], R_m2[init])
             else:
                 x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
                 x, P, nu, S = self.filter.update(x[init], P[init], z_m[init], R_m2[init])

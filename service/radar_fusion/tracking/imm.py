@@ -119,7 +119,8 @@ MANOEUVRE = 1
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
-#: xm, Pm, mu, dt, tau, terms, family, omega, q_keys (imm_kernels.predict_kernel)
+#: dt, tau, terms, family, omega, q_keys; with xm, Pm, mu before them (imm_kernels.predict_kernel)
+_ModelArgs = tuple[Float, Float, Float, Any, Float, Any]
 _KernelArgs = tuple[Float, Float, Float, Float, Float, Float, Any, Float, Any]
 
 
@@ -394,17 +395,12 @@ class IMMFilter:
         return np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
 
     def _kernel_args(self, state: IMMState, dt: Float) -> _KernelArgs:
-        """The leading arguments of every predicting kernel: the state, dt, the dwell times
-        and the models' Φ and Q (imm_kernels.predict_kernel)."""
-        return (
-            *_arrays(state),
-            dt,
-            self._dwell_s,
-            self.model_terms(dt),
-            self._family,
-            self._omega_all,
-            self._q_keys,
-        )
+        """The leading arguments of every predicting kernel: the state, then ``_model_args``."""
+        return (*_arrays(state), *self._model_args(dt))
+
+    def _model_args(self, dt: Float) -> _ModelArgs:
+        """dt, the dwell times and the models' Φ and Q (imm_kernels.predict_kernel)."""
+        return (dt, self._dwell_s, self.model_terms(dt), self._family, self._omega_all, self._q_keys)
 
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
         """Steps 1-2: mixing (eq. 1-4) and each model's prediction (step 2 above) over dt_s
@@ -436,11 +432,16 @@ class IMMFilter:
         from each model's H P_j Hᵀ = (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ (H picks x and y):
         the per-model 6×6 covariances are never formed (imm_kernels.predict_position_kernel).
         combine(predict(...)) restricted to x and y, to round-off."""
-        n = len(state)
-        dt = self._dt(dt_s, n)
-        x = np.empty((n, STATE_DIM))
-        P = np.empty((n, 2, 2))
-        imm_kernels.predict_position_kernel(*self._kernel_args(state, dt), x, P)
+        return self.predict_position_rows(state, np.arange(len(state)), dt_s)
+
+    def predict_position_rows(self, state: IMMState, rows: ArrayLike, dt_s: ArrayLike) -> tuple[Float, Float]:
+        """predict_position() of the rows ``rows`` of ``state`` (a track table's columns),
+        without copying them out."""
+        idx = np.ascontiguousarray(rows, dtype=np.int64)
+        dt = self._dt(dt_s, idx.size)
+        x = np.empty((idx.size, STATE_DIM))
+        P = np.empty((idx.size, 2, 2))
+        imm_kernels.predict_position_kernel(*_arrays(state), idx, *self._model_args(dt), x, P)
         return x, P
 
     def predict_gate(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float, Float, Float]:
@@ -465,14 +466,32 @@ class IMMFilter:
         """A whole cycle in one pass (imm_kernels.predict_update_kernel): update_combined(
         predict(state, dt_s), z, R), without the prediction written out."""
         n, m = len(state), self.n_models
-        dt = self._dt(dt_s, n)
-        x_upd = np.empty((n, m, STATE_DIM))
-        P_upd = np.empty((n, m, STATE_DIM, STATE_DIM))
-        mu = np.empty((n, m))
-        x = np.empty((n, STATE_DIM))
-        P = np.empty((n, STATE_DIM, STATE_DIM))
-        imm_kernels.predict_update_kernel(*self._kernel_args(state, dt), _c64(z), _c64(R), x_upd, P_upd, mu, x, P)
-        return IMMState(x_upd, P_upd, mu), x, P
+        out = IMMState(np.empty((n, m, STATE_DIM)), np.empty((n, m, STATE_DIM, STATE_DIM)), np.empty((n, m)))
+        x, P = self._predict_update_into(state, out, np.arange(n), dt_s, z, R)
+        return out, x, P
+
+    def predict_update_rows(
+        self, state: IMMState, rows: ArrayLike, dt_s: ArrayLike, z: ArrayLike, R: ArrayLike
+    ) -> tuple[Float, Float]:
+        """predict_update() of the rows ``rows`` of ``state`` (a track table's columns), in
+        place: those rows of state's arrays (float64, C-contiguous) become the updated
+        states. Returns the combined x (K, 6) and P (K, 6, 6) of the K rows."""
+        for a in (state.x_models, state.P_models, state.mu):
+            if a.dtype != np.float64 or not a.flags.c_contiguous:
+                raise ValueError("predict_update_rows updates float64 C-contiguous arrays in place")
+        return self._predict_update_into(state, state, np.ascontiguousarray(rows, dtype=np.int64), dt_s, z, R)
+
+    def _predict_update_into(
+        self, state: IMMState, out: IMMState, rows: np.ndarray, dt_s: ArrayLike, z: ArrayLike, R: ArrayLike
+    ) -> tuple[Float, Float]:
+        k = rows.size
+        dt = self._dt(dt_s, k)
+        x = np.empty((k, STATE_DIM))
+        P = np.empty((k, STATE_DIM, STATE_DIM))
+        imm_kernels.predict_update_kernel(
+            *_arrays(state), rows, *self._model_args(dt), _c64(z), _c64(R), out.x_models, out.P_models, out.mu, x, P
+        )
+        return x, P
 
     def log_likelihoods(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> Float:
         """log Λ_j (eq. 5) of measurements z (N,2), R (N,2,2) under each model's prediction, (N, M)."""

@@ -504,6 +504,7 @@ def predict_position_kernel(
     xm: np.ndarray,
     Pm: np.ndarray,
     mu: np.ndarray,
+    rows: np.ndarray,
     dt: np.ndarray,
     tau: np.ndarray,
     terms: np.ndarray,
@@ -515,8 +516,9 @@ def predict_position_kernel(
 ) -> None:
     """Steps 1, 2 and 5 for the output (imm.IMMFilter.predict_position): the combined x
     (N,6) of eq. 7 and the x-y block (N,2,2) of eq. 8, from each model's H P_j Hᵀ =
-    (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ: the rows x and y of Φ only."""
-    n, m = mu.shape
+    (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ: the rows x and y of Φ only.  Track k of the
+    output is row rows[k] of the state (no copy of the rows taken); dt and terms per k."""
+    n, m = rows.shape[0], mu.shape[1]
     wt = np.empty((m, m))
     cbar = np.empty(m)
     S = np.empty((m, _NP))
@@ -529,9 +531,10 @@ def predict_position_kernel(
     Pxy = np.empty((m, 2, 2))
     G = np.empty((2, _D))  # the rows x and y of Φ P⁰
     for k in range(n):
-        _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, cbar, S, X0)
+        i = rows[k]
+        _mix(xm[i], Pm[i], mu[i], dt[k], tau, wt, cbar, S, X0)
         for j in range(m):
-            _unpack(X0[j], xm[k, 0], x0, P0)
+            _unpack(X0[j], xm[i, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
             for a in range(_D):
                 acc = 0.0
@@ -631,6 +634,7 @@ def predict_update_kernel(
     xm: np.ndarray,
     Pm: np.ndarray,
     mu: np.ndarray,
+    rows: np.ndarray,
     dt: np.ndarray,
     tau: np.ndarray,
     terms: np.ndarray,
@@ -646,8 +650,11 @@ def predict_update_kernel(
     out_P: np.ndarray,
 ) -> None:
     """One whole cycle per track, steps 1-5: predict_kernel over dt, then update_kernel
-    with z, R and the combination, without writing the prediction out."""
-    n, m = mu.shape
+    with z, R and the combination, without writing the prediction out.  Track k is row
+    rows[k] of the state and of out_xm, out_Pm, out_mu, which may be the state's own arrays
+    (a row is read whole before it is written: the update in place); dt, terms, z, R,
+    out_x and out_P per k."""
+    n, m = rows.shape[0], mu.shape[1]
     wt = np.empty((m, m))
     cbar = np.empty(m)
     S = np.empty((m, _NP))
@@ -664,13 +671,14 @@ def predict_update_kernel(
     K = np.empty((_D, 2))
     PHt = np.empty((_D, 2))
     for k in range(n):
-        _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, cbar, S, X0)
+        i = rows[k]
+        _mix(xm[i], Pm[i], mu[i], dt[k], tau, wt, cbar, S, X0)
         for j in range(m):
-            _unpack(X0[j], xm[k, 0], x0, P0)
+            _unpack(X0[j], xm[i, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
             _predict_j(phi, Q, x0, P0, T, phiT, xp[j], Pp[j])
-        _update_one(xp, Pp, cbar, z[k], R[k], out_xm[k], out_Pm[k], out_mu[k], log_w, K, PHt)
-        _combine_one(out_xm[k], out_Pm[k], out_mu[k], out_x[k], out_P[k])
+        _update_one(xp, Pp, cbar, z[k], R[k], out_xm[i], out_Pm[i], out_mu[i], log_w, K, PHt)
+        _combine_one(out_xm[i], out_Pm[i], out_mu[i], out_x[k], out_P[k])
 
 
 @_compiled
