@@ -287,3 +287,36 @@ def test_live_gate_memory_is_bounded():
     # Keys not seen for evict_after_s are evicted.
     gate.filter(np.array([1], dtype=np.int64), np.array([1000.0]), np.array([5e4]), np.array([10.0]))
     assert gate.n_keys == 1
+
+
+def test_live_gate_ratio_against_a_hand_computation():
+    """The live gate's standardised k-mean distance (live_gate._kmd_ratio) against the
+    same rule written independently: np.polyfit's line through the window, the median
+    residual scale, the window carried forward and the k nearest."""
+    from radar_fusion.tracking.live_gate import _kmd_ratio
+
+    rng = np.random.default_rng(3)
+    w, k, floor = 8, 3, 150.0
+    win_t = np.sort(rng.uniform(0.0, 40.0, (5, w)), axis=1)
+    vx, vy = rng.uniform(-250, 250, (2, 5, 1))
+    win_x = 1e4 + vx * win_t + rng.normal(0, 80, (5, w))
+    win_y = -2e4 + vy * win_t + rng.normal(0, 80, (5, w))
+    count = np.array([8, 4, 6, 2, 8])
+    t = win_t[np.arange(5), count - 1] + 4.0
+    x = win_x[np.arange(5), count - 1] + vx[:, 0] * 4.0 + np.array([30.0, -2000.0, 500.0, 0.0, 9000.0])
+    y = win_y[np.arange(5), count - 1] + vy[:, 0] * 4.0
+    got = _kmd_ratio(np.arange(5), t, x, y, count, win_t, win_x, win_y, k, floor)
+    for i in range(5):
+        m = count[i]
+        ts, xs, ys = win_t[i, :m], win_x[i, :m], win_y[i, :m]
+        if m < k:
+            assert got[i] == math.inf
+            continue
+        bx, ax = np.polyfit(ts, xs, 1)
+        by, ay = np.polyfit(ts, ys, 1)
+        res2 = (xs - (ax + bx * ts)) ** 2 + (ys - (ay + by * ts)) ** 2
+        scale2 = np.median(res2) / math.log(2.0) * m / max(m - 2, 1)
+        dist = np.hypot(x[i] - (xs + bx * (t[i] - ts)), y[i] - (ys + by * (t[i] - ts)))
+        want = np.sort(dist)[:k].mean() / math.sqrt(scale2 + floor**2)
+        assert got[i] == pytest.approx(want, rel=1e-9)
+    assert got[1] > 6.0 and got[4] > 6.0 and got[0] < 6.0  # the jumps are wild, the on-track plot is not

@@ -14,6 +14,8 @@ import numpy.typing as npt
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from .compiled import compiled
+
 
 class LiveGateParams(BaseModel):
     """Parameters of :class:`LiveOutlierGate`: the ``[outliers]`` section of the configuration."""
@@ -358,35 +360,9 @@ class LiveOutlierGate:
         ok = np.ones(rows.size, dtype=bool)
         gi = np.flatnonzero(gated)
         if gi.size:
-            gr = rows[gi]
-            valid = np.arange(w)[None, :] < count[gi, None]
-            m = count[gi].astype(float)
-            dt = np.where(valid, self._t[gr] - t[gi, None], 0.0)  # <= 0 for past plots
-            wx = np.where(valid, self._x[gr], 0.0)
-            wy = np.where(valid, self._y[gr], 0.0)
-            tbar = dt.sum(axis=1) / m
-            xbar = wx.sum(axis=1) / m
-            ybar = wy.sum(axis=1) / m
-            dtc = np.where(valid, dt - tbar[:, None], 0.0)
-            stt = (dtc * dtc).sum(axis=1)
-            stt_safe = np.where(stt > 0.0, stt, 1.0)
-            vx = np.where(stt > 0.0, (dtc * (wx - xbar[:, None])).sum(axis=1) / stt_safe, 0.0)
-            vy = np.where(stt > 0.0, (dtc * (wy - ybar[:, None])).sum(axis=1) / stt_safe, 0.0)
-            # Residual scale about the fitted line, robust to a wild plot that got in:
-            # for 2-D Gaussian residuals E[r^2] = median(r^2) / ln 2; m/(m-2) for the fit.
-            rx = wx - (xbar[:, None] + vx[:, None] * dtc)
-            ry = wy - (ybar[:, None] + vy[:, None] * dtc)
-            r2 = np.sort(np.where(valid, rx * rx + ry * ry, np.inf), axis=1)  # the window's m first
-            mi = count[gi, None]
-            median = 0.5 * (np.take_along_axis(r2, (mi - 1) // 2, 1) + np.take_along_axis(r2, mi // 2, 1))[:, 0]
-            var_fit = median / np.log(2.0) * m / np.maximum(m - 2.0, 1.0)
-            # Past plots carried forward to the new time: p_j + v * (t - t_j) = p_j - v * dt_j.
-            ex = wx - vx[:, None] * dt
-            ey = wy - vy[:, None] * dt
-            d = np.hypot(x[gi, None] - ex, y[gi, None] - ey)
-            d = np.where(valid, d, np.inf)
-            kmd = np.partition(d, self.k - 1, axis=1)[:, : self.k].mean(axis=1)
-            ratio = kmd / np.sqrt(var_fit + self.sigma_floor_m**2)
+            ratio = _kmd_ratio(
+                rows[gi], t[gi], x[gi], y[gi], count[gi], self._t, self._x, self._y, self.k, self.sigma_floor_m
+            )
             ok[gi] = ratio <= self.threshold
         # Rejected plots: keep aside; relock after relock_after consecutive rejections.
         rej = np.flatnonzero(~ok)
@@ -437,3 +413,80 @@ def radar_track_keys(radar: np.ndarray, track_no: np.ndarray, mode_s: np.ndarray
     """Key of a radar track for the wild-plot gate: radar × (track number, else Mode S)."""
     key = np.where(track_no >= 0, track_no, np.where(mode_s >= 0, mode_s + (1 << 33), -1))
     return np.where(key >= 0, (radar.astype(np.int64) << np.int64(40)) + key, -1)
+
+
+@compiled
+def _kmd_ratio(
+    rows: np.ndarray,
+    t: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    count: np.ndarray,
+    win_t: np.ndarray,
+    win_x: np.ndarray,
+    win_y: np.ndarray,
+    k: int,
+    sigma_floor_m: float,
+) -> np.ndarray:
+    """The standardised k-mean distance of each new plot (t, x, y) against the first
+    count[i] plots of its window (row rows[i] of win_t, win_x, win_y), per plot:
+
+    * a least-squares constant-velocity line through the window (time about its mean);
+    * the residual scale about it, robust to a wild plot that got in: for 2-D Gaussian
+      residuals E[r²] = median(r²)/ln 2, times m/(m − 2) for the two fitted parameters;
+    * the window's plots carried forward to the new time, p_j + v (t − t_j), and the mean
+      of the k smallest distances from the new plot to them (Hu 2013's k-mean distance;
+      inf when the window holds fewer than k);
+    * ratio = that mean / sqrt(scale² + sigma_floor_m²)."""
+    n = rows.shape[0]
+    w = win_t.shape[1]
+    out = np.empty(n)
+    dt = np.empty(w)
+    r2 = np.empty(w)
+    d = np.empty(w)
+    ln2 = np.log(2.0)
+    for i in range(n):
+        row = rows[i]
+        m = count[i]
+        tbar = 0.0
+        xbar = 0.0
+        ybar = 0.0
+        for j in range(m):
+            dt[j] = win_t[row, j] - t[i]  # <= 0 for past plots
+            tbar += dt[j]
+            xbar += win_x[row, j]
+            ybar += win_y[row, j]
+        tbar /= m
+        xbar /= m
+        ybar /= m
+        stt = 0.0
+        sxt = 0.0
+        syt = 0.0
+        for j in range(m):
+            c = dt[j] - tbar
+            stt += c * c
+            sxt += c * (win_x[row, j] - xbar)
+            syt += c * (win_y[row, j] - ybar)
+        vx = sxt / stt if stt > 0.0 else 0.0
+        vy = syt / stt if stt > 0.0 else 0.0
+        for j in range(m):
+            c = dt[j] - tbar
+            rx = win_x[row, j] - (xbar + vx * c)
+            ry = win_y[row, j] - (ybar + vy * c)
+            r2[j] = rx * rx + ry * ry
+            ex = win_x[row, j] - vx * dt[j]
+            ey = win_y[row, j] - vy * dt[j]
+            d[j] = np.hypot(x[i] - ex, y[i] - ey)
+        srt = np.sort(r2[:m])
+        median = 0.5 * (srt[(m - 1) // 2] + srt[m // 2])
+        var_fit = median / ln2 * m / max(m - 2.0, 1.0)
+        if m < k:
+            out[i] = np.inf
+            continue
+        near = np.sort(d[:m])
+        kmd = 0.0
+        for j in range(k):
+            kmd += near[j]
+        kmd /= k
+        out[i] = kmd / np.sqrt(var_fit + sigma_floor_m * sigma_floor_m)
+    return out
