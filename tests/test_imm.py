@@ -591,7 +591,7 @@ def test_mixed_covariances_are_exactly_symmetric() -> None:
 def test_kernels_run_uncached_where_no_cache_directory_is_writable() -> None:
     """A read-only install run by a user without a writable cache directory: numba refuses
     cache=True at import ("no locator available"; forced here by allowing only its zip
-    locator), and the kernels are compiled in the process instead (imm_kernels._compiled).
+    locator), and the kernels are compiled in the process instead (compiled.py).
     The results are those of the cached kernels."""
     import json
     import os
@@ -602,8 +602,8 @@ def test_kernels_run_uncached_where_no_cache_directory_is_writable() -> None:
         "import json, numpy as np\n"
         "from radar_fusion.tracking.imm import IMMFilter\n"
         "from radar_fusion.tracking import imm_kernels\n"
-        "assert imm_kernels.predict_kernel._cache.__class__.__name__ == 'NullCache'\n"
         "f = IMMFilter()\n"
+        "assert imm_kernels.predict_kernel._cache.__class__.__name__ == 'NullCache'\n"
         "P = np.diag([2500.0, 400, 4, 2500, 400, 4])[None]\n"
         "st = f.initiate(np.array([[1e4, 200.0, 0.5, -3e4, 10.0, 0.0]]), P)\n"
         "st = f.update(f.predict(st, np.array([4.0])), np.array([[1.08e4, -2.99e4]]), 2500.0 * np.eye(2)[None])\n"

@@ -420,3 +420,23 @@ def test_damaged_bytes_get_the_same_verdict_on_either_path(flips, cut):
         assert a.to_msgpack() == b.to_msgpack()
     else:
         assert a.reason == b.reason
+
+
+def test_the_safety_nets_child_does_not_load_the_compiler() -> None:
+    """The safety-nets child imports the engine's column types but runs none of its
+    compiled loops: numba and LLVM (~115 MB resident) stay unloaded (tracking/compiled.py
+    compiles lazily), while the engine's first IMM filter does load them."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import radar_fusion.safety_nets.process\n"
+        "print('numba' in sys.modules)\n"
+        "from radar_fusion.tracking.imm import IMMFilter\n"
+        "IMMFilter()\n"
+        "print('numba' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False", "True"]
