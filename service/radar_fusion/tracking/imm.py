@@ -286,16 +286,14 @@ class IMMFilter:
         self._warm_up()
 
     def _warm_up(self) -> None:
-        """Run every compiled kernel once on one track: numba compiles them (or loads them
-        from its cache) at their first call, which would otherwise fall in the first period
-        a daemon processes (0.3 s from the cache, seconds when compiling)."""
+        """Run the compiled kernels the engine uses once, on one track: numba compiles them
+        (or loads them from its cache) at their first call, which would otherwise fall in
+        the first period a daemon processes (0.3 s from the cache, ~20 s when compiling on
+        2 cores). The others (predict, update, combine: tests and tools) compile when used."""
         st = self.initiate(np.zeros((1, STATE_DIM)), np.eye(STATE_DIM)[None])
-        self.predict_combined(st, np.ones(1))
-        self.predict_position(st, np.ones(1))
         self.predict_gate(st, np.ones(1))
-        self.predict_update(st, np.ones(1), np.zeros((1, 2)), np.eye(2)[None])
-        self.update_combined(st, np.zeros((1, 2)), np.eye(2)[None])
-        self.combine(st)
+        self.predict_position_rows(st, np.zeros(1, np.int64), np.ones(1))
+        self.predict_update_rows(st, np.zeros(1, np.int64), np.ones(1), np.zeros((1, 2)), np.eye(2)[None])
 
     @property
     def n_models(self) -> int:
@@ -323,7 +321,7 @@ class IMMFilter:
         return IMMState(
             np.repeat(x[:, None, :], m, axis=1),
             np.repeat(P[:, None, :, :], m, axis=1),
-            np.ascontiguousarray(np.broadcast_to(mu0, (n, m)), dtype=float),
+            np.array(np.broadcast_to(mu0, (n, m)), dtype=float),  # a writable copy, not a broadcast view
         )
 
     def mix(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float, Float]:
@@ -477,8 +475,8 @@ class IMMFilter:
         place: those rows of state's arrays (float64, C-contiguous) become the updated
         states. Returns the combined x (K, 6) and P (K, 6, 6) of the K rows."""
         for a in (state.x_models, state.P_models, state.mu):
-            if a.dtype != np.float64 or not a.flags.c_contiguous:
-                raise ValueError("predict_update_rows updates float64 C-contiguous arrays in place")
+            if a.dtype != np.float64 or not a.flags.c_contiguous or not a.flags.writeable:
+                raise ValueError("predict_update_rows updates writable float64 C-contiguous arrays in place")
         return self._predict_update_into(state, state, np.ascontiguousarray(rows, dtype=np.int64), dt_s, z, R)
 
     def _predict_update_into(
