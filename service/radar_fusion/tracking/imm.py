@@ -119,6 +119,10 @@ MANOEUVRE = 1
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
+#: the blocks of the covariance that association (position, velocity) and the output read
+_POSITION_VELOCITY = np.array([0, 1, 3, 4], dtype=np.int64)
+_POSITION = np.array([0, 3], dtype=np.int64)
+
 #: dt, tau, terms, family, omega, q_keys; with xm, Pm, mu before them (imm_kernels.predict_kernel)
 _ModelArgs = tuple[Float, Float, Float, Any, Float, Any]
 _KernelArgs = tuple[Float, Float, Float, Float, Float, Float, Any, Float, Any]
@@ -428,35 +432,38 @@ class IMMFilter:
         """Steps 1, 2 and 5 for an output that needs only the combined state and the
         position block of its covariance: x (N, 6) of eq. 7 and H P Hᵀ (N, 2, 2) of eq. 8,
         from each model's H P_j Hᵀ = (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ (H picks x and y):
-        the per-model 6×6 covariances are never formed (imm_kernels.predict_position_kernel).
+        the per-model 6×6 covariances are never formed (imm_kernels.predict_block_kernel).
         combine(predict(...)) restricted to x and y, to round-off."""
         return self.predict_position_rows(state, np.arange(len(state)), dt_s)
 
     def predict_position_rows(self, state: IMMState, rows: ArrayLike, dt_s: ArrayLike) -> tuple[Float, Float]:
         """predict_position() of the rows ``rows`` of ``state`` (a track table's columns),
         without copying them out."""
-        idx = np.ascontiguousarray(rows, dtype=np.int64)
-        dt = self._dt(dt_s, idx.size)
-        x = np.empty((idx.size, STATE_DIM))
-        P = np.empty((idx.size, 2, 2))
-        imm_kernels.predict_position_kernel(*_arrays(state), idx, *self._model_args(dt), x, P)
-        return x, P
+        x, P, _, _ = self._predict_block(state, np.ascontiguousarray(rows, dtype=np.int64), dt_s, _POSITION)
+        return x, P[:, POS_IDX[:, None], POS_IDX[None, :]]
 
-    def predict_gate(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float, Float, Float]:
-        """Steps 1, 2 and 5 for association, in one pass (imm_kernels.predict_gate_kernel):
-        each model's predicted position (N, M, 2) and its covariance (N, M, 2, 2), for the
-        model-conditioned gates ("Gating" above), and the combination of eq. 7-8: x (N, 6)
-        and P (N, 6, 6) with its position and velocity rows and columns, NaN elsewhere.
-        combine(predict(...)) and predict()'s positions, to round-off, without forming the
-        per-model 6×6 covariances."""
-        n, m = len(state), self.n_models
+    def _predict_block(
+        self, state: IMMState, rows: np.ndarray, dt_s: ArrayLike, block: np.ndarray
+    ) -> tuple[Float, Float, Float, Float]:
+        """imm_kernels.predict_block_kernel on the rows ``rows``: x, P (the block, NaN
+        elsewhere), each model's position and its covariance."""
+        n, m = rows.size, self.n_models
         dt = self._dt(dt_s, n)
         xy = np.empty((n, m, 2))
         cov = np.empty((n, m, 2, 2))
         x = np.empty((n, STATE_DIM))
         P = np.empty((n, STATE_DIM, STATE_DIM))
-        imm_kernels.predict_gate_kernel(*self._kernel_args(state, dt), xy, cov, x, P)
+        imm_kernels.predict_block_kernel(*_arrays(state), rows, *self._model_args(dt), block, xy, cov, x, P)
         return x, P, xy, cov
+
+    def predict_gate(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float, Float, Float]:
+        """Steps 1, 2 and 5 for association, in one pass (imm_kernels.predict_block_kernel):
+        each model's predicted position (N, M, 2) and its covariance (N, M, 2, 2), for the
+        model-conditioned gates ("Gating" above), and the combination of eq. 7-8: x (N, 6)
+        and P (N, 6, 6) with its position and velocity rows and columns, NaN elsewhere.
+        combine(predict(...)) and predict()'s positions, to round-off, without forming the
+        per-model 6×6 covariances."""
+        return self._predict_block(state, np.arange(len(state)), dt_s, _POSITION_VELOCITY)
 
     def predict_update(
         self, state: IMMState, dt_s: ArrayLike, z: ArrayLike, R: ArrayLike

@@ -10,10 +10,9 @@ goal).  Here each track's M states are read once, everything in between lives in
 
 * :func:`predict_kernel`, steps 1-2 (eq. 0-4 and each model's prediction), optionally with
   step 5 (eq. 7-8) on the predicted states;
-* :func:`predict_position_kernel`, steps 1, 2 and 5 for the output: combined x and the x-y
-  block of the combined covariance only (imm.IMMFilter.predict_position);
-* :func:`predict_gate_kernel`, steps 1, 2 and 5 for association: each model's predicted
-  position and its covariance (the gates), the combined position and velocity;
+* :func:`predict_block_kernel`, steps 1, 2 and 5 for association and output: each
+  model's predicted position and its covariance (the gates), the combined x and a block
+  of the combined covariance (position and velocity; the x-y block for the output);
 * :func:`update_kernel`, steps 3-5 (eq. 5-8): every model's Kalman update (Shu eq. 7,
   9, 10), the mode probabilities and the combination;
 * :func:`predict_update_kernel`, steps 1-5 at once, for the tracks that got a plot;
@@ -48,9 +47,8 @@ __all__ = [
     "TERMS",
     "combine_kernel",
     "model_terms_kernel",
-    "predict_gate_kernel",
+    "predict_block_kernel",
     "predict_kernel",
-    "predict_position_kernel",
     "predict_update_kernel",
     "update_kernel",
 ]
@@ -410,97 +408,8 @@ def predict_kernel(
             _combine_one(out_xm[k], out_Pm[k], out_cbar[k], out_x[k], out_P[k])
 
 
-#: the rows of the state that association and fusion read: position and velocity
-_GATE_ROWS = np.array([0, 1, 3, 4], dtype=np.int64)
-
-
 @_compiled
-def predict_gate_kernel(
-    xm: np.ndarray,
-    Pm: np.ndarray,
-    mu: np.ndarray,
-    dt: np.ndarray,
-    tau: np.ndarray,
-    terms: np.ndarray,
-    family: np.ndarray,
-    omega: np.ndarray,
-    q_keys: np.ndarray,
-    out_xy: np.ndarray,
-    out_cov_xy: np.ndarray,
-    out_x: np.ndarray,
-    out_P: np.ndarray,
-) -> None:
-    """Steps 1, 2 and 5 for association (imm.IMMFilter.predict_gate): each model's
-    predicted position out_xy (N,M,2) and its covariance out_cov_xy (N,M,2,2) (the
-    model-conditioned gates, imm.py "Gating"), and the combination (eq. 7-8, weights c̄)
-    x (N,6) with the position and velocity rows and columns of P (N,6,6), the rest NaN:
-    only the rows x, vx, y, vy of each Φ_j P⁰_j Φ_jᵀ are formed."""
-    n, m = mu.shape
-    nr = _GATE_ROWS.size
-    wt = np.empty((m, m))
-    cbar = np.empty(m)
-    S = np.empty((m, _NP))
-    X0 = np.empty((m, _NP))
-    x0 = np.empty(_D)
-    P0 = np.empty((_D, _D))
-    phi = np.empty((_D, _D))
-    Q = np.empty((_D, _D))
-    xp = np.empty((m, _D))
-    T = np.empty((nr, _D))  # rows _GATE_ROWS of Φ P⁰
-    B = np.empty((m, nr, nr))  # the block of Φ P⁰ Φᵀ + Q
-    for k in range(n):
-        _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, cbar, S, X0)
-        for j in range(m):
-            _unpack(X0[j], xm[k, 0], x0, P0)
-            _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
-            for a in range(_D):
-                acc = 0.0
-                for c in range(_D):
-                    acc += phi[a, c] * x0[c]
-                xp[j, a] = acc
-            for r in range(nr):
-                a = _GATE_ROWS[r]
-                for b in range(_D):
-                    T[r, b] = 0.0
-                for c in range(_D):
-                    f = phi[a, c]
-                    for b in range(_D):
-                        T[r, b] += f * P0[c, b]
-            for r in range(nr):
-                for u in range(r, nr):
-                    b = _GATE_ROWS[u]
-                    acc = 0.0
-                    for c in range(_D):
-                        acc += T[r, c] * phi[b, c]
-                    B[j, r, u] = acc + Q[_GATE_ROWS[r], b]
-                    B[j, u, r] = B[j, r, u]
-            out_xy[k, j, 0] = xp[j, 0]
-            out_xy[k, j, 1] = xp[j, 3]
-            out_cov_xy[k, j, 0, 0] = B[j, 0, 0]
-            out_cov_xy[k, j, 0, 1] = B[j, 0, 2]
-            out_cov_xy[k, j, 1, 0] = B[j, 2, 0]
-            out_cov_xy[k, j, 1, 1] = B[j, 2, 2]
-        for a in range(_D):  # eq. 7 with c̄
-            acc = 0.0
-            for j in range(m):
-                acc += cbar[j] * xp[j, a]
-            out_x[k, a] = acc
-        for a in range(_D):
-            for b in range(_D):
-                out_P[k, a, b] = np.nan
-        for r in range(nr):  # eq. 8 on the block
-            a = _GATE_ROWS[r]
-            for u in range(r, nr):
-                b = _GATE_ROWS[u]
-                acc = 0.0
-                for j in range(m):
-                    acc += cbar[j] * (B[j, r, u] + (xp[j, a] - out_x[k, a]) * (xp[j, b] - out_x[k, b]))
-                out_P[k, a, b] = acc
-                out_P[k, b, a] = acc
-
-
-@_compiled
-def predict_position_kernel(
+def predict_block_kernel(
     xm: np.ndarray,
     Pm: np.ndarray,
     mu: np.ndarray,
@@ -511,14 +420,28 @@ def predict_position_kernel(
     family: np.ndarray,
     omega: np.ndarray,
     q_keys: np.ndarray,
+    block: np.ndarray,
+    out_xy: np.ndarray,
+    out_cov_xy: np.ndarray,
     out_x: np.ndarray,
-    out_Pxy: np.ndarray,
+    out_P: np.ndarray,
 ) -> None:
-    """Steps 1, 2 and 5 for the output (imm.IMMFilter.predict_position): the combined x
-    (N,6) of eq. 7 and the x-y block (N,2,2) of eq. 8, from each model's H P_j Hᵀ =
-    (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ: the rows x and y of Φ only.  Track k of the
-    output is row rows[k] of the state (no copy of the rows taken); dt and terms per k."""
+    """Steps 1, 2 and 5 for a reader of part of the covariance: the combination (eq. 7-8,
+    weights c̄) x (N,6) and the rows and columns ``block`` of P (N,6,6), NaN elsewhere,
+    and each model's predicted position out_xy (N,M,2) and its covariance out_cov_xy
+    (N,M,2,2).  Only the rows ``block`` of each Φ_j P⁰_j Φ_jᵀ are formed, not the
+    per-model 6×6 covariances.  ``block`` lists state indices in order and holds 0 and 3
+    (x and y): [0, 1, 3, 4] for association (position and velocity; the model-conditioned
+    gates, imm.py "Gating"), [0, 3] for the output.  Track k is row rows[k] of the state
+    (no copy of the rows taken); dt, terms and the outputs per k."""
     n, m = rows.shape[0], mu.shape[1]
+    nr = block.size
+    ix = iy = 0  # where x and y are in the block
+    for r in range(nr):
+        if block[r] == 0:
+            ix = r
+        elif block[r] == 3:
+            iy = r
     wt = np.empty((m, m))
     cbar = np.empty(m)
     S = np.empty((m, _NP))
@@ -528,8 +451,8 @@ def predict_position_kernel(
     phi = np.empty((_D, _D))
     Q = np.empty((_D, _D))
     xp = np.empty((m, _D))
-    Pxy = np.empty((m, 2, 2))
-    G = np.empty((2, _D))  # the rows x and y of Φ P⁰
+    T = np.empty((nr, _D))  # the rows ``block`` of Φ P⁰
+    B = np.empty((m, nr, nr))  # the block of Φ P⁰ Φᵀ + Q
     for k in range(n):
         i = rows[k]
         _mix(xm[i], Pm[i], mu[i], dt[k], tau, wt, cbar, S, X0)
@@ -541,36 +464,45 @@ def predict_position_kernel(
                 for c in range(_D):
                     acc += phi[a, c] * x0[c]
                 xp[j, a] = acc
-            for r in range(2):
-                a = 3 * r
+            for r in range(nr):
+                a = block[r]
                 for b in range(_D):
-                    G[r, b] = 0.0
+                    T[r, b] = 0.0
                 for c in range(_D):
                     f = phi[a, c]
                     for b in range(_D):
-                        G[r, b] += f * P0[c, b]
-            for r in range(2):
-                for u in range(r, 2):
-                    b = 3 * u
+                        T[r, b] += f * P0[c, b]
+            for r in range(nr):
+                for u in range(r, nr):
+                    b = block[u]
                     acc = 0.0
                     for c in range(_D):
-                        acc += G[r, c] * phi[b, c]
-                    Pxy[j, r, u] = acc + Q[3 * r, b]
-                    Pxy[j, u, r] = Pxy[j, r, u]
-        for a in range(_D):  # eq. 7-8 with c̄ (the predicted mode probabilities) as the weights
+                        acc += T[r, c] * phi[b, c]
+                    B[j, r, u] = acc + Q[block[r], b]
+                    B[j, u, r] = B[j, r, u]
+            out_xy[k, j, 0] = xp[j, 0]
+            out_xy[k, j, 1] = xp[j, 3]
+            out_cov_xy[k, j, 0, 0] = B[j, ix, ix]
+            out_cov_xy[k, j, 0, 1] = B[j, ix, iy]
+            out_cov_xy[k, j, 1, 0] = B[j, iy, ix]
+            out_cov_xy[k, j, 1, 1] = B[j, iy, iy]
+        for a in range(_D):  # eq. 7 with c̄
             acc = 0.0
             for j in range(m):
                 acc += cbar[j] * xp[j, a]
             out_x[k, a] = acc
-        for r in range(2):
-            for u in range(r, 2):
+        for a in range(_D):
+            for b in range(_D):
+                out_P[k, a, b] = np.nan
+        for r in range(nr):  # eq. 8 on the block
+            a = block[r]
+            for u in range(r, nr):
+                b = block[u]
                 acc = 0.0
                 for j in range(m):
-                    acc += cbar[j] * (
-                        Pxy[j, r, u] + (xp[j, 3 * r] - out_x[k, 3 * r]) * (xp[j, 3 * u] - out_x[k, 3 * u])
-                    )
-                out_Pxy[k, r, u] = acc
-                out_Pxy[k, u, r] = acc
+                    acc += cbar[j] * (B[j, r, u] + (xp[j, a] - out_x[k, a]) * (xp[j, b] - out_x[k, b]))
+                out_P[k, a, b] = acc
+                out_P[k, b, a] = acc
 
 
 @_compiled
