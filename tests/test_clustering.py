@@ -632,3 +632,31 @@ def test_plot_search_finds_exactly_the_pairs_within_each_radius() -> None:
         assert (np.diff(got_c) >= 0).all()  # grouped by centre, in order
         if n_p and n_c:
             assert (0, 0) in set(zip(got_c.tolist(), got_p.tolist()))
+
+
+def test_model_gates_take_the_smallest_distance_over_the_models() -> None:
+    """association._min_model_d2 against the Mahalanobis distance of each model computed
+    with numpy (np.linalg.solve), a non-positive-definite model counting as +inf."""
+    from radar_fusion.tracking.association import _min_model_d2
+
+    rng = np.random.default_rng(8)
+    n_t, m, n_p = 20, 6, 300
+    model_xy = rng.normal(0.0, 500.0, (n_t, m, 2))
+    a = rng.normal(size=(n_t, m, 2, 2)) * 100.0
+    model_cov = a @ np.swapaxes(a, 2, 3) + 10.0 * np.eye(2)
+    model_cov[3, 2] = -1e7 * np.eye(2)  # not positive definite, whatever the plot's covariance
+    track = rng.integers(0, n_t, n_p)
+    xy = model_xy[track, 0] + rng.normal(0.0, 300.0, (n_p, 2))
+    b = rng.normal(size=(n_p, 2, 2)) * 50.0
+    cov = b @ np.swapaxes(b, 1, 2) + np.eye(2)
+    d2 = rng.uniform(0.0, 40.0, n_p)
+    want = d2.copy()
+    for j in range(m):
+        S = model_cov[track, j] + cov
+        y = xy - model_xy[track, j]
+        pd = np.linalg.eigvalsh(S).min(axis=1) > 0
+        dj = np.where(pd, np.einsum("pi,pi->p", y, np.linalg.solve(S, y[:, :, None])[:, :, 0]), np.inf)
+        want = np.minimum(want, dj)
+    got = _min_model_d2(d2, xy, cov, track.astype(np.int64), model_xy, model_cov)
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+    assert (got < d2).any() and (got == d2).any()

@@ -93,6 +93,31 @@ def mahalanobis2_2x2(y: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.where((det > 0) & (a > 0), d2, np.inf)
 
 
+@compiled
+def _min_model_d2(
+    d2: np.ndarray, xy: np.ndarray, cov: np.ndarray, track: np.ndarray, model_xy: np.ndarray, model_cov: np.ndarray
+) -> np.ndarray:
+    """Per pair, the smallest of d2 and of yᵀS⁻¹y over the track's models, with y = xy −
+    model_xy[track, j] and S = model_cov[track, j] + cov (mahalanobis2_2x2's rule: a model
+    whose S is not positive definite gives +inf)."""
+    out = d2.copy()
+    for p in range(d2.shape[0]):
+        t = track[p]
+        for j in range(model_xy.shape[1]):
+            a = model_cov[t, j, 0, 0] + cov[p, 0, 0]
+            c = model_cov[t, j, 1, 1] + cov[p, 1, 1]
+            b = 0.5 * (model_cov[t, j, 0, 1] + cov[p, 0, 1] + model_cov[t, j, 1, 0] + cov[p, 1, 0])
+            det = a * c - b * b
+            if not (det > 0.0 and a > 0.0):
+                continue
+            y0 = xy[p, 0] - model_xy[t, j, 0]
+            y1 = xy[p, 1] - model_xy[t, j, 1]
+            v = (c * y0 * y0 - 2.0 * b * y0 * y1 + a * y1 * y1) / det
+            if v < out[p]:
+                out[p] = v
+    return out
+
+
 #: Mode 3/A codes that say nothing of who flies (ICAO Doc 8168 / the European code plan):
 #: emergency 7700, radio failure 7600, unlawful interference 7500 (a squawk an aircraft
 #: changes *to*), the conspicuity codes 7000 (VFR, Europe), 2000 (entering SSR airspace),
@@ -555,9 +580,14 @@ def gated_pairs(
     d2 = mahalanobis2_2x2(resid, track_cp[pair_track] + pair_cov)
     d2_gate = d2  # the smallest d² over the combined prediction and each model's
     if models is not None:
-        for j in range(models[0].shape[1]):
-            d2_j = mahalanobis2_2x2(pair_xy - models[0][pair_track, j], models[1][pair_track, j] + pair_cov)
-            d2_gate = np.minimum(d2_gate, d2_j)
+        d2_gate = _min_model_d2(
+            d2,
+            np.ascontiguousarray(pair_xy, dtype=np.float64),
+            np.ascontiguousarray(pair_cov, dtype=np.float64),
+            np.ascontiguousarray(pair_track, dtype=np.int64),
+            np.ascontiguousarray(models[0], dtype=np.float64),
+            np.ascontiguousarray(models[1], dtype=np.float64),
+        )
     gated = d2_gate <= params.gate_chi2
     if params.max_gate_m is not None:
         gated &= np.hypot(resid[:, 0], resid[:, 1]) <= params.max_gate_m
