@@ -52,6 +52,7 @@ from ..geo.coordinates import (
 from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
 from ..geo.unknown_height import unknown_height_plots
 from ..safety_nets import SafetyNets
+from ..tracking import association, live_gate
 from ..tracking.clustering import ClusterResult, cluster_plots
 from ..tracking.fusion import consensus_outliers, fuse_clusters, leave_one_out_outliers
 from ..tracking.imm import QUIET, IMMFilter, IMMState
@@ -105,7 +106,9 @@ class Engine:
         self.alt_filter = AltitudeFilter()
         # filter = "imm": the IMM (imm.py) replaces the Singer filter's manoeuvre detector;
         # tr.x, tr.P then hold its combined estimate (eq. 7-8), the models their own columns
-        self.imm = IMMFilter(trk.imm) if trk.filter == "imm" else None
+        self.imm = IMMFilter(trk.imm) if trk.filter == "imm" else None  # compiles its loops (imm.py)
+        association.warm_up()  # the other compiled loops, now rather than in the first period
+        live_gate.warm_up()
         self.manoeuvres = ManoeuvreDetector(
             sigma_factor=trk.manoeuvre_sigma_factor,
             nis_on=trk.manoeuvre_nis_on,

@@ -93,6 +93,15 @@ def mahalanobis2_2x2(y: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.where((det > 0) & (a > 0), d2, np.inf)
 
 
+def warm_up() -> None:
+    """Run the compiled loops of this module once, on one track and one plot: numba
+    compiles them (or loads them from its cache) at their first call, which would
+    otherwise fall in the first period a daemon processes (Engine calls this)."""
+    one = np.zeros((1, 2))
+    _within_radius(one, one, np.ones(1))
+    _min_model_d2(np.zeros(1), one, np.eye(2)[None], np.zeros(1, np.int64), one[:, None], np.eye(2)[None, None])
+
+
 @compiled
 def _min_model_d2(
     d2: np.ndarray, xy: np.ndarray, cov: np.ndarray, track: np.ndarray, model_xy: np.ndarray, model_cov: np.ndarray

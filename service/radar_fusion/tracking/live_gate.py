@@ -415,6 +415,25 @@ def radar_track_keys(radar: np.ndarray, track_no: np.ndarray, mode_s: np.ndarray
     return np.where(key >= 0, (radar.astype(np.int64) << np.int64(40)) + key, -1)
 
 
+def warm_up() -> None:
+    """Run the compiled k-mean distance once, on one window (see association.warm_up)."""
+    w = np.zeros((1, 4))
+    _kmd_ratio(np.zeros(1, np.int64), np.ones(1), np.ones(1), np.ones(1), np.full(1, 4, np.int64), w, w, w, 3, 150.0)
+
+
+@compiled
+def _sort_head(a: np.ndarray, m: int) -> None:
+    """Sort a[:m] in place (insertion sort: a window holds a few plots, and np.sort would
+    allocate a new array for every plot)."""
+    for i in range(1, m):
+        v = a[i]
+        j = i - 1
+        while j >= 0 and a[j] > v:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = v
+
+
 @compiled
 def _kmd_ratio(
     rows: np.ndarray,
@@ -477,16 +496,16 @@ def _kmd_ratio(
             ex = win_x[row, j] - vx * dt[j]
             ey = win_y[row, j] - vy * dt[j]
             d[j] = np.hypot(x[i] - ex, y[i] - ey)
-        srt = np.sort(r2[:m])
-        median = 0.5 * (srt[(m - 1) // 2] + srt[m // 2])
+        _sort_head(r2, m)
+        median = 0.5 * (r2[(m - 1) // 2] + r2[m // 2])
         var_fit = median / ln2 * m / max(m - 2.0, 1.0)
         if m < k:
             out[i] = np.inf
             continue
-        near = np.sort(d[:m])
+        _sort_head(d, m)
         kmd = 0.0
         for j in range(k):
-            kmd += near[j]
+            kmd += d[j]
         kmd /= k
         out[i] = kmd / np.sqrt(var_fit + sigma_floor_m * sigma_floor_m)
     return out
