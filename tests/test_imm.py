@@ -548,6 +548,19 @@ def test_row_variants_work_in_place_on_the_chosen_rows_only() -> None:
         imm.predict_update_rows(IMMState(st.x_models[:, :, ::-1], st.P_models, st.mu), rows, dt, z, R)
 
 
+def test_degenerate_inputs_give_nan_not_an_exception() -> None:
+    """A singular innovation covariance (zero P and R) divides by zero: the compiled loops
+    give NaN as numpy would (compiled.py, error_model), and raise nothing that would stop
+    the daemon's processing thread; healthy tracks in the same batch are unaffected."""
+    imm = IMMFilter()
+    st = imm.initiate(np.zeros((2, 6)), np.stack([np.zeros((6, 6)), P0]))
+    R = np.stack([np.zeros((2, 2)), R50])
+    out, x, P = imm.predict_update(st, np.array([0.0, 4.0]), np.zeros((2, 2)), R)
+    assert np.isnan(x[0]).all() and np.isnan(out.mu[0]).all()
+    assert np.isfinite(x[1]).all() and np.isfinite(P[1]).all()
+    np.testing.assert_allclose(out.mu[1].sum(), 1.0)
+
+
 # ------------------------------------------------------------------ cost (printed, not asserted)
 
 

@@ -34,11 +34,16 @@ def compiled(fn: _F) -> _F:
 
     Settings: cached on disk, releasing the GIL; floating-point sums may be reordered and
     multiply-adds fused (``reassoc``, ``contract``: round-off only; no assumption about NaN
-    or infinity, which imm_kernels.update_kernel relies on). The cache is the package's
+    or infinity, which imm_kernels.update_kernel relies on); a division by zero gives inf
+    or NaN as in numpy (``error_model="numpy"``), never an exception in the daemon's
+    processing thread (numba's default raises ZeroDivisionError). The cache is the package's
     ``__pycache__``, else ``NUMBA_CACHE_DIR``, else the user's cache directory (numba's
     order); where none is writable (a read-only install run by a user without a home:
     deploy/ sets NUMBA_CACHE_DIR) numba refuses ``cache=True``, and each process compiles
-    the functions instead, a few seconds at start-up."""
+    the functions instead, a few seconds at start-up. numba's cache is keyed on the source
+    file of each function, not on these settings: after changing them here, delete the
+    ``*.nbi`` and ``*.nbc`` files under ``__pycache__`` (an install or upgrade does so, its
+    files being new)."""
     _REGISTERED.setdefault(fn.__module__, []).append((fn.__name__, fn))
     dispatcher: Callable[..., Any] | None = None
 
@@ -63,6 +68,6 @@ def _materialise(module: str) -> None:
         if getattr(namespace.get(name), "py_func", None) is fn:
             continue  # already compiled
         try:
-            namespace[name] = njit(cache=True, nogil=True, fastmath=flags)(fn)
+            namespace[name] = njit(cache=True, nogil=True, fastmath=flags, error_model="numpy")(fn)
         except RuntimeError:  # "cannot cache function ...: no locator available"
-            namespace[name] = njit(cache=False, nogil=True, fastmath=flags)(fn)
+            namespace[name] = njit(cache=False, nogil=True, fastmath=flags, error_model="numpy")(fn)
