@@ -360,3 +360,27 @@ def test_merging_young_tracks_keeps_the_one_with_a_velocity():
     _, merged = merge_same_address(tab, confirm_updates=3)
     assert len(tab) == 1 and tab.track_id[0] == 1 and merged.tolist() == [2]
     assert tab.x[0, 0] == -113_329.0 and tab.x[0, 1] == -32.0 and tab.t_state_s[0] == 8.0 and tab.updates[0] == 2
+
+
+def test_track_table_grows_without_copying_and_keeps_what_callers_hold() -> None:
+    """Appending writes into spare capacity (the columns are views of larger buffers, so the
+    model covariances are not copied every period); keep() moves the rows to new buffers,
+    so a column taken before it keeps its contents; a column assigned from outside (a
+    restored state) is adopted."""
+    table = TrackTable(n_models=2)
+    rows = table.append(3)
+    table.x[rows] = np.arange(18.0).reshape(3, 6)
+    before = table.P_models
+    more = table.append(2)
+    assert np.shares_memory(before, table.P_models)  # grown in place: no copy
+    assert table.track_id.tolist() == [1, 2, 3, 4, 5] and (more.start, more.stop) == (3, 5)
+    assert (table.x[3:] == 0.0).all() and np.isnan(table.mu[3:]).all()  # fresh rows default-filled
+    ids = table.track_id
+    table.keep(np.array([True, False, True, True, False]))
+    assert ids.tolist() == [1, 2, 3, 4, 5]  # held across keep(): unchanged
+    assert table.track_id.tolist() == [1, 3, 4]
+    np.testing.assert_array_equal(table.x[:2], np.arange(18.0).reshape(3, 6)[[0, 2]])
+    table.x = np.full((3, 6), 7.0)  # assigned from outside, as a restored state does
+    table.append(200)  # past the buffer's capacity
+    assert len(table) == 203 and (table.x[:3] == 7.0).all() and table.x.flags.c_contiguous
+    assert table.track_id[-1] == 205

@@ -213,8 +213,14 @@ class TrackTable:
         self._fields: dict[str, tuple[tuple[int, ...], Any, Any]] = dict(_FIELDS)
         for name, (shape, dtype, fill) in _MODEL_FIELDS.items():
             self._fields[name] = ((n_models,) + shape, dtype, fill)
+        # Each column is the first n rows of a larger buffer, so that appending rows copies
+        # nothing most of the time (the model covariances alone are 7 MB at 4,000 tracks);
+        # _views holds the arrays handed out, to notice a column replaced from outside.
+        self._buffers: dict[str, np.ndarray] = {}
+        self._views: dict[str, np.ndarray] = {}
         for name, (shape, dtype, fill) in self._fields.items():
-            setattr(self, name, np.full((0,) + shape, fill, dtype=dtype))
+            self._buffers[name] = np.full((0,) + shape, fill, dtype=dtype)
+            self._set_view(name)
 
     def __len__(self) -> int:
         return self.n
@@ -225,22 +231,54 @@ class TrackTable:
         velocity; a track of one update has only the wide prior."""
         return self.updates >= 2
 
+    def _set_view(self, name: str) -> None:
+        view = self._buffers[name][: self.n]
+        self._views[name] = view
+        setattr(self, name, view)
+
+    def _buffer(self, name: str) -> np.ndarray:
+        """The column's buffer; a column assigned from outside (a new array, e.g. a state
+        restored or a column reset) becomes the start of a new buffer."""
+        col = getattr(self, name)
+        if col is not self._views[name]:
+            shape, dtype, _ = self._fields[name]
+            self._buffers[name] = np.ascontiguousarray(col, dtype=dtype).reshape((self.n,) + shape)
+        return self._buffers[name]
+
     def append(self, count: int) -> slice:
-        """Add ``count`` rows with fresh ids (default-filled); returns their slice."""
+        """Add ``count`` rows with fresh ids (default-filled); returns their slice. The
+        buffers grow by doubling: the columns are copied only when one is full."""
+        n_new = self.n + count
         for name, (shape, dtype, fill) in self._fields.items():
-            old = getattr(self, name)
-            new = np.full((count,) + shape, fill, dtype=dtype)
-            setattr(self, name, np.concatenate([old, new]))
-        rows = slice(self.n, self.n + count)
+            buf = self._buffer(name)
+            if buf.shape[0] < n_new:
+                grown = np.empty((max(n_new, 2 * buf.shape[0], 64),) + shape, dtype=dtype)
+                grown[: self.n] = buf[: self.n]
+                self._buffers[name] = buf = grown
+            buf[self.n : n_new] = fill
+        self.n = n_new
+        for name in self._fields:
+            self._set_view(name)
+        rows = slice(n_new - count, n_new)
         self.track_id[rows] = np.arange(self.next_id, self.next_id + count)
         self.next_id += count
-        self.n += count
         return rows
 
     def keep(self, mask: np.ndarray) -> None:
+        """Keep the rows where ``mask`` is true, in their order, in new buffers: a column
+        taken before (the engine holds the ids of a period's rows across the life cycle)
+        keeps what it held."""
+        idx = np.flatnonzero(mask)
+        if idx.size == self.n:
+            return
         for name in self._fields:
-            setattr(self, name, getattr(self, name)[mask])
-        self.n = int(mask.sum())
+            buf = self._buffer(name)
+            fresh = np.empty_like(buf)
+            fresh[: idx.size] = buf[idx]
+            self._buffers[name] = fresh
+        self.n = int(idx.size)
+        for name in self._fields:
+            self._set_view(name)
 
 
 # Slices of Singer states x (N,6) = [x, vx, ax, y, vy, ay] and covariances P (N,6,6).
