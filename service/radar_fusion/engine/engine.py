@@ -214,7 +214,7 @@ class Engine:
         self.track_t_s = t_ref_s
         out = self._predict_changed(pred, changed, t_ref_s)
         out, merged = self._merge_identities(out)
-        ids = self.tracks.track_id  # the rows of ``out``, before the life cycle drops any
+        ids = self.tracks.track_id.copy()  # the rows of ``out``, before the life cycle drops any
         ended = self._manage(t_ref_s)
         if ended.size:
             alive = ~np.isin(ids, ended)

@@ -265,17 +265,18 @@ class TrackTable:
         return rows
 
     def keep(self, mask: np.ndarray) -> None:
-        """Keep the rows where ``mask`` is true, in their order, in new buffers: a column
-        taken before (the engine holds the ids of a period's rows across the life cycle)
-        keeps what it held."""
+        """Keep the rows where ``mask`` is true, in their order, compacting the buffers in
+        place: only the rows after the first one dropped move. A column taken before is a
+        view of the old rows and sees them move: copy what must outlive this (the engine
+        copies a period's ids across the life cycle)."""
         idx = np.flatnonzero(mask)
         if idx.size == self.n:
             return
+        first = int(np.flatnonzero(~np.asarray(mask, bool))[0])  # the first row dropped
+        tail = idx[first:]  # the rows kept after it, each moving to a lower row
         for name in self._fields:
             buf = self._buffer(name)
-            fresh = np.empty_like(buf)
-            fresh[: idx.size] = buf[idx]
-            self._buffers[name] = fresh
+            buf[first : idx.size] = buf[tail]  # the right side is a copy: overlapping is safe
         self.n = int(idx.size)
         for name in self._fields:
             self._set_view(name)
