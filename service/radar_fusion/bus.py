@@ -2,11 +2,14 @@
 
 Zenoh delivers samples on its own threads; the subscriber callbacks only put the raw
 payload on a bounded queue (blocking briefly when it is full, which pushes back on
-senders that publish with congestion control BLOCK). One processing thread decodes,
-validates, hands plots to the :class:`~radar_fusion.engine.Engine` and closes periods;
-one publishing thread sends what the engine returns and the health snapshots, so that
-a consumer that stalls its link (Zenoh then blocks every put towards it, for up to its
-``wait_before_close``) never holds up ingest or period processing:
+senders that publish with congestion control BLOCK). One decoding thread decodes and
+validates them in arrival order onto a second bounded queue, so that this work goes on
+while the engine runs a period (numpy releases the interpreter for its larger steps);
+one processing thread hands what was decoded to the :class:`~radar_fusion.engine.Engine`,
+closes periods and packs their TrackBatch; one publishing thread sends what the engine
+returns and the health snapshots, so that a consumer that stalls its link (Zenoh then
+blocks every put towards it, for up to its ``wait_before_close``) never holds up ingest
+or period processing:
 
     <prefix>/radar/*/plots   → Engine.ingest_plots     <prefix>/fusion/tracks        ← TrackBatch
     <prefix>/radar/*/status  → Engine.ingest_status    <prefix>/fusion/alerts/<kind> ← Alert
@@ -23,6 +26,7 @@ bounded rate.
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import math
@@ -46,7 +50,7 @@ from .redundancy import Election, ElectionOnBus, Role, default_instance
 from .safety_nets import SafetyNets
 from .safety_nets.process import health_key
 from .safety_nets.supervisor import SafetyNetsChild
-from .wire import RadarStatus, Rejection, decode_message, decode_plot_batch
+from .wire import DecodedPlots, RadarStatus, Rejection, decode_message, decode_plot_batch
 
 log = logging.getLogger("radar_fusion.bus")
 
@@ -140,6 +144,19 @@ class _Oversize(bytes):
 _OVERSIZE = _Oversize()
 
 
+class _InternalError:
+    """A bug met while decoding a message on the decoding thread, for the processing
+    thread to count and log (``internal_error``)."""
+
+    def __init__(self, error: Exception):
+        self.error = error
+
+
+#: a received message decoded and validated: plots, a status, why it is refused, or None
+#: (a key that is neither)
+Decoded = DecodedPlots | RadarStatus | Rejection | None
+
+
 class RateLimitedLog:
     """Log a rejection at most once per interval per reason, with the count since."""
 
@@ -169,6 +186,7 @@ class FusionDaemon:
         self,
         settings: Settings,
         queue_size: int = 50_000,
+        decoded_queue_size: int = 1_000,
         idle_flush_s: float | None = None,
         base_dir: Path | None = None,
         outbox_size: int = 1024,
@@ -176,6 +194,7 @@ class FusionDaemon:
         log_format: str = "text",
         state_dir: Path | None = None,
         state_interval_s: float = 0.0,
+        timing_log: Path | None = None,
     ):
         self.settings = settings
         self.prefix = settings.bus.prefix
@@ -236,6 +255,10 @@ class FusionDaemon:
         self.states_saved = 0
         self._state_saved_at = -math.inf
         self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        # Decoded messages wait here for the processing thread, in arrival order (bounded:
+        # the decoding thread waits when it is this far ahead, and the input queue fills).
+        self.decoded: queue.Queue = queue.Queue(maxsize=decoded_queue_size)
+        self._decoding_done = threading.Event()  # the decoding thread has stopped, after its last item
         self.stop_event = threading.Event()
         self.stopped = threading.Event()
         self.started_wall = time.time()
@@ -259,9 +282,18 @@ class FusionDaemon:
         self._subs: list[Any] = []
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._thread: threading.Thread | None = None
+        self._decoder: threading.Thread | None = None
         self._publisher: threading.Thread | None = None
         self.on_output: Callable[[PeriodOutput], None] | None = None
         self.metrics = DaemonMetrics(settings.metrics.listen)  # private registry; served when listen is set
+        # serve --timing-log: each published period's path through the daemon, timestamped
+        self.timing_log = timing_log
+        self._timing_file: Any = None
+        # the last input ingested: arrived, decoding started, decoded, taken for the engine, ingested
+        self._closing: tuple[float, float, float, float, float] | None = None
+        self._timings: dict[int, dict[str, float]] = {}  # period → stamps so far (processing → publishing thread)
+        self._gc_s = 0.0  # with timing_log: time in the garbage collector so far (any thread)
+        self._gc_started_s = 0.0
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> FusionDaemon:
@@ -269,6 +301,9 @@ class FusionDaemon:
         lease_s = self.settings.redundancy.lease_s if self.election is not None else None
         cfg = zenoh_config(bus.mode, bus.listen, bus.connect, bus.multicast_scouting, bus.zenoh_config_file, lease_s)
         self.metrics.start()
+        if self.timing_log is not None:
+            self._timing_file = open(self.timing_log, "w", buffering=1)  # noqa: SIM115 (closed by stop)
+            gc.callbacks.append(self._gc_timer)
         self._session = open_session(cfg)
         p = self.prefix
         self._pubs["tracks"] = reliable_publisher(self._session, f"{p}/fusion/tracks")
@@ -306,6 +341,8 @@ class FusionDaemon:
         self._subs.append(self._session.declare_subscriber(f"{p}/radar/*/*", self._on_sample))
         self._publisher = threading.Thread(target=self._publish_loop, name="fusion-publish", daemon=True)
         self._publisher.start()
+        self._decoder = threading.Thread(target=self._decode_loop, name="fusion-decode", daemon=True)
+        self._decoder.start()
         self._thread = threading.Thread(target=self._run, name="fusion-engine", daemon=True)
         self._thread.start()
         log.info("fusion daemon up: mode=%s listen=%s connect=%s prefix=%s", bus.mode, bus.listen, bus.connect, p)
@@ -323,7 +360,7 @@ class FusionDaemon:
                     "processing not finished %.0f s after the stop: %d received messages not processed, "
                     "the open periods not published",
                     timeout_s,
-                    self.queue.qsize(),
+                    self.queue.qsize() + self.decoded.qsize(),
                 )
         if self._publisher is not None:
             try:
@@ -346,6 +383,10 @@ class FusionDaemon:
             self._session.close()
             self._session = None
         self.metrics.close()
+        if self._timing_file is not None:
+            self._timing_file.close()
+            self._timing_file = None
+            gc.callbacks.remove(self._gc_timer)
         self.stopped.set()
 
     def __enter__(self) -> FusionDaemon:
@@ -482,33 +523,38 @@ class FusionDaemon:
                 self.overload += 1
 
     def _handle(self, key: str, payload: bytes) -> None:
-        parts = key.split("/")
-        radar_id, kind = parts[-2], parts[-1]
+        """Decode, validate and ingest one received message (the two stages in one call)."""
+        self._ingest(key, self._decode(key, payload))
+
+    def _decode(self, key: str, payload: bytes) -> Decoded:
+        """What a message says, checked against the wire contract (no state is touched:
+        the decoding thread's stage); None for a key that is neither plots nor status."""
+        kind = key.rpartition("/")[2]
+        if kind not in ("plots", "status"):
+            return None
         max_bytes = self.settings.bus.max_payload_bytes
-        if payload is _OVERSIZE and kind in ("plots", "status"):
-            self._reject(Rejection("oversize", f"more than {max_bytes} bytes on {key}"), radar_id)
-            return
+        if payload is _OVERSIZE:
+            return Rejection("oversize", f"more than {max_bytes} bytes on {key}")
         if kind == "plots":
-            decoded = decode_plot_batch(payload, max_bytes)
-            if isinstance(decoded, Rejection):
-                self._reject(decoded, radar_id)
-            elif decoded.radar_id != radar_id:
-                self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
-            else:
-                self.engine.ingest_plots(decoded)
-                for reason, n in decoded.rejected.items():
-                    self._log_rejection(reason, f"{n} plot(s) of {radar_id} seq {decoded.seq}")
-        elif kind == "status":
-            # decode_message returns an instance of the model it is given (or a Rejection)
-            status = cast("RadarStatus | Rejection", decode_message(payload, RadarStatus, max_bytes))
-            if isinstance(status, Rejection):
-                self._reject(status, radar_id)
-            elif status.radar_id != radar_id:
-                self._reject(Rejection("key_mismatch", f"{status.radar_id} on {key}"), radar_id)
-            else:
-                self.engine.ingest_status(status)
-        else:
+            return decode_plot_batch(payload, max_bytes)
+        # decode_message returns an instance of the model it is given (or a Rejection)
+        return cast("RadarStatus | Rejection", decode_message(payload, RadarStatus, max_bytes))
+
+    def _ingest(self, key: str, decoded: Decoded) -> None:
+        """Hand a decoded message to the engine, or count why not (the processing thread's stage)."""
+        radar_id = key.split("/")[-2]
+        if decoded is None:
             self._reject(Rejection("schema", f"unknown key {key}"), radar_id)
+        elif isinstance(decoded, Rejection):
+            self._reject(decoded, radar_id)
+        elif decoded.radar_id != radar_id:
+            self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
+        elif isinstance(decoded, RadarStatus):
+            self.engine.ingest_status(decoded)
+        else:
+            self.engine.ingest_plots(decoded)
+            for reason, n in decoded.rejected.items():
+                self._log_rejection(reason, f"{n} plot(s) of {radar_id} seq {decoded.seq}")
 
     def _reject(self, rejection: Rejection, radar_id: str) -> None:
         if rejection.reason != "unknown_radar" and radar_id not in self.engine.radar_index:
@@ -530,22 +576,20 @@ class FusionDaemon:
         last_health = 0.0
         processed_at_flush = 0  # messages_processed when the open periods were last flushed
         while True:
-            stopping = self.stop_event.is_set()
+            stopping = self.stop_event.is_set() and self._decoding_done.is_set()
             try:
-                key, payload, arrived_s = self.queue.get(timeout=0.05)
-                self._process_safely(key, payload, arrived_s)
+                self._ingest_safely(*self.decoded.get(timeout=0.05))
                 for _ in range(1000):  # drain a burst before polling the engine
-                    key, payload, arrived_s = self.queue.get_nowait()
-                    self._process_safely(key, payload, arrived_s)
+                    self._ingest_safely(*self.decoded.get_nowait())
             except queue.Empty:
                 pass
             self._count_overload()
             self._redundancy_step()
             if self.role == "active":  # a standby closes no period: it applies the active's state
-                self._publish(self.engine.poll())
+                self._poll()
             idle_s = time.monotonic() - self._last_processed
             if self.role == "active" and self.messages_processed > processed_at_flush and idle_s > self.idle_flush_s:
-                self._publish(self.engine.flush())
+                self._poll(flush=True)
                 processed_at_flush = self.messages_processed
             now = time.monotonic()
             if now - last_health >= self.settings.bus.health_period_s:
@@ -555,12 +599,12 @@ class FusionDaemon:
                     self._health_pending = True
                     self._emit(("health", health))
                 last_health = now
-            if stopping and self.queue.empty():
+            if stopping and self.decoded.empty():  # every message received is decoded and ingested
                 break
         self._count_overload()
         self._redundancy_step()
         if self.role == "active" and not (self.election is not None and self.election.members):
-            self._publish(self.engine.flush())
+            self._poll(flush=True)
         # (with a standby on the bus the open periods are left to it: it takes over with its
         # own plots of them, instead of periods closed early without their late plots)
         health = self.health_message()
@@ -575,9 +619,46 @@ class FusionDaemon:
             self._overload_counted += n
             self.engine.reject("overload", n)
 
-    def _process_safely(self, key: str, payload: bytes, arrived_s: float | None = None) -> None:
+    def _decode_loop(self) -> None:
+        """The decoding thread: every received message decoded and validated, in arrival
+        order, ahead of the processing thread (which meanwhile runs the engine's periods).
+        After the stop, it finishes what was received, then says so."""
+        while True:
+            try:
+                key, payload, arrived_s = self.queue.get(timeout=0.05)
+            except queue.Empty:
+                if self.stop_event.is_set():
+                    self._decoding_done.set()
+                    return
+                continue
+            decode_s = time.monotonic()
+            decoded = self._decode_safely(key, payload)
+            self.decoded.put((key, decoded, arrived_s, decode_s, time.monotonic()))
+
+    def _decode_safely(self, key: str, payload: bytes) -> Decoded | _InternalError:
         try:
-            self._handle(key, payload)
+            return self._decode(key, payload)
+        except Exception as exc:  # a bug must not take the daemon down; counted on the processing thread
+            return _InternalError(exc)
+
+    def _process_safely(self, key: str, payload: bytes, arrived_s: float | None = None) -> None:
+        """Decode and ingest one message on this thread (the two stages at once)."""
+        now_s = time.monotonic()
+        self._ingest_safely(key, self._decode_safely(key, payload), arrived_s, now_s, now_s)
+
+    def _ingest_safely(
+        self,
+        key: str,
+        decoded: Decoded | _InternalError,
+        arrived_s: float | None = None,
+        decode_s: float | None = None,
+        decoded_s: float | None = None,
+    ) -> None:
+        taken_s = time.monotonic()
+        try:
+            if isinstance(decoded, _InternalError):
+                raise decoded.error
+            self._ingest(key, decoded)
         except Exception:  # a bug must not take the daemon down; it is counted and logged
             log.exception("internal error while processing %s", key)
             self.engine.reject("internal_error")
@@ -585,6 +666,39 @@ class FusionDaemon:
         self._last_processed = time.monotonic()
         if arrived_s is not None:  # monotonic time the Zenoh callback queued it
             self.metrics.observe_ingest(self._last_processed - arrived_s)
+            self._closing = (arrived_s, decode_s or taken_s, decoded_s or taken_s, taken_s, self._last_processed)
+
+    def _gc_timer(self, phase: str, info: dict[str, Any]) -> None:
+        """gc.callbacks entry (with timing_log): the time spent collecting garbage."""
+        if phase == "start":
+            self._gc_started_s = time.monotonic()
+        else:
+            self._gc_s += time.monotonic() - self._gc_started_s
+
+    def _poll(self, flush: bool = False) -> None:
+        """Close the periods the watermarks allow (``flush``: every buffered one) and hand
+        their outputs over; with ``timing_log``, each period's stamps so far."""
+        poll_s = time.monotonic()
+        outputs = self.engine.flush() if flush else self.engine.poll()
+        if self._timing_file is not None and outputs:
+            engine_done_s = time.monotonic()
+            arrived_s, decode_s, decoded_s, taken_s, ingested_s = self._closing or (math.nan,) * 5
+            for out in outputs:
+                self._timings[out.period] = {
+                    "period": out.period,
+                    "arrived_s": arrived_s,  # the input ingested last before the period closed
+                    "decode_s": decode_s,
+                    "decoded_s": decoded_s,
+                    "taken_s": taken_s,
+                    "ingested_s": ingested_s,
+                    "poll_s": poll_s,
+                    "engine_done_s": engine_done_s,
+                    "engine_s": out.processing_s,
+                    "queue_depth": self.queue.qsize() + self.decoded.qsize(),
+                    "gc_at_poll_s": self._gc_s,
+                    "periods_in_poll": len(outputs),
+                }
+        self._publish(outputs)
 
     def _check_clocks(self, health: dict[str, Any]) -> None:
         """Log each radar whose clock became suspect, or good again (the engine's estimates,
@@ -616,6 +730,12 @@ class FusionDaemon:
                 out.track_columns.epoch, out.track_columns.instance = self.epoch, self.instance
                 for alert in out.alerts:
                     alert["epoch"] = self.epoch
+            # Packed here, before the hand-over (with the stamp above): on the publishing
+            # thread the packing shared the interpreter with this thread's next work, the
+            # messages that queued up during the period, and waited for its turn.
+            _ = out.track_batch_bytes
+            if (stamps := self._timings.get(out.period)) is not None:
+                stamps["emitted_s"] = time.monotonic()
             self._emit(out)
         if not outputs:
             return
@@ -675,8 +795,14 @@ class FusionDaemon:
             if self.election is not None and not self._still_active(out.track_columns.epoch):
                 self.redundancy_counters["outputs_withheld"] += 1  # it stood down meanwhile
                 continue
+            stamps = self._timings.pop(out.period, None)
             try:
-                self._pubs["tracks"].put(out.track_batch_bytes)  # packed from the columns
+                payload = out.track_batch_bytes  # packed from the columns by the processing thread
+                if stamps is not None:
+                    stamps.update(picked_s=time.monotonic(), bytes=len(payload))
+                self._pubs["tracks"].put(payload)
+                if stamps is not None:
+                    stamps.update(put_s=time.monotonic(), gc_at_put_s=self._gc_s)
                 for alert in out.alerts:
                     self._pubs[alert["kind"]].put(msgpack.packb(alert, use_bin_type=True))
                 self.batches_published += 1
@@ -685,6 +811,9 @@ class FusionDaemon:
             except Exception:
                 log.exception("publishing period %s failed", out.period)
                 self.publish_errors += 1
+            if stamps is not None and self._timing_file is not None:
+                stamps["done_s"] = time.monotonic()
+                self._timing_file.write(json.dumps(stamps) + "\n")
 
     def _still_active(self, epoch: int | None) -> bool:
         """Whether an output stamped ``epoch`` may still go out: this daemon is still that active."""
@@ -697,7 +826,7 @@ class FusionDaemon:
         h["counters"].update(
             messages_received=self.messages_received,
             messages_processed=self.messages_processed,
-            queue_depth=self.queue.qsize(),
+            queue_depth=self.queue.qsize() + self.decoded.qsize(),
             batches_published=self.batches_published,
             outbox_depth=self.outbox.qsize(),
             outputs_dropped=self.outputs_dropped,
