@@ -418,21 +418,18 @@ def test_an_internal_error_is_counted_by_a_listed_reason():
     assert set(daemon.engine.rejected) <= REASONS
 
 
-def test_a_bug_while_decoding_is_counted_on_the_processing_thread(monkeypatch):
-    # the decoding thread's stage hands the failure over; the processing thread counts it,
-    # in order with the rest, and goes on with the next message
-    daemon = FusionDaemon(settings_from_dict(CONFIG))  # not started: the two stages called in turn
+def test_a_bug_while_decoding_is_counted_and_the_next_message_goes_on(monkeypatch):
+    daemon = FusionDaemon(settings_from_dict(CONFIG))  # not started: the processing path only
     good = pack({"v": 1, "radar_id": "app", "seq": 0, "plots": []})
 
     def broken(*_args, **_kwargs):
         raise RuntimeError("bug")
 
     monkeypatch.setattr("radar_fusion.bus.decode_plot_batch", broken)
-    decoded = daemon._decode_safely("atc/radar/app/plots", good)
-    daemon._ingest_safely("atc/radar/app/plots", decoded)
+    daemon._process_safely("atc/radar/app/plots", good)
     assert daemon.engine.rejected == Counter(internal_error=1)
     monkeypatch.undo()
-    daemon._ingest_safely("atc/radar/app/plots", daemon._decode_safely("atc/radar/app/plots", good))
+    daemon._process_safely("atc/radar/app/plots", good)
     assert daemon.messages_processed == 2
     assert daemon.engine.counters["batches_received"] == 1
     assert set(daemon.engine.rejected) <= REASONS

@@ -2,14 +2,12 @@
 
 Zenoh delivers samples on its own threads; the subscriber callbacks only put the raw
 payload on a bounded queue (blocking briefly when it is full, which pushes back on
-senders that publish with congestion control BLOCK). One decoding thread decodes and
-validates them in arrival order onto a second bounded queue, so that this work goes on
-while the engine runs a period (numpy releases the interpreter for its larger steps);
-one processing thread hands what was decoded to the :class:`~radar_fusion.engine.Engine`,
-closes periods and packs their TrackBatch; one publishing thread sends what the engine
-returns and the health snapshots, so that a consumer that stalls its link (Zenoh then
-blocks every put towards it, for up to its ``wait_before_close``) never holds up ingest
-or period processing:
+senders that publish with congestion control BLOCK). One processing thread decodes,
+validates, hands plots to the :class:`~radar_fusion.engine.Engine`, closes periods and
+packs their TrackBatch; one publishing thread sends what the engine returns and the
+health snapshots, so that a consumer that stalls its link (Zenoh then blocks every put
+towards it, for up to its ``wait_before_close``) never holds up ingest or period
+processing:
 
     <prefix>/radar/*/plots   → Engine.ingest_plots     <prefix>/fusion/tracks        ← TrackBatch
     <prefix>/radar/*/status  → Engine.ingest_status    <prefix>/fusion/alerts/<kind> ← Alert
@@ -144,14 +142,6 @@ class _Oversize(bytes):
 _OVERSIZE = _Oversize()
 
 
-class _InternalError:
-    """A bug met while decoding a message on the decoding thread, for the processing
-    thread to count and log (``internal_error``)."""
-
-    def __init__(self, error: Exception):
-        self.error = error
-
-
 #: a received message decoded and validated: plots, a status, why it is refused, or None
 #: (a key that is neither)
 Decoded = DecodedPlots | RadarStatus | Rejection | None
@@ -186,7 +176,6 @@ class FusionDaemon:
         self,
         settings: Settings,
         queue_size: int = 50_000,
-        decoded_queue_size: int = 1_000,
         idle_flush_s: float | None = None,
         base_dir: Path | None = None,
         outbox_size: int = 1024,
@@ -255,10 +244,6 @@ class FusionDaemon:
         self.states_saved = 0
         self._state_saved_at = -math.inf
         self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
-        # Decoded messages wait here for the processing thread, in arrival order (bounded:
-        # the decoding thread waits when it is this far ahead, and the input queue fills).
-        self.decoded: queue.Queue = queue.Queue(maxsize=decoded_queue_size)
-        self._decoding_done = threading.Event()  # the decoding thread has stopped, after its last item
         self.stop_event = threading.Event()
         self.stopped = threading.Event()
         self.started_wall = time.time()
@@ -282,15 +267,14 @@ class FusionDaemon:
         self._subs: list[Any] = []
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._thread: threading.Thread | None = None
-        self._decoder: threading.Thread | None = None
         self._publisher: threading.Thread | None = None
         self.on_output: Callable[[PeriodOutput], None] | None = None
         self.metrics = DaemonMetrics(settings.metrics.listen)  # private registry; served when listen is set
         # serve --timing-log: each published period's path through the daemon, timestamped
         self.timing_log = timing_log
         self._timing_file: Any = None
-        # the last input ingested: arrived, decoding started, decoded, taken for the engine, ingested
-        self._closing: tuple[float, float, float, float, float] | None = None
+        # the last input processed: arrived, taken from the queue, decoded, ingested
+        self._closing: tuple[float, float, float, float] | None = None
         self._timings: dict[int, dict[str, float]] = {}  # period → stamps so far (processing → publishing thread)
         self._gc_s = 0.0  # with timing_log: time in the garbage collector so far (any thread)
         self._gc_started_s = 0.0
@@ -341,8 +325,6 @@ class FusionDaemon:
         self._subs.append(self._session.declare_subscriber(f"{p}/radar/*/*", self._on_sample))
         self._publisher = threading.Thread(target=self._publish_loop, name="fusion-publish", daemon=True)
         self._publisher.start()
-        self._decoder = threading.Thread(target=self._decode_loop, name="fusion-decode", daemon=True)
-        self._decoder.start()
         self._thread = threading.Thread(target=self._run, name="fusion-engine", daemon=True)
         self._thread.start()
         log.info("fusion daemon up: mode=%s listen=%s connect=%s prefix=%s", bus.mode, bus.listen, bus.connect, p)
@@ -360,7 +342,7 @@ class FusionDaemon:
                     "processing not finished %.0f s after the stop: %d received messages not processed, "
                     "the open periods not published",
                     timeout_s,
-                    self.queue.qsize() + self.decoded.qsize(),
+                    self.queue.qsize(),
                 )
         if self._publisher is not None:
             try:
@@ -527,8 +509,8 @@ class FusionDaemon:
         self._ingest(key, self._decode(key, payload))
 
     def _decode(self, key: str, payload: bytes) -> Decoded:
-        """What a message says, checked against the wire contract (no state is touched:
-        the decoding thread's stage); None for a key that is neither plots nor status."""
+        """What a message says, checked against the wire contract (no state is touched);
+        None for a key that is neither plots nor status."""
         kind = key.rpartition("/")[2]
         if kind not in ("plots", "status"):
             return None
@@ -541,7 +523,7 @@ class FusionDaemon:
         return cast("RadarStatus | Rejection", decode_message(payload, RadarStatus, max_bytes))
 
     def _ingest(self, key: str, decoded: Decoded) -> None:
-        """Hand a decoded message to the engine, or count why not (the processing thread's stage)."""
+        """Hand a decoded message to the engine, or count why not."""
         radar_id = key.split("/")[-2]
         if decoded is None:
             self._reject(Rejection("schema", f"unknown key {key}"), radar_id)
@@ -576,11 +558,11 @@ class FusionDaemon:
         last_health = 0.0
         processed_at_flush = 0  # messages_processed when the open periods were last flushed
         while True:
-            stopping = self.stop_event.is_set() and self._decoding_done.is_set()
+            stopping = self.stop_event.is_set()
             try:
-                self._ingest_safely(*self.decoded.get(timeout=0.05))
+                self._process_safely(*self.queue.get(timeout=0.05))
                 for _ in range(1000):  # drain a burst before polling the engine
-                    self._ingest_safely(*self.decoded.get_nowait())
+                    self._process_safely(*self.queue.get_nowait())
             except queue.Empty:
                 pass
             self._count_overload()
@@ -599,7 +581,7 @@ class FusionDaemon:
                     self._health_pending = True
                     self._emit(("health", health))
                 last_health = now
-            if stopping and self.decoded.empty():  # every message received is decoded and ingested
+            if stopping and self.queue.empty():
                 break
         self._count_overload()
         self._redundancy_step()
@@ -619,45 +601,12 @@ class FusionDaemon:
             self._overload_counted += n
             self.engine.reject("overload", n)
 
-    def _decode_loop(self) -> None:
-        """The decoding thread: every received message decoded and validated, in arrival
-        order, ahead of the processing thread (which meanwhile runs the engine's periods).
-        After the stop, it finishes what was received, then says so."""
-        while True:
-            try:
-                key, payload, arrived_s = self.queue.get(timeout=0.05)
-            except queue.Empty:
-                if self.stop_event.is_set():
-                    self._decoding_done.set()
-                    return
-                continue
-            decode_s = time.monotonic()
-            decoded = self._decode_safely(key, payload)
-            self.decoded.put((key, decoded, arrived_s, decode_s, time.monotonic()))
-
-    def _decode_safely(self, key: str, payload: bytes) -> Decoded | _InternalError:
-        try:
-            return self._decode(key, payload)
-        except Exception as exc:  # a bug must not take the daemon down; counted on the processing thread
-            return _InternalError(exc)
-
     def _process_safely(self, key: str, payload: bytes, arrived_s: float | None = None) -> None:
-        """Decode and ingest one message on this thread (the two stages at once)."""
-        now_s = time.monotonic()
-        self._ingest_safely(key, self._decode_safely(key, payload), arrived_s, now_s, now_s)
-
-    def _ingest_safely(
-        self,
-        key: str,
-        decoded: Decoded | _InternalError,
-        arrived_s: float | None = None,
-        decode_s: float | None = None,
-        decoded_s: float | None = None,
-    ) -> None:
         taken_s = time.monotonic()
+        decoded_s = math.nan
         try:
-            if isinstance(decoded, _InternalError):
-                raise decoded.error
+            decoded = self._decode(key, payload)
+            decoded_s = time.monotonic()
             self._ingest(key, decoded)
         except Exception:  # a bug must not take the daemon down; it is counted and logged
             log.exception("internal error while processing %s", key)
@@ -666,7 +615,7 @@ class FusionDaemon:
         self._last_processed = time.monotonic()
         if arrived_s is not None:  # monotonic time the Zenoh callback queued it
             self.metrics.observe_ingest(self._last_processed - arrived_s)
-            self._closing = (arrived_s, decode_s or taken_s, decoded_s or taken_s, taken_s, self._last_processed)
+            self._closing = (arrived_s, taken_s, decoded_s, self._last_processed)
 
     def _gc_timer(self, phase: str, info: dict[str, Any]) -> None:
         """gc.callbacks entry (with timing_log): the time spent collecting garbage."""
@@ -682,19 +631,18 @@ class FusionDaemon:
         outputs = self.engine.flush() if flush else self.engine.poll()
         if self._timing_file is not None and outputs:
             engine_done_s = time.monotonic()
-            arrived_s, decode_s, decoded_s, taken_s, ingested_s = self._closing or (math.nan,) * 5
+            arrived_s, taken_s, decoded_s, ingested_s = self._closing or (math.nan,) * 4
             for out in outputs:
                 self._timings[out.period] = {
                     "period": out.period,
-                    "arrived_s": arrived_s,  # the input ingested last before the period closed
-                    "decode_s": decode_s,
-                    "decoded_s": decoded_s,
+                    "arrived_s": arrived_s,  # the input processed last before the period closed
                     "taken_s": taken_s,
+                    "decoded_s": decoded_s,
                     "ingested_s": ingested_s,
                     "poll_s": poll_s,
                     "engine_done_s": engine_done_s,
                     "engine_s": out.processing_s,
-                    "queue_depth": self.queue.qsize() + self.decoded.qsize(),
+                    "queue_depth": self.queue.qsize(),
                     "gc_at_poll_s": self._gc_s,
                     "periods_in_poll": len(outputs),
                 }
@@ -826,7 +774,7 @@ class FusionDaemon:
         h["counters"].update(
             messages_received=self.messages_received,
             messages_processed=self.messages_processed,
-            queue_depth=self.queue.qsize() + self.decoded.qsize(),
+            queue_depth=self.queue.qsize(),
             batches_published=self.batches_published,
             outbox_depth=self.outbox.qsize(),
             outputs_dropped=self.outputs_dropped,

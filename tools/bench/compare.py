@@ -707,10 +707,9 @@ def run_bus(
 #: of its TrackBatch, the rest the daemon's stamps (serve --timing-log, bus.FusionDaemon._poll)
 E2E_PARTS = (
     ("replay put -> daemon callback", "pub", "arrived_s"),
-    ("input queue wait", "arrived_s", "decode_s"),
-    ("decode + validate", "decode_s", "decoded_s"),
-    ("decoded queue wait", "decoded_s", "taken_s"),
-    ("admit (engine.ingest_*)", "taken_s", "ingested_s"),
+    ("input queue wait", "arrived_s", "taken_s"),
+    ("decode + validate", "taken_s", "decoded_s"),
+    ("admit (engine.ingest_*)", "decoded_s", "ingested_s"),
     ("later inputs before the poll", "ingested_s", "poll_s"),
     ("engine period", "poll_s", "engine_done_s"),
     ("TrackBatch build + encode", "engine_done_s", "emitted_s"),
