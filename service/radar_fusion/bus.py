@@ -171,6 +171,12 @@ class FusionDaemon:
     and by default the safety nets as a supervised child process (``safety_nets``)."""
 
     safety_nets_ready_timeout_s = 30.0  # a fresh interpreter's imports take ~3 s on 2 shared cores
+    # After handing a period's output to an idle publishing thread, the processing thread
+    # waits (at most this long: a consumer that stalls its link blocks the put) for the
+    # TrackBatch's put to return, instead of going on with the messages that queued up
+    # meanwhile while the publisher waits for the interpreter (5 ms, Python's switch
+    # interval, at 20,000x30) and then puts against it.
+    handover_wait_s = 0.02
 
     def __init__(
         self,
@@ -259,6 +265,7 @@ class FusionDaemon:
         self.outbox: queue.Queue = queue.Queue(maxsize=outbox_size)
         self.outputs_dropped = 0
         self.publish_errors = 0
+        self._put_done = threading.Event()  # the publishing thread put a TrackBatch (or withheld it)
         self._clock_suspect: dict[str, bool] = {}  # per radar, as last logged
         self._health_pending = False  # a periodic health snapshot waits in the outbox
         self._last_processed = time.monotonic()
@@ -668,6 +675,8 @@ class FusionDaemon:
 
     # ------------------------------------------------------------- publishing
     def _publish(self, outputs: list[PeriodOutput]) -> None:
+        publisher_idle = self.outbox.empty()
+        self._put_done.clear()
         for out in outputs:
             self.metrics.observe_period(out.processing_s)
             if self._not_before_period is not None and out.period <= self._not_before_period:
@@ -687,6 +696,8 @@ class FusionDaemon:
             self._emit(out)
         if not outputs:
             return
+        if publisher_idle and self._publisher is not None:
+            self._put_done.wait(self.handover_wait_s)
         data = None
         if self.election is not None:
             # after the period's TrackBatch: a standby that saw the batch but not this state
@@ -742,6 +753,7 @@ class FusionDaemon:
             out: PeriodOutput = item
             if self.election is not None and not self._still_active(out.track_columns.epoch):
                 self.redundancy_counters["outputs_withheld"] += 1  # it stood down meanwhile
+                self._put_done.set()
                 continue
             stamps = self._timings.pop(out.period, None)
             try:
@@ -749,6 +761,7 @@ class FusionDaemon:
                 if stamps is not None:
                     stamps.update(picked_s=time.monotonic(), bytes=len(payload))
                 self._pubs["tracks"].put(payload)
+                self._put_done.set()
                 if stamps is not None:
                     stamps.update(put_s=time.monotonic(), gc_at_put_s=self._gc_s)
                 for alert in out.alerts:
