@@ -418,6 +418,23 @@ def test_an_internal_error_is_counted_by_a_listed_reason():
     assert set(daemon.engine.rejected) <= REASONS
 
 
+def test_a_bug_while_decoding_is_counted_and_the_next_message_goes_on(monkeypatch):
+    daemon = FusionDaemon(settings_from_dict(CONFIG))  # not started: the processing path only
+    good = pack({"v": 1, "radar_id": "app", "seq": 0, "plots": []})
+
+    def broken(*_args, **_kwargs):
+        raise RuntimeError("bug")
+
+    monkeypatch.setattr("radar_fusion.bus.decode_plot_batch", broken)
+    daemon._process_safely("atc/radar/app/plots", good)
+    assert daemon.engine.rejected == Counter(internal_error=1)
+    monkeypatch.undo()
+    daemon._process_safely("atc/radar/app/plots", good)
+    assert daemon.messages_processed == 2
+    assert daemon.engine.counters["batches_received"] == 1
+    assert set(daemon.engine.rejected) <= REASONS
+
+
 # ------------------------------------------------------------------ over the bus
 # The generator and the run live in tools/fuzz.py; `radar-fusion fuzz --count 100000` is the
 # long run (issue 13), outside the default suite.

@@ -3,10 +3,11 @@
 Zenoh delivers samples on its own threads; the subscriber callbacks only put the raw
 payload on a bounded queue (blocking briefly when it is full, which pushes back on
 senders that publish with congestion control BLOCK). One processing thread decodes,
-validates, hands plots to the :class:`~radar_fusion.engine.Engine` and closes periods;
-one publishing thread sends what the engine returns and the health snapshots, so that
-a consumer that stalls its link (Zenoh then blocks every put towards it, for up to its
-``wait_before_close``) never holds up ingest or period processing:
+validates, hands plots to the :class:`~radar_fusion.engine.Engine`, closes periods and
+packs their TrackBatch; one publishing thread sends what the engine returns and the
+health snapshots, so that a consumer that stalls its link (Zenoh then blocks every put
+towards it, for up to its ``wait_before_close``) never holds up ingest or period
+processing:
 
     <prefix>/radar/*/plots   → Engine.ingest_plots     <prefix>/fusion/tracks        ← TrackBatch
     <prefix>/radar/*/status  → Engine.ingest_status    <prefix>/fusion/alerts/<kind> ← Alert
@@ -23,6 +24,7 @@ bounded rate.
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import math
@@ -46,7 +48,7 @@ from .redundancy import Election, ElectionOnBus, Role, default_instance
 from .safety_nets import SafetyNets
 from .safety_nets.process import health_key
 from .safety_nets.supervisor import SafetyNetsChild
-from .wire import RadarStatus, Rejection, decode_message, decode_plot_batch
+from .wire import DecodedPlots, RadarStatus, Rejection, decode_message, decode_plot_batch
 
 log = logging.getLogger("radar_fusion.bus")
 
@@ -140,6 +142,11 @@ class _Oversize(bytes):
 _OVERSIZE = _Oversize()
 
 
+#: a received message decoded and validated: plots, a status, why it is refused, or None
+#: (a key that is neither)
+Decoded = DecodedPlots | RadarStatus | Rejection | None
+
+
 class RateLimitedLog:
     """Log a rejection at most once per interval per reason, with the count since."""
 
@@ -164,6 +171,12 @@ class FusionDaemon:
     and by default the safety nets as a supervised child process (``safety_nets``)."""
 
     safety_nets_ready_timeout_s = 30.0  # a fresh interpreter's imports take ~3 s on 2 shared cores
+    # After handing a period's output to an idle publishing thread, the processing thread
+    # waits (at most this long: a consumer that stalls its link blocks the put) for the
+    # TrackBatch's put to return, instead of going on with the messages that queued up
+    # meanwhile while the publisher waits for the interpreter (5 ms, Python's switch
+    # interval, at 20,000x30) and then puts against it.
+    handover_wait_s = 0.02
 
     def __init__(
         self,
@@ -176,6 +189,7 @@ class FusionDaemon:
         log_format: str = "text",
         state_dir: Path | None = None,
         state_interval_s: float = 0.0,
+        timing_log: Path | None = None,
     ):
         self.settings = settings
         self.prefix = settings.bus.prefix
@@ -251,6 +265,7 @@ class FusionDaemon:
         self.outbox: queue.Queue = queue.Queue(maxsize=outbox_size)
         self.outputs_dropped = 0
         self.publish_errors = 0
+        self._put_done = threading.Event()  # the publishing thread put a TrackBatch (or withheld it)
         self._clock_suspect: dict[str, bool] = {}  # per radar, as last logged
         self._health_pending = False  # a periodic health snapshot waits in the outbox
         self._last_processed = time.monotonic()
@@ -262,6 +277,14 @@ class FusionDaemon:
         self._publisher: threading.Thread | None = None
         self.on_output: Callable[[PeriodOutput], None] | None = None
         self.metrics = DaemonMetrics(settings.metrics.listen)  # private registry; served when listen is set
+        # serve --timing-log: each published period's path through the daemon, timestamped
+        self.timing_log = timing_log
+        self._timing_file: Any = None
+        # the last input processed: arrived, taken from the queue, decoded, ingested
+        self._closing: tuple[float, float, float, float] | None = None
+        self._timings: dict[int, dict[str, float]] = {}  # period → stamps so far (processing → publishing thread)
+        self._gc_s = 0.0  # with timing_log: time in the garbage collector so far (any thread)
+        self._gc_started_s = 0.0
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> FusionDaemon:
@@ -269,6 +292,9 @@ class FusionDaemon:
         lease_s = self.settings.redundancy.lease_s if self.election is not None else None
         cfg = zenoh_config(bus.mode, bus.listen, bus.connect, bus.multicast_scouting, bus.zenoh_config_file, lease_s)
         self.metrics.start()
+        if self.timing_log is not None:
+            self._timing_file = open(self.timing_log, "w", buffering=1)  # noqa: SIM115 (closed by stop)
+            gc.callbacks.append(self._gc_timer)
         self._session = open_session(cfg)
         p = self.prefix
         self._pubs["tracks"] = reliable_publisher(self._session, f"{p}/fusion/tracks")
@@ -346,6 +372,10 @@ class FusionDaemon:
             self._session.close()
             self._session = None
         self.metrics.close()
+        if self._timing_file is not None:
+            self._timing_file.close()
+            self._timing_file = None
+            gc.callbacks.remove(self._gc_timer)
         self.stopped.set()
 
     def __enter__(self) -> FusionDaemon:
@@ -482,33 +512,38 @@ class FusionDaemon:
                 self.overload += 1
 
     def _handle(self, key: str, payload: bytes) -> None:
-        parts = key.split("/")
-        radar_id, kind = parts[-2], parts[-1]
+        """Decode, validate and ingest one received message (the two stages in one call)."""
+        self._ingest(key, self._decode(key, payload))
+
+    def _decode(self, key: str, payload: bytes) -> Decoded:
+        """What a message says, checked against the wire contract (no state is touched);
+        None for a key that is neither plots nor status."""
+        kind = key.rpartition("/")[2]
+        if kind not in ("plots", "status"):
+            return None
         max_bytes = self.settings.bus.max_payload_bytes
-        if payload is _OVERSIZE and kind in ("plots", "status"):
-            self._reject(Rejection("oversize", f"more than {max_bytes} bytes on {key}"), radar_id)
-            return
+        if payload is _OVERSIZE:
+            return Rejection("oversize", f"more than {max_bytes} bytes on {key}")
         if kind == "plots":
-            decoded = decode_plot_batch(payload, max_bytes)
-            if isinstance(decoded, Rejection):
-                self._reject(decoded, radar_id)
-            elif decoded.radar_id != radar_id:
-                self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
-            else:
-                self.engine.ingest_plots(decoded)
-                for reason, n in decoded.rejected.items():
-                    self._log_rejection(reason, f"{n} plot(s) of {radar_id} seq {decoded.seq}")
-        elif kind == "status":
-            # decode_message returns an instance of the model it is given (or a Rejection)
-            status = cast("RadarStatus | Rejection", decode_message(payload, RadarStatus, max_bytes))
-            if isinstance(status, Rejection):
-                self._reject(status, radar_id)
-            elif status.radar_id != radar_id:
-                self._reject(Rejection("key_mismatch", f"{status.radar_id} on {key}"), radar_id)
-            else:
-                self.engine.ingest_status(status)
-        else:
+            return decode_plot_batch(payload, max_bytes)
+        # decode_message returns an instance of the model it is given (or a Rejection)
+        return cast("RadarStatus | Rejection", decode_message(payload, RadarStatus, max_bytes))
+
+    def _ingest(self, key: str, decoded: Decoded) -> None:
+        """Hand a decoded message to the engine, or count why not."""
+        radar_id = key.split("/")[-2]
+        if decoded is None:
             self._reject(Rejection("schema", f"unknown key {key}"), radar_id)
+        elif isinstance(decoded, Rejection):
+            self._reject(decoded, radar_id)
+        elif decoded.radar_id != radar_id:
+            self._reject(Rejection("key_mismatch", f"{decoded.radar_id} on {key}"), radar_id)
+        elif isinstance(decoded, RadarStatus):
+            self.engine.ingest_status(decoded)
+        else:
+            self.engine.ingest_plots(decoded)
+            for reason, n in decoded.rejected.items():
+                self._log_rejection(reason, f"{n} plot(s) of {radar_id} seq {decoded.seq}")
 
     def _reject(self, rejection: Rejection, radar_id: str) -> None:
         if rejection.reason != "unknown_radar" and radar_id not in self.engine.radar_index:
@@ -532,20 +567,18 @@ class FusionDaemon:
         while True:
             stopping = self.stop_event.is_set()
             try:
-                key, payload, arrived_s = self.queue.get(timeout=0.05)
-                self._process_safely(key, payload, arrived_s)
+                self._process_safely(*self.queue.get(timeout=0.05))
                 for _ in range(1000):  # drain a burst before polling the engine
-                    key, payload, arrived_s = self.queue.get_nowait()
-                    self._process_safely(key, payload, arrived_s)
+                    self._process_safely(*self.queue.get_nowait())
             except queue.Empty:
                 pass
             self._count_overload()
             self._redundancy_step()
             if self.role == "active":  # a standby closes no period: it applies the active's state
-                self._publish(self.engine.poll())
+                self._poll()
             idle_s = time.monotonic() - self._last_processed
             if self.role == "active" and self.messages_processed > processed_at_flush and idle_s > self.idle_flush_s:
-                self._publish(self.engine.flush())
+                self._poll(flush=True)
                 processed_at_flush = self.messages_processed
             now = time.monotonic()
             if now - last_health >= self.settings.bus.health_period_s:
@@ -560,7 +593,7 @@ class FusionDaemon:
         self._count_overload()
         self._redundancy_step()
         if self.role == "active" and not (self.election is not None and self.election.members):
-            self._publish(self.engine.flush())
+            self._poll(flush=True)
         # (with a standby on the bus the open periods are left to it: it takes over with its
         # own plots of them, instead of periods closed early without their late plots)
         health = self.health_message()
@@ -576,8 +609,12 @@ class FusionDaemon:
             self.engine.reject("overload", n)
 
     def _process_safely(self, key: str, payload: bytes, arrived_s: float | None = None) -> None:
+        taken_s = time.monotonic()
+        decoded_s = math.nan
         try:
-            self._handle(key, payload)
+            decoded = self._decode(key, payload)
+            decoded_s = time.monotonic()
+            self._ingest(key, decoded)
         except Exception:  # a bug must not take the daemon down; it is counted and logged
             log.exception("internal error while processing %s", key)
             self.engine.reject("internal_error")
@@ -585,6 +622,38 @@ class FusionDaemon:
         self._last_processed = time.monotonic()
         if arrived_s is not None:  # monotonic time the Zenoh callback queued it
             self.metrics.observe_ingest(self._last_processed - arrived_s)
+            self._closing = (arrived_s, taken_s, decoded_s, self._last_processed)
+
+    def _gc_timer(self, phase: str, info: dict[str, Any]) -> None:
+        """gc.callbacks entry (with timing_log): the time spent collecting garbage."""
+        if phase == "start":
+            self._gc_started_s = time.monotonic()
+        else:
+            self._gc_s += time.monotonic() - self._gc_started_s
+
+    def _poll(self, flush: bool = False) -> None:
+        """Close the periods the watermarks allow (``flush``: every buffered one) and hand
+        their outputs over; with ``timing_log``, each period's stamps so far."""
+        poll_s = time.monotonic()
+        outputs = self.engine.flush() if flush else self.engine.poll()
+        if self._timing_file is not None and outputs:
+            engine_done_s = time.monotonic()
+            arrived_s, taken_s, decoded_s, ingested_s = self._closing or (math.nan,) * 4
+            for out in outputs:
+                self._timings[out.period] = {
+                    "period": out.period,
+                    "arrived_s": arrived_s,  # the input processed last before the period closed
+                    "taken_s": taken_s,
+                    "decoded_s": decoded_s,
+                    "ingested_s": ingested_s,
+                    "poll_s": poll_s,
+                    "engine_done_s": engine_done_s,
+                    "engine_s": out.processing_s,
+                    "queue_depth": self.queue.qsize(),
+                    "gc_at_poll_s": self._gc_s,
+                    "periods_in_poll": len(outputs),
+                }
+        self._publish(outputs)
 
     def _check_clocks(self, health: dict[str, Any]) -> None:
         """Log each radar whose clock became suspect, or good again (the engine's estimates,
@@ -606,6 +675,8 @@ class FusionDaemon:
 
     # ------------------------------------------------------------- publishing
     def _publish(self, outputs: list[PeriodOutput]) -> None:
+        publisher_idle = self.outbox.empty()
+        self._put_done.clear()
         for out in outputs:
             self.metrics.observe_period(out.processing_s)
             if self._not_before_period is not None and out.period <= self._not_before_period:
@@ -616,9 +687,17 @@ class FusionDaemon:
                 out.track_columns.epoch, out.track_columns.instance = self.epoch, self.instance
                 for alert in out.alerts:
                     alert["epoch"] = self.epoch
+            # Packed here, before the hand-over (with the stamp above): on the publishing
+            # thread the packing shared the interpreter with this thread's next work, the
+            # messages that queued up during the period, and waited for its turn.
+            _ = out.track_batch_bytes
+            if (stamps := self._timings.get(out.period)) is not None:
+                stamps["emitted_s"] = time.monotonic()
             self._emit(out)
         if not outputs:
             return
+        if publisher_idle and self._publisher is not None:
+            self._put_done.wait(self.handover_wait_s)
         data = None
         if self.election is not None:
             # after the period's TrackBatch: a standby that saw the batch but not this state
@@ -674,9 +753,17 @@ class FusionDaemon:
             out: PeriodOutput = item
             if self.election is not None and not self._still_active(out.track_columns.epoch):
                 self.redundancy_counters["outputs_withheld"] += 1  # it stood down meanwhile
+                self._put_done.set()
                 continue
+            stamps = self._timings.pop(out.period, None)
             try:
-                self._pubs["tracks"].put(out.track_batch_bytes)  # packed from the columns
+                payload = out.track_batch_bytes  # packed from the columns by the processing thread
+                if stamps is not None:
+                    stamps.update(picked_s=time.monotonic(), bytes=len(payload))
+                self._pubs["tracks"].put(payload)
+                self._put_done.set()
+                if stamps is not None:
+                    stamps.update(put_s=time.monotonic(), gc_at_put_s=self._gc_s)
                 for alert in out.alerts:
                     self._pubs[alert["kind"]].put(msgpack.packb(alert, use_bin_type=True))
                 self.batches_published += 1
@@ -685,6 +772,9 @@ class FusionDaemon:
             except Exception:
                 log.exception("publishing period %s failed", out.period)
                 self.publish_errors += 1
+            if stamps is not None and self._timing_file is not None:
+                stamps["done_s"] = time.monotonic()
+                self._timing_file.write(json.dumps(stamps) + "\n")
 
     def _still_active(self, epoch: int | None) -> bool:
         """Whether an output stamped ``epoch`` may still go out: this daemon is still that active."""

@@ -160,6 +160,12 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="write the state at most this often, wall clock (default 0: after every period)",
     )
+    p.add_argument(
+        "--timing-log",
+        default=None,
+        help="write one JSON line per published period to this file: monotonic timestamps of its path "
+        "through the daemon, from the input that closed it to the TrackBatch's put (radar-fusion bench)",
+    )
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -186,6 +192,7 @@ def _serve(args: argparse.Namespace) -> int:
         state_dir=None if args.state_dir is None else Path(args.state_dir),
         state_interval_s=args.state_interval_s,
         safety_nets=args.safety_nets,
+        timing_log=None if args.timing_log is None else Path(args.timing_log),
         log_format=args.log_format,
     )
     if daemon.tracks_restored is not None:

@@ -338,13 +338,16 @@ class MapRows:
         data = np.concatenate(self._blocks, axis=1)
         if all(length is None for length in self._lengths):
             return data.tobytes()
-        keep = np.concatenate(
-            [
-                np.broadcast_to(True, b.shape) if length is None else np.arange(b.shape[1]) < length[:, None]
-                for b, length in zip(self._blocks, self._lengths)
-            ],
-            axis=1,
-        )
+        # which bytes of each row are its own: all of a fixed-width block's, the first
+        # ``length`` of a variable one's (written in place: a mask concatenated from one
+        # piece per block cost more than the packing of the values)
+        keep = np.ones(data.shape, bool)
+        start = 0
+        for block, length in zip(self._blocks, self._lengths):
+            width = block.shape[1]
+            if length is not None:
+                np.less(np.arange(width), length[:, None], out=keep[:, start : start + width])
+            start += width
         return data[keep].tobytes()
 
 

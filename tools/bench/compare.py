@@ -456,7 +456,9 @@ def run_bus(
     sent). Latency of period k = receive time of its TrackBatch − publish time of the
     message that let it close (the first after which every live radar's watermark less
     its lateness has passed the period's end: the last input the period waits for);
-    periods ending in the first ``warmup_s`` are left out. Data age (paced runs) = a
+    periods ending in the first ``warmup_s`` are left out, and so are the periods only the
+    final heartbeats let close (``e2e_all_*`` keep them). ``e2e_parts_ms``: that latency
+    cut into its parts (:data:`E2E_PARTS`) by the daemon's stamps (serve --timing-log). Data age (paced runs) = a
     TrackBatch's receive time − its reference time ``t`` on the replay's clock, over the
     periods after the warm-up that a recorded message let close (not the final heartbeats).
 
@@ -507,6 +509,7 @@ def run_bus(
     last_period = int(math.floor(t_last / period_s))
 
     log_path = Path(case_dir, f"daemon_{port}.log")
+    timing_path = Path(case_dir, f"timing_{port}.jsonl")
     with open(log_path, "w") as log:
         daemon = sp.Popen(
             [
@@ -520,6 +523,8 @@ def run_bus(
                 "WARNING",
                 "--safety-nets",
                 safety_nets,
+                "--timing-log",
+                str(timing_path),
             ],
             stdout=log,
             stderr=sp.STDOUT,
@@ -598,12 +603,23 @@ def run_bus(
     done = [t_r for t_r, b in batches if b.get("period", -1) >= last_period]
     t_done = done[0] if done else math.nan
     pub = np.asarray(pub_s)
-    lat_ms, warm_end = [], records[0].t_s + warmup_s
+    lat_ms, lat_all_ms, warm_end = [], [], records[0].t_s + warmup_s
+    stamps = _read_timing(timing_path)
+    parts: dict[str, list[float]] = {}
     for t_r, b in batches:
         end_s = (b["period"] + 1) * period_s
         i = int(np.searchsorted(closable, end_s - 1e-9, side="left"))
         if end_s >= warm_end and i < pub.size:
+            lat_all_ms.append(1e3 * (t_r - pub[i]))
+            if i >= n_recorded:
+                # closed by the final heartbeats (as for the data age below): they close the
+                # last two periods at once, the second's latency then holds the first's
+                # processing too, where live radars would have closed them one by one
+                continue
             lat_ms.append(1e3 * (t_r - pub[i]))
+            if (st := stamps.get(b["period"])) is not None:
+                for name, ms in e2e_parts_ms(st, float(pub[i]), t_r).items():
+                    parts.setdefault(name, []).append(ms)
     # Data age at a display (issue 16 item 5): a TrackBatch's receive time minus its reference
     # time t, on the replay's clock. Paced replay publishes each record at a fixed offset from
     # its own time, so wall = event time + the median offset of the records as published.
@@ -670,6 +686,10 @@ def run_bus(
         "e2e_p99_ms": percentile(lat_ms, 99),
         "e2e_max_ms": max(lat_ms) if lat_ms else math.nan,
         "e2e_periods": len(lat_ms),
+        "e2e_all_p99_ms": percentile(lat_all_ms, 99),
+        "e2e_all_max_ms": max(lat_all_ms) if lat_all_ms else math.nan,
+        "e2e_all_periods": len(lat_all_ms),
+        "e2e_parts_ms": {name: (percentile(v, 50), percentile(v, 99)) for name, v in parts.items()},
         "data_age_p50_ms": percentile(age_ms, 50),
         "data_age_p99_ms": percentile(age_ms, 99),
         "data_age_max_ms": max(age_ms) if age_ms else math.nan,
@@ -680,6 +700,50 @@ def run_bus(
         "data_age": list(zip(age_t, age_ms)),  # (TrackBatch t, age ms), for a closer look
         "daemon_peak_rss_mb": (peak_kb or 0) / 1024.0,
     }
+
+
+#: the parts of the end-to-end latency, in path order: (name, from stamp, to stamp); "pub"
+#: is the replay's put of the input that let the period close, "rx" the subscriber's receipt
+#: of its TrackBatch, the rest the daemon's stamps (serve --timing-log, bus.FusionDaemon._poll)
+E2E_PARTS = (
+    ("replay put -> daemon callback", "pub", "arrived_s"),
+    ("input queue wait", "arrived_s", "taken_s"),
+    ("decode + validate", "taken_s", "decoded_s"),
+    ("admit (engine.ingest_*)", "decoded_s", "ingested_s"),
+    ("later inputs before the poll", "ingested_s", "poll_s"),
+    ("engine period", "poll_s", "engine_done_s"),
+    ("TrackBatch build + encode", "engine_done_s", "emitted_s"),
+    ("outbox wait", "emitted_s", "picked_s"),
+    ("zenoh put", "picked_s", "put_s"),
+    ("put returned -> subscriber", "put_s", "rx"),
+    ("end to end", "pub", "rx"),
+    ("(garbage collection, poll to put)", "gc_at_poll_s", "gc_at_put_s"),
+)
+
+
+def _read_timing(path: Path) -> dict[int, dict[str, float]]:
+    """The daemon's per-period stamps (serve --timing-log), by period; {} without the file."""
+    import json
+
+    out: dict[int, dict[str, float]] = {}
+    with contextlib.suppress(OSError):
+        for line in path.read_text().splitlines():
+            with contextlib.suppress(ValueError):
+                st = json.loads(line)
+                out[int(st["period"])] = st
+    return out
+
+
+def e2e_parts_ms(stamps: dict[str, float], pub_s: float, rx_s: float) -> dict[str, float]:
+    """One period's end-to-end latency cut into :data:`E2E_PARTS`, in ms (NaN where a stamp is missing)."""
+    at = {**stamps, "pub": pub_s, "rx": rx_s}
+    return {name: 1e3 * (at.get(b, math.nan) - at.get(a, math.nan)) for name, a, b in E2E_PARTS}
+
+
+def parts_lines(b: dict[str, Any]) -> list[str]:
+    """The end-to-end breakdown of a run_bus result, one line per part (p50 / p99 ms)."""
+    parts = b.get("e2e_parts_ms") or {}
+    return [f"{name:<32} p50 {p50:8.1f} / p99 {p99:8.1f} ms" for name, (p50, p99) in parts.items()]
 
 
 def late_line(b: dict[str, Any]) -> str:
@@ -795,13 +859,19 @@ def run_compare(args: argparse.Namespace, sizes: list[tuple[int, int]], duration
                 )
                 print(
                     f"      replay at {args.latency_speed:g}× real time: end-to-end p50 {bp['e2e_p50_ms']:.1f} / "
-                    f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods; data age (TrackBatch "
+                    f"p99 {bp['e2e_p99_ms']:.1f} ms over {bp['e2e_periods']} periods (with the final heartbeats' "
+                    f"{bp['e2e_all_periods'] - bp['e2e_periods']}: p99 {bp['e2e_all_p99_ms']:.1f} / max "
+                    f"{bp['e2e_all_max_ms']:.1f} ms); data age (TrackBatch "
                     f"received minus its t) p50 {bp['data_age_p50_ms'] / 1e3:.2f} / p99 "
                     f"{bp['data_age_p99_ms'] / 1e3:.2f} / max {bp['data_age_max_ms'] / 1e3:.2f} s over "
                     f"{bp['data_age_periods']} periods; {late_line(bp)}",
                     flush=True,
                 )
                 print("      " + alert_line(bp), flush=True)
+                if bp.get("e2e_parts_ms"):
+                    print("      end-to-end by part (the daemon's stamps, serve --timing-log):", flush=True)
+                    for line in parts_lines(bp):
+                        print("        " + line, flush=True)
         if use_ref:
             est = _estimate_reference_s(ref_cost, sim["plots"], eng["tracks_per_period"])
             if ref_cost is not None and est is not None and est > args.reference_budget_s:  # est needs ref_cost
