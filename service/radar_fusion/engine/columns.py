@@ -490,8 +490,9 @@ class PeriodOutput:
     """What one closed period produced: every track as columns, and alerts.
 
     ``track_batch`` is the TrackBatch message (a wire-contract dict), built from the
-    columns on first use: that is the I/O side's work (the daemon builds and encodes it
-    on its worker thread right after the period), not the engine's, and ``processing_s``
+    columns on first use: that is the I/O side's work (the daemon encodes it on its
+    processing thread right after the period, before handing it to its publishing
+    thread), not the engine's, and ``processing_s``
     does not include it. ``radar-fusion bench`` reports both figures.
     """
 

@@ -66,7 +66,7 @@ from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
 from ..tracking.registration import RadarRegistration
-from ..tracking.singer_filter import POS_IDX, STATE_DIM, AltitudeFilter, SingerFilter
+from ..tracking.singer_filter import AltitudeFilter, SingerFilter
 from ..tracking.track_management import (
     CONFIRMED,
     TENTATIVE,
@@ -380,9 +380,7 @@ class Engine:
             dt_s = t_ref_s - self.tracks.t_state_s[changed]
             if self.imm is not None:
                 tr = self.tracks
-                x, P_xy = self.imm.predict_position_rows(IMMState(tr.x_models, tr.P_models, tr.mu), changed, dt_s)
-                P = np.full((changed.size, STATE_DIM, STATE_DIM), np.nan)
-                P[:, POS_IDX[:, None], POS_IDX[None, :]] = P_xy
+                x, P = self.imm.predict_position_rows(IMMState(tr.x_models, tr.P_models, tr.mu), changed, dt_s)
                 alt_x, alt_P = self.alt_filter.predict(tr.alt_x[changed], tr.alt_P[changed], dt_s)
                 again = Prediction(x, P, alt_x, alt_P)
             else:

@@ -125,7 +125,6 @@ _POSITION = np.array([0, 3], dtype=np.int64)
 
 #: dt, tau, terms, family, omega, q_keys; with xm, Pm, mu before them (imm_kernels.predict_kernel)
 _ModelArgs = tuple[Float, Float, Float, Any, Float, Any]
-_KernelArgs = tuple[Float, Float, Float, Float, Float, Float, Any, Float, Any]
 
 
 class IMMParams(BaseModel):
@@ -396,10 +395,6 @@ class IMMFilter:
     def _dt(self, dt_s: ArrayLike, n: int) -> Float:
         return np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
 
-    def _kernel_args(self, state: IMMState, dt: Float) -> _KernelArgs:
-        """The leading arguments of every predicting kernel: the state, then ``_model_args``."""
-        return (*_arrays(state), *self._model_args(dt))
-
     def _model_args(self, dt: Float) -> _ModelArgs:
         """dt, the dwell times and the models' Φ and Q (imm_kernels.predict_kernel)."""
         return (dt, self._dwell_s, self.model_terms(dt), self._family, self._omega_all, self._q_keys)
@@ -411,22 +406,13 @@ class IMMFilter:
         Every model is linear, x_j = Φ_j x⁰_j, P_j = Φ_j P⁰_j Φ_jᵀ + Q_j (Shu eq. 8, 11;
         coordinated_turn.py eq. 4): the same equations as each model's ``predict``, run per
         track by imm_kernels.predict_kernel (one pass over each track's models)."""
-        return self.predict_combined(state, dt_s, combine=False)[0]
-
-    def predict_combined(
-        self, state: IMMState, dt_s: ArrayLike, combine: bool = True
-    ) -> tuple[IMMState, Float | None, Float | None]:
-        """predict(), and with ``combine`` the combination (eq. 7-8) of the predicted states
-        weighted by c̄, x (N, 6) and P (N, 6, 6), from the same pass: combine(predict(...))."""
         n, m = len(state), self.n_models
         dt = self._dt(dt_s, n)
         x_pred = np.empty((n, m, STATE_DIM))
         P_pred = np.empty((n, m, STATE_DIM, STATE_DIM))
         c_bar = np.empty((n, m))
-        x = np.empty((n if combine else 0, STATE_DIM))
-        P = np.empty((n if combine else 0, STATE_DIM, STATE_DIM))
-        imm_kernels.predict_kernel(*self._kernel_args(state, dt), x_pred, P_pred, c_bar, combine, x, P)
-        return IMMState(x_pred, P_pred, c_bar), (x if combine else None), (P if combine else None)
+        imm_kernels.predict_kernel(*_arrays(state), *self._model_args(dt), x_pred, P_pred, c_bar)
+        return IMMState(x_pred, P_pred, c_bar)
 
     def predict_position(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float]:
         """Steps 1, 2 and 5 for an output that needs only the combined state and the
@@ -434,13 +420,15 @@ class IMMFilter:
         from each model's H P_j Hᵀ = (H Φ_j) P⁰_j (H Φ_j)ᵀ + H Q_j Hᵀ (H picks x and y):
         the per-model 6×6 covariances are never formed (imm_kernels.predict_block_kernel).
         combine(predict(...)) restricted to x and y, to round-off."""
-        return self.predict_position_rows(state, np.arange(len(state)), dt_s)
+        x, P = self.predict_position_rows(state, np.arange(len(state)), dt_s)
+        return x, P[:, POS_IDX[:, None], POS_IDX[None, :]]
 
     def predict_position_rows(self, state: IMMState, rows: ArrayLike, dt_s: ArrayLike) -> tuple[Float, Float]:
         """predict_position() of the rows ``rows`` of ``state`` (a track table's columns),
-        without copying them out."""
+        without copying them out; P (K, 6, 6) holds the x-y block, NaN elsewhere (what the
+        engine's output reads)."""
         x, P, _, _ = self._predict_block(state, np.ascontiguousarray(rows, dtype=np.int64), dt_s, _POSITION)
-        return x, P[:, POS_IDX[:, None], POS_IDX[None, :]]
+        return x, P
 
     def _predict_block(
         self, state: IMMState, rows: np.ndarray, dt_s: ArrayLike, block: np.ndarray
@@ -468,8 +456,8 @@ class IMMFilter:
     def predict_update(
         self, state: IMMState, dt_s: ArrayLike, z: ArrayLike, R: ArrayLike
     ) -> tuple[IMMState, Float, Float]:
-        """A whole cycle in one pass (imm_kernels.predict_update_kernel): update_combined(
-        predict(state, dt_s), z, R), without the prediction written out."""
+        """A whole cycle in one pass (imm_kernels.predict_update_kernel): update(predict(state,
+        dt_s), z, R) and its combination (eq. 7-8), without the prediction written out."""
         n, m = len(state), self.n_models
         out = IMMState(np.empty((n, m, STATE_DIM)), np.empty((n, m, STATE_DIM, STATE_DIM)), np.empty((n, m)))
         x, P = self._predict_update_into(state, out, np.arange(n), dt_s, z, R)
@@ -507,23 +495,14 @@ class IMMFilter:
 
     def update(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> IMMState:
         """Steps 3-4: each model's Kalman update (Shu eq. 7, 9, 10) with the fused
-        measurement z (N,2) of covariance R (N,2,2), and the mode probabilities (eq. 5-6)."""
-        return self.update_combined(state, z, R, combine=False)[0]
-
-    def update_combined(
-        self, state: IMMState, z: ArrayLike, R: ArrayLike, combine: bool = True
-    ) -> tuple[IMMState, Float | None, Float | None]:
-        """update(), and with ``combine`` the combination (eq. 7-8) of the updated states,
-        x (N, 6) and P (N, 6, 6), from the same pass (imm_kernels.update_kernel)."""
+        measurement z (N,2) of covariance R (N,2,2), and the mode probabilities (eq. 5-6)
+        (imm_kernels.update_kernel)."""
         n, m = len(state), self.n_models
         x_upd = np.empty((n, m, STATE_DIM))
         P_upd = np.empty((n, m, STATE_DIM, STATE_DIM))
         mu = np.empty((n, m))
-        x = np.empty((n if combine else 0, STATE_DIM))
-        P = np.empty((n if combine else 0, STATE_DIM, STATE_DIM))
-        zc, Rc = _c64(z), _c64(R)
-        imm_kernels.update_kernel(*_arrays(state), zc, Rc, x_upd, P_upd, mu, combine, x, P)
-        return IMMState(x_upd, P_upd, mu), (x if combine else None), (P if combine else None)
+        imm_kernels.update_kernel(*_arrays(state), _c64(z), _c64(R), x_upd, P_upd, mu)
+        return IMMState(x_upd, P_upd, mu)
 
     @staticmethod
     def combine(state: IMMState) -> tuple[Float, Float]:
@@ -545,8 +524,8 @@ def _arrays(state: IMMState) -> tuple[Float, Float, Float]:
     return _c64(state.x_models), _c64(state.P_models), _c64(state.mu)
 
 
-def _gauss_loglik(nu: Float, S: Float, S_inv: Float | None = None) -> Float:
-    """log N(ν; 0, S) for ν (K,2), S (K,2,2) (eq. 5); S_inv: S⁻¹ if the caller has it."""
+def _gauss_loglik(nu: Float, S: Float) -> Float:
+    """log N(ν; 0, S) for ν (K,2), S (K,2,2) (eq. 5)."""
     det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-    d2 = np.einsum("ki,kij,kj->k", nu, inv_2x2(S) if S_inv is None else S_inv, nu)
+    d2 = np.einsum("ki,kij,kj->k", nu, inv_2x2(S), nu)
     return np.asarray(-0.5 * d2 - 0.5 * np.log(det) - _LOG_2PI)

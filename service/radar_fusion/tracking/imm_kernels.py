@@ -8,25 +8,27 @@ not arithmetic, and was the largest part of the engine's period (issue 15's thro
 goal).  Here each track's M states are read once, everything in between lives in a few
 6×6 scratch matrices in the L1 cache, and only the results are written:
 
-* :func:`predict_kernel`, steps 1-2 (eq. 0-4 and each model's prediction), optionally with
-  step 5 (eq. 7-8) on the predicted states;
+* :func:`predict_kernel`, steps 1-2 (eq. 0-4 and each model's prediction);
 * :func:`predict_block_kernel`, steps 1, 2 and 5 for association and output: each
   model's predicted position and its covariance (the gates), the combined x and a block
   of the combined covariance (position and velocity; the x-y block for the output);
-* :func:`update_kernel`, steps 3-5 (eq. 5-8): every model's Kalman update (Shu eq. 7,
-  9, 10), the mode probabilities and the combination;
+* :func:`update_kernel`, steps 3-4 (eq. 5-6): every model's Kalman update (Shu eq. 7,
+  9, 10) and the mode probabilities;
 * :func:`predict_update_kernel`, steps 1-5 at once, for the tracks that got a plot;
 * :func:`combine_kernel`, step 5 (eq. 7-8) alone.
 
-Φ_j and Q_j are not stored as (N, M, 6, 6) arrays either: imm.py computes their distinct
-entries with the models' own formulas (singer_filter.py Shu eq. 12 and §4,
-coordinated_turn.py eq. 2-4), ``TERMS`` numbers per track and model, and
+Φ_j and Q_j are not stored as (N, M, 6, 6) arrays either: :func:`model_terms_kernel`
+computes their distinct entries, ``TERMS`` numbers per track and model, with the models'
+formulas (compiled twins of singer_filter.py's Shu eq. 12 and §4 and of
+coordinated_turn.py's eq. 2-3, the same series and switches; the numpy functions there
+stay the statement that the tests check against Van Loan's method), and
 :func:`_model_phi_q` lays them out in a 6×6 pair, the same placement as
 singer_filter.singer_matrices_into and coordinated_turn.ct_matrices_into.
 
 Compiled by numba on first use and cached on disk (compiled.py), so a process pays the
-compilation (a few seconds) only when the code changed, and imm.IMMFilter runs each
-kernel once when it is made, so that this happens at start-up, not in the first period;
+compilation (a few seconds) only when the code changed, and imm.IMMFilter runs the
+engine's kernels once when it is made, so that this happens at start-up, not in the
+first period;
 ``nogil`` lets the daemon's receiving threads run while the engine is in here.  Arithmetic is the
 same as the numpy formulation's up to the order of additions (round-off, ~1e-13
 relative); the tests compare every kernel with independent computations (test_imm.py:
@@ -380,13 +382,9 @@ def predict_kernel(
     out_xm: np.ndarray,
     out_Pm: np.ndarray,
     out_cbar: np.ndarray,
-    combine: bool,
-    out_x: np.ndarray,
-    out_P: np.ndarray,
 ) -> None:
-    """Steps 1-2 (eq. 0-4, each model's prediction) for N tracks, and with ``combine``
-    step 5 (eq. 7-8) of the predicted states weighted by c̄ into out_x (N,6), out_P (N,6,6).
-    xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (M,) dwell times, terms (N,M,TERMS),
+    """Steps 1-2 (eq. 0-4, each model's prediction) for N tracks into out_xm, out_Pm and
+    out_cbar (c̄ of eq. 1). xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (M,) dwell times, terms (N,M,TERMS),
     family and omega (M,), q_keys (6,2) the Singer q_ij order."""
     n, m = mu.shape
     wt = np.empty((m, m))
@@ -404,8 +402,6 @@ def predict_kernel(
             _unpack(X0[j], xm[k, 0], x0, P0)
             _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
             _predict_j(phi, Q, x0, P0, T, phiT, out_xm[k, j], out_Pm[k, j])
-        if combine:
-            _combine_one(out_xm[k], out_Pm[k], out_cbar[k], out_x[k], out_P[k])
 
 
 @_compiled
@@ -623,11 +619,8 @@ def update_kernel(
     out_xm: np.ndarray,
     out_Pm: np.ndarray,
     out_mu: np.ndarray,
-    combine: bool,
-    out_x: np.ndarray,
-    out_P: np.ndarray,
 ) -> None:
-    """Steps 3-4 (and with ``combine`` step 5) for N tracks: each model's Kalman update
+    """Steps 3-4 for N tracks: each model's Kalman update
     with the measurement z (N,2) of covariance R (N,2,2), H picking x and y:
 
         S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x ← x + K ν, P ← P − K (P Hᵀ)ᵀ     (Shu eq. 7, 9, 10)
@@ -640,8 +633,6 @@ def update_kernel(
     PHt = np.empty((_D, 2))
     for k in range(n):
         _update_one(xm[k], Pm[k], cbar[k], z[k], R[k], out_xm[k], out_Pm[k], out_mu[k], log_w, K, PHt)
-        if combine:
-            _combine_one(out_xm[k], out_Pm[k], out_mu[k], out_x[k], out_P[k])
 
 
 @_compiled
