@@ -682,6 +682,7 @@ class FusionDaemon:
             if self._not_before_period is not None and out.period <= self._not_before_period:
                 # after a take-over: the lost active published this period already
                 self.redundancy_counters["periods_not_republished"] += 1
+                self._timings.pop(out.period, None)
                 continue
             if self.election is not None:
                 out.track_columns.epoch, out.track_columns.instance = self.epoch, self.instance
@@ -723,10 +724,12 @@ class FusionDaemon:
         except queue.Full:
             try:
                 dropped = self.outbox.get_nowait()
-                if isinstance(dropped, tuple):  # a health snapshot: a newer one will follow
-                    self._health_pending = False
+                if isinstance(dropped, tuple):  # a health snapshot or a state: a newer one will follow
+                    if dropped[0] == "health":
+                        self._health_pending = False
                 else:
                     self.outputs_dropped += 1
+                    self._timings.pop(dropped.period, None)
             except queue.Empty:
                 pass
             self.outbox.put_nowait(item)
@@ -751,11 +754,11 @@ class FusionDaemon:
                         self.publish_errors += 1
                 continue
             out: PeriodOutput = item
+            stamps = self._timings.pop(out.period, None)  # every way out of here drops them
             if self.election is not None and not self._still_active(out.track_columns.epoch):
                 self.redundancy_counters["outputs_withheld"] += 1  # it stood down meanwhile
                 self._put_done.set()
                 continue
-            stamps = self._timings.pop(out.period, None)
             try:
                 payload = out.track_batch_bytes  # packed from the columns by the processing thread
                 if stamps is not None:
