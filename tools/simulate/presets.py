@@ -14,6 +14,7 @@ import numpy as np
 
 from radar_fusion.geo.coordinates import SystemPlane
 from radar_fusion.geo.units import M_PER_NM
+from radar_fusion.tracking.singer_filter import G0_MPS2
 
 from .adsb import ADSB_DEFAULT_START_T_S, adsb_targets
 from .scenario import (
@@ -27,6 +28,9 @@ from .scenario import (
     mode3a_codes,
     mode_s_addresses,
 )
+
+#: the steepest bank of a routine civil turn (ICAO Doc 8168: rate one or 25°, whichever is less)
+MAX_BANK_DEG = 25.0
 
 
 def _plan_toward(
@@ -376,7 +380,14 @@ def scenario_for_benchmark(
     coverage (denser traffic with few radars, sparser with many radars and few
     aircraft). Traffic:
     random positions and headings, FL100-FL400, 120-260 m/s; 60 % straight, 20 %
-    turning (1.5 or 3 °/s), 20 % climbing/descending (1,500-2,500 ft/min); 90 % Mode S.
+    turning (half rate or rate one, 1.5 or 3 °/s, at most a 25° bank), 20 %
+    climbing/descending (1,500-2,500 ft/min); 90 % Mode S.
+
+    Turns are flown as ICAO's rule for instrument procedures has them (Doc 8168, PANS-OPS
+    Vol. I): at the chosen rate or at a 25° bank, whichever needs less bank.  In a
+    coordinated turn at bank φ the rate is ω = g tan φ / v, so a 25° bank gives 2.2 °/s at
+    120 m/s and 1.1 °/s at 240 m/s; rate one at 240 m/s would need a 52° bank, which
+    airliners do not fly.
     """
     rng = np.random.default_rng(seed)
     radius_m = math.sqrt(n_aircraft * area_per_aircraft_km2 / math.pi) * 1000.0
@@ -421,6 +432,8 @@ def scenario_for_benchmark(
     kind = rng.random(n)
     t_first = rng.uniform(0.0, 0.5 * duration_s, n)
     turn = rng.choice([-3.0, -1.5, 1.5, 3.0], n)
+    max_rate_dps = np.degrees(G0_MPS2 * math.tan(math.radians(MAX_BANK_DEG)) / speed)
+    turn = np.sign(turn) * np.minimum(np.abs(turn), max_rate_dps)
     t_turn = rng.uniform(20.0, 60.0, n)
     vr = rng.uniform(1500.0, 2500.0, n) * np.where(fl > 250, -1.0, 1.0)
     t_climb = rng.uniform(60.0, 120.0, n)
