@@ -11,6 +11,7 @@ import pytest
 from scipy.linalg import expm
 
 from radar_fusion.tracking.coordinated_turn import (
+    BankedTurnModel,
     CoordinatedTurnModel,
     ct_matrices_into,
     ct_noise_4d,
@@ -118,3 +119,47 @@ def test_an_axis_of_turn_rates_equals_each_rate_on_its_own() -> None:
     F, Q = van_loan_ct(w[0], q[0], 4.0)
     np.testing.assert_allclose(phi[4, 0][np.ix_(SUB, SUB)], F, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(Q6[4, 0][np.ix_(SUB, SUB)], Q, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("speed_mps", [120.0, 240.0])
+def test_a_banked_turn_follows_the_circle_of_its_bank_at_any_speed(speed_mps: float) -> None:
+    """A level coordinated turn at bank φ has radius v²/(g tan φ) (the lift's horizontal
+    part is the centripetal force m v²/r): an aircraft heading north at v banked 25° to
+    the right is after T on that circle centred east of it, and one banked left on the
+    mirror circle; the same model object fits both speeds."""
+    g = 9.80665
+    radius = speed_mps**2 / (g * math.tan(math.radians(25.0)))
+    for bank, side in ((25.0, 1.0), (-25.0, -1.0)):
+        m = BankedTurnModel(bank, 0.0)
+        x0 = np.array([[0.0, 0.0, 0.0, 0.0, speed_mps, 0.0]])
+        for T in (1.0, 4.0, 30.0):
+            x, P = m.predict(x0, np.zeros((1, 6, 6)), T)
+            heading = speed_mps * T / radius  # arc length over radius
+            assert x[0, 0] == pytest.approx(side * radius * (1.0 - math.cos(heading)), abs=1e-6)
+            assert x[0, 3] == pytest.approx(radius * math.sin(heading), abs=1e-6)
+            assert np.hypot(x[0, 1], x[0, 4]) == pytest.approx(speed_mps, rel=1e-12)
+            assert np.hypot(x[0, 2], x[0, 5]) == pytest.approx(speed_mps**2 / radius, rel=1e-12)
+            np.testing.assert_array_equal(P, np.zeros((1, 6, 6)))
+
+
+def test_a_batch_of_banked_turns_is_each_track_at_its_own_rate() -> None:
+    """Tracks of different speeds in one call: each is the fixed-rate model at the rate
+    g tan φ / v of its speed (v at least 50 m/s: a slow or not yet moving track turns at
+    the rate of a 50 m/s turn), x and P alike."""
+    g = 9.80665
+    rng = np.random.default_rng(5)
+    x = rng.normal(0.0, 100.0, (4, 6))
+    x[:, [1, 4]] = [[0.0, 0.0], [20.0, -30.0], [100.0, 50.0], [-180.0, 160.0]]
+    A = rng.normal(0.0, 10.0, (4, 6, 6))
+    P = A @ np.swapaxes(A, 1, 2)
+    dt = np.array([4.0, 2.0, 4.0, 8.0])
+    m = BankedTurnModel(-15.0, 1.5)
+    xb, Pb = m.predict(x, P, dt)
+    for n in range(4):
+        speed = max(math.hypot(x[n, 1], x[n, 4]), 50.0)
+        rate_deg_s = -math.degrees(g * math.tan(math.radians(15.0)) / speed)  # a left turn
+        x1, P1 = CoordinatedTurnModel(rate_deg_s, 1.5).predict(x[n : n + 1], P[n : n + 1], dt[n])
+        np.testing.assert_allclose(xb[n], x1[0], rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(Pb[n], P1[0], rtol=1e-12, atol=1e-9)
+    with pytest.raises(ValueError):
+        BankedTurnModel(90.0, 1.0)

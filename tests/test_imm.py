@@ -68,20 +68,42 @@ def van_loan_turn(dt_s: float, rate_deg_s: float, q_m2_s3: float) -> tuple[np.nd
     return lift @ f4 @ pick, lift @ (0.5 * (q4 + q4.T)) @ lift.T
 
 
-def model_fq(params: IMMParams, dt_s: float) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Φ, Q of every model in mode order: quiet, manoeuvre, then a right and a left turn per rate."""
+G_MPS2 = 9.80665  # standard gravity
+
+
+def turn_rates_deg_s(params: IMMParams, x0: np.ndarray | None) -> list[float]:
+    """The turn models' rates in mode order after the two Singer models: a right and a left
+    one per fixed rate, then per bank angle φ the rate of a level coordinated turn at φ,
+    g tan φ / v, at the speed v of the state the model predicts from (x0[j]), 50 m/s at
+    least."""
+    out: list[float] = []
+    for rate in params.turn_rates_deg_s:
+        out += [rate, -rate]
+    j = 2 + len(out)
+    for bank in params.turn_banks_deg:
+        for b in (bank, -bank):
+            speed = max(math.hypot(x0[j][1], x0[j][4]), 50.0) if x0 is not None else math.nan
+            out.append(math.degrees(G_MPS2 * math.tan(math.radians(b)) / speed))
+            j += 1
+    return out
+
+
+def model_fq(params: IMMParams, dt_s: float, x0: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Φ, Q of every model in mode order: quiet, manoeuvre, then a right and a left turn per
+    rate and per bank angle (a banked turn's rate from its own mixed state x0[j])."""
     out = [
         van_loan(dt_s, params.quiet_alpha_per_s, params.quiet_sigma_m_mps2),
         van_loan(dt_s, params.manoeuvre_alpha_per_s, params.manoeuvre_sigma_m_mps2),
     ]
-    for rate in params.turn_rates_deg_s:
-        out += [van_loan_turn(dt_s, rate, params.turn_q_m2_s3), van_loan_turn(dt_s, -rate, params.turn_q_m2_s3)]
+    for rate in turn_rates_deg_s(params, x0):
+        out.append(van_loan_turn(dt_s, rate, params.turn_q_m2_s3))
     return out
 
 
 def hand_markov(params: IMMParams, dt_s: float) -> np.ndarray:
     """p_ij (eq. 0): stay exp(−dt/τ_i), leave to each other mode equally."""
-    tau = [params.quiet_dwell_s, params.manoeuvre_dwell_s] + [params.turn_dwell_s] * (2 * len(params.turn_rates_deg_s))
+    n_turns = 2 * (len(params.turn_rates_deg_s) + len(params.turn_banks_deg))
+    tau = [params.quiet_dwell_s, params.manoeuvre_dwell_s] + [params.turn_dwell_s] * n_turns
     m = len(tau)
     p = np.empty((m, m))
     for i in range(m):
@@ -104,12 +126,16 @@ def hand_cycle(
     p = hand_markov(params, dt_s)
     m = p.shape[0]
     c_bar = [sum(p[i, j] * mu[i] for i in range(m)) for j in range(m)]
-    fq = model_fq(params, dt_s)
-    new_x, new_P, lik = [], [], []
+    mixed = []
     for j in range(m):
         w = [p[i, j] * mu[i] / c_bar[j] for i in range(m)]
         x0 = sum(w[i] * xs[i] for i in range(m))
         P0 = sum(w[i] * (Ps[i] + np.outer(xs[i] - x0, xs[i] - x0)) for i in range(m))
+        mixed.append((x0, P0))
+    fq = model_fq(params, dt_s, np.array([x0 for x0, _ in mixed]))
+    new_x, new_P, lik = [], [], []
+    for j in range(m):
+        x0, P0 = mixed[j]
         F, Q = fq[j]
         xp = F @ x0
         Pp = F @ P0 @ F.T + Q
@@ -156,7 +182,7 @@ def test_cycle_matches_hand_computation_with_varying_dt() -> None:
     zs = turning_measurements(dts.size, dts, seed=3)
     st = imm.initiate(X0[None], P0[None])
     m = imm.n_models
-    assert m == 6  # quiet, manoeuvre, right and left turns at 1.5 and 3°/s
+    assert m == 6  # quiet, manoeuvre, right and left turns at banks of 15° and 25°
     xs, Ps, mu = [X0.copy()] * m, [P0.copy()] * m, params.prior_mu()
     mu_max = 0.0
     for dt, z in zip(dts, zs):
@@ -180,12 +206,31 @@ def test_matches_filterpy_imm_estimator() -> None:
     imm = IMMFilter(params)
     dt = 4.0
     filters = []
-    for F, Q in model_fq(params, dt):
-        kf = fp_kalman.KalmanFilter(dim_x=6, dim_z=2)
+
+    class BankedTurnKF(fp_kalman.KalmanFilter):  # type: ignore[misc,name-defined]
+        """A banked turn (model j): F and Q from the state IMMEstimator mixed into it, at
+        the rate of a coordinated turn at its bank and the state's speed."""
+
+        def __init__(self, j: int) -> None:
+            super().__init__(dim_x=6, dim_z=2)
+            self.j = j
+
+        def predict(self, *args: object, **kwargs: object) -> None:
+            x0 = np.zeros((imm.n_models, 6))
+            x0[self.j] = self.x[:, 0]
+            self.F, self.Q = model_fq(params, dt, x0)[self.j]
+            super().predict(*args, **kwargs)
+
+    n_fixed = 2 + 2 * len(params.turn_rates_deg_s)
+    for j in range(imm.n_models):
+        kf = BankedTurnKF(j) if j >= n_fixed else fp_kalman.KalmanFilter(dim_x=6, dim_z=2)
         kf.x = X0.reshape(6, 1).copy()
         kf.P = P0.copy()
-        kf.F, kf.Q, kf.H, kf.R = F, Q, H.copy(), R50.copy()
+        if j < n_fixed:
+            kf.F, kf.Q = model_fq(params, dt)[j]
+        kf.H, kf.R = H.copy(), R50.copy()
         filters.append(kf)
+    assert n_fixed < imm.n_models  # the banked turns are in the comparison
     # filterpy's code forms c̄ = μ·M, i.e. M[i, j] is the probability from mode i to mode j
     # (its docstring says the transpose); p_ij = exp(−dt/τ_i) on the diagonal, eq. 0
     est = fp_kalman.IMMEstimator(filters, params.prior_mu(), hand_markov(params, dt))
@@ -242,8 +287,12 @@ def test_predict_over_zero_dt_changes_nothing() -> None:
     np.testing.assert_allclose(out.P_models[:, singer], st.P_models[:, singer], rtol=1e-15, atol=1e-9)
     np.testing.assert_allclose(out.x_models[..., pv], st.x_models[..., pv], rtol=1e-15, atol=1e-12)
     np.testing.assert_allclose(out.P_models[:, :, pv][..., pv], st.P_models[:, :, pv][..., pv], rtol=1e-15, atol=1e-9)
-    for j, model in enumerate(imm.models[2:], start=2):
-        w = -math.radians(model.turn_rate_deg_s)  # type: ignore[union-attr]
+    rates = turn_rates_deg_s(imm.params, st.x_models[1])  # no mixing over dt = 0: each its own state
+    for j, rate in enumerate(rates, start=2):
+        w = -math.radians(rate)
+        if j >= 2 + 2 * len(imm.params.turn_rates_deg_s):  # a banked turn: each track at its own speed
+            speed = np.maximum(np.hypot(st.x_models[:, j, 1], st.x_models[:, j, 4]), 50.0)
+            w = w * np.hypot(st.x_models[1, j, 1], st.x_models[1, j, 4]).clip(50.0) / speed
         np.testing.assert_allclose(out.x_models[:, j, 2], -w * st.x_models[:, j, 4], atol=1e-12)
         np.testing.assert_allclose(out.x_models[:, j, 5], w * st.x_models[:, j, 1], atol=1e-12)
 

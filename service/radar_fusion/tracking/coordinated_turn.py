@@ -41,9 +41,29 @@ and the predicted acceleration is the turn's: a Singer model mixed from this sta
 continues the turn with its correlated acceleration, and the turn model's covariance of
 (ax, ay) is ω² times that of (vy, vx).
 
-A fixed-rate model only fits turns near its rate; the IMM (imm.py) runs one for each
-direction beside the straight-flight model, and q covers the mismatch of turns at other
-rates (a 1.5°/s turn seen by a 3°/s model at 200 m/s: 5 m/s² of model error).
+A fixed-rate model only fits turns near its rate, and q covers the mismatch of turns at
+other rates (a 1.5°/s turn seen by a 3°/s model at 200 m/s: 5 m/s² of model error).
+
+Turns at a bank angle
+---------------------
+An aircraft turns by banking: in a coordinated (level, unslipped) turn at bank φ the lift's
+horizontal part is the centripetal force, so the turn's rate at true airspeed v is
+
+    ω = g tan φ / v                                                                    (5)
+
+(Blackman & Popoli 1999, §4.2.2; the same relation gives ICAO's "rate one or 25° bank,
+whichever is less", Doc 8168).  Airliners turn at a bank, not at a rate: the autopilot's
+turns are at 25° (heading changes of en-route and terminal procedures) or at 10-15°
+(course changes of a few degrees), whatever the speed.  At 240 m/s a 25° bank is 1.1°/s,
+at 120 m/s 2.2°/s; a fixed-rate model fits one speed.  :class:`BankedTurnModel` is the
+turn of eq. (1-4) at the rate (5) of the speed of the state it predicts from (in the IMM,
+the mixed state x⁰_j of the model: eq. 3 of imm.py), ground speed for airspeed (wind
+changes the rate by the ratio of the two, a few per cent, which q covers).  Below
+``MIN_TURN_SPEED_MPS`` the speed is taken as that floor: a track without a velocity yet
+(initiation) then gets a bounded rate, and slow traffic (helicopters, light aircraft) the
+rate of a 50 m/s turn, 5.2°/s at 25°.  Given the state, ω is a number and (2-4) hold as
+they stand; the rate's dependence on the speed estimate is not linearised (an extended
+filter's Jacobian term), q covers it as it covers the mismatch of a fixed rate.
 """
 
 from __future__ import annotations
@@ -54,8 +74,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .singer_filter import G0_MPS2
+
 __all__ = [
+    "MIN_TURN_SPEED_MPS",
+    "BankedTurnModel",
     "CoordinatedTurnModel",
+    "banked_turn_rate_rad_s",
     "ct_matrices_into",
     "ct_noise_4d",
     "ct_process_noise",
@@ -67,6 +92,9 @@ __all__ = [
 
 #: the 4-D sub-state [x, vx, y, vy] of the Singer state [x, vx, ax, y, vy, ay]
 _SUB = np.array([0, 1, 3, 4])
+
+#: the speed below which a banked turn (eq. 5) takes its rate at this speed, m/s (≈ 100 kt)
+MIN_TURN_SPEED_MPS = 50.0
 
 
 def _broadcast(dt_s: ArrayLike, turn_rate_rad_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
@@ -250,12 +278,67 @@ class CoordinatedTurnModel:
     def predict(self, x: ArrayLike, P: ArrayLike, dt_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """x(k+1|k) = Φ x, P(k+1|k) = Φ P Φᵀ + Q₆ over dt_s (scalar or (N,)), x (N,6), P (N,6,6),
         computed on [x, vx, y, vy] (Φ = M·F·S: F·S P Sᵀ·Fᵀ + Q, then lifted by M)."""
+        return _predict_ct(
+            np.asarray(x, dtype=float), np.asarray(P, dtype=float), dt_s, self.turn_rate_rad_s, self.q_m2_s3
+        )
+
+
+def banked_turn_rate_rad_s(vx_mps: ArrayLike, vy_mps: ArrayLike, bank_deg: float) -> np.ndarray:
+    """ω of eq. (5) in the sign convention of eq. (1) (a right turn, positive bank, is
+    clockwise: ω < 0), at the speed of (vx, vy), floored at ``MIN_TURN_SPEED_MPS``."""
+    speed = np.maximum(np.hypot(np.asarray(vx_mps, dtype=float), np.asarray(vy_mps, dtype=float)), MIN_TURN_SPEED_MPS)
+    return np.asarray(-G0_MPS2 * math.tan(math.radians(bank_deg)) / speed)
+
+
+@dataclass(frozen=True)
+class BankedTurnModel:
+    """Coordinated turn at a bank angle (module docstring, "Turns at a bank angle", eq. 5):
+    the prediction of :class:`CoordinatedTurnModel` at each track's own rate ω = g tan φ / v,
+    v the speed of the state it predicts from.
+
+    Parameters
+    ----------
+    bank_deg:
+        φ, positive to the right (a clockwise turn seen from above).
+    q_m2_s3:
+        Spectral density q of the white-noise acceleration on each axis (eq. 3).
+    """
+
+    bank_deg: float
+    q_m2_s3: float
+
+    def __post_init__(self) -> None:
+        if not self.q_m2_s3 >= 0:
+            raise ValueError("q_m2_s3 must be >= 0")
+        if not -80.0 < self.bank_deg < 80.0:
+            raise ValueError("bank_deg must be within ±80°")
+
+    @property
+    def lateral_accel_mps2(self) -> float:
+        """g tan φ with the sign of ω (eq. 1, 5): ω = lateral_accel_mps2 / v."""
+        return -G0_MPS2 * math.tan(math.radians(self.bank_deg))
+
+    def turn_rate_rad_s(self, x: ArrayLike) -> np.ndarray:
+        """ω of eq. (5) for each state of x (N, 6), (N,)."""
         x = np.asarray(x, dtype=float)
-        P = np.asarray(P, dtype=float)
-        dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (x.shape[0],)))
-        w = self.turn_rate_rad_s
-        F = ct_transition_4d(dt, w)
-        x4 = np.einsum("nij,nj->ni", F, x[:, _SUB])
-        P4 = F @ P[:, _SUB[:, None], _SUB[None, :]] @ np.swapaxes(F, 1, 2) + ct_noise_4d(dt, w, self.q_m2_s3)
-        P4 = 0.5 * (P4 + np.swapaxes(P4, 1, 2))
-        return lift_rows(x4[:, :, None], w)[:, :, 0], lift_cov(P4, w)
+        return banked_turn_rate_rad_s(x[:, 1], x[:, 4], self.bank_deg)
+
+    def predict(self, x: ArrayLike, P: ArrayLike, dt_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """x(k+1|k) = Φ x, P(k+1|k) = Φ P Φᵀ + Q₆ over dt_s (scalar or (N,)), each track at
+        the rate (5) of its own speed in x (N,6), P (N,6,6)."""
+        return _predict_ct(
+            np.asarray(x, dtype=float), np.asarray(P, dtype=float), dt_s, self.turn_rate_rad_s(x), self.q_m2_s3
+        )
+
+
+def _predict_ct(
+    x: np.ndarray, P: np.ndarray, dt_s: ArrayLike, w: ArrayLike, q_m2_s3: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (2-4) on [x, vx, y, vy], lifted: ω scalar or per track (N,)."""
+    dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (x.shape[0],)))
+    w_n = np.broadcast_to(np.asarray(w, dtype=float), (x.shape[0],))
+    F = ct_transition_4d(dt, w_n)
+    x4 = np.einsum("nij,nj->ni", F, x[:, _SUB])
+    P4 = F @ P[:, _SUB[:, None], _SUB[None, :]] @ np.swapaxes(F, 1, 2) + ct_noise_4d(dt, w_n, q_m2_s3)
+    P4 = 0.5 * (P4 + np.swapaxes(P4, 1, 2))
+    return lift_rows(x4[:, :, None], w_n)[:, :, 0], lift_cov(P4, w_n)

@@ -42,8 +42,10 @@ import math
 import numpy as np
 
 from .compiled import compiled as _compiled
+from .coordinated_turn import MIN_TURN_SPEED_MPS
 
 __all__ = [
+    "BANK",
     "CT",
     "SINGER",
     "TERMS",
@@ -55,12 +57,15 @@ __all__ = [
     "update_kernel",
 ]
 
-#: model families (``family`` argument): a Singer model, a coordinated turn of known rate
+#: model families (``family`` argument): a Singer model, a coordinated turn of known rate,
+#: a coordinated turn at a bank angle (its rate from the speed of the mixed state)
 SINGER = 0
 CT = 1
+BANK = 2
 #: distinct entries of Φ and Q per track and model (the longer family's count):
 #: Singer: T, Φ02, Φ12, Φ22 of one axis block, then Q's six q_ij in ``q_keys`` order;
-#: coordinated turn: T_s, T_c, cos ωT, sin ωT, then q f_pp, q f_pv, q f_po, q T
+#: coordinated turn: T_s, T_c, cos ωT, sin ωT, then q f_pp, q f_pv, q f_po, q T;
+#: banked turn: q alone (the rest depends on the mixed state: :func:`_phi_q_j`)
 TERMS = 10
 
 _D = 6  # the state [x, vx, ax, y, vy, ay]
@@ -119,6 +124,31 @@ def _model_phi_q(family: int, t: np.ndarray, omega: float, q_keys: np.ndarray, p
     Q[1, 5] = Q[5, 1] = w * vv
     Q[4, 2] = Q[2, 4] = -w * vv
     Q[2, 2] = Q[5, 5] = w * w * vv
+
+
+@_compiled
+def _phi_q_j(
+    family: int,
+    t: np.ndarray,
+    omega: float,
+    q_keys: np.ndarray,
+    x0: np.ndarray,
+    dt: float,
+    t_bank: np.ndarray,
+    phi: np.ndarray,
+    Q: np.ndarray,
+) -> None:
+    """Φ_j and Q_j of model j for a track whose mixed state is x0: from its ``TERMS`` t, or
+    for a banked turn (``omega`` its signed g tan φ) at the rate ω = g tan φ / v of x0's
+    speed v, floored at MIN_TURN_SPEED_MPS (coordinated_turn.py eq. 5,
+    banked_turn_rate_rad_s), with its q in t[0]; t_bank is scratch for its terms."""
+    if family == BANK:
+        v = math.sqrt(x0[1] * x0[1] + x0[4] * x0[4])
+        w = omega / max(v, MIN_TURN_SPEED_MPS)
+        _turn_terms(dt, w, t[0], t_bank)
+        _model_phi_q(CT, t_bank, w, q_keys, phi, Q)
+    else:
+        _model_phi_q(family, t, omega, q_keys, phi, Q)
 
 
 @_compiled
@@ -228,13 +258,17 @@ def model_terms_kernel(
     out: np.ndarray,
 ) -> None:
     """Every model's ``TERMS`` over each track's dt: out (N, M, TERMS); per model (M,) its
-    family, Singer α and σ_m, turn rate ω and turn noise q (the other family's unused)."""
+    family, Singer α and σ_m, turn rate ω and turn noise q (the other families' unused).
+    A banked turn's terms depend on the mixed state: here only its q (in the first)."""
     for k in range(dt.shape[0]):
         for j in range(family.shape[0]):
             if family[j] == SINGER:
                 _singer_terms(dt[k], alpha[j], sigma[j], q_keys, q_power, h2_series, q_series, switch, out[k, j])
-            else:
+            elif family[j] == CT:
                 _turn_terms(dt[k], omega[j], turn_q[j], out[k, j])
+            else:
+                out[k, j, :] = 0.0
+                out[k, j, 0] = turn_q[j]
 
 
 #: the packed upper triangle of a symmetric 6×6 matrix: entry q is (_UT[q, 0], _UT[q, 1])
@@ -385,7 +419,7 @@ def predict_kernel(
 ) -> None:
     """Steps 1-2 (eq. 0-4, each model's prediction) for N tracks into out_xm, out_Pm and
     out_cbar (c̄ of eq. 1). xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (M,) dwell times, terms (N,M,TERMS),
-    family and omega (M,), q_keys (6,2) the Singer q_ij order."""
+    family and omega (M,) (a banked turn's omega is its signed g tan φ), q_keys (6,2) the Singer q_ij order."""
     n, m = mu.shape
     wt = np.empty((m, m))
     S = np.empty((m, _NP))
@@ -396,11 +430,12 @@ def predict_kernel(
     phiT = np.empty((_D, _D))
     phi = np.empty((_D, _D))
     Q = np.empty((_D, _D))
+    t_bank = np.empty(TERMS)
     for k in range(n):
         _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, out_cbar[k], S, X0)
         for j in range(m):
             _unpack(X0[j], xm[k, 0], x0, P0)
-            _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
+            _phi_q_j(family[j], terms[k, j], omega[j], q_keys, x0, dt[k], t_bank, phi, Q)
             _predict_j(phi, Q, x0, P0, T, phiT, out_xm[k, j], out_Pm[k, j])
 
 
@@ -446,6 +481,7 @@ def predict_block_kernel(
     P0 = np.empty((_D, _D))
     phi = np.empty((_D, _D))
     Q = np.empty((_D, _D))
+    t_bank = np.empty(TERMS)
     xp = np.empty((m, _D))
     T = np.empty((nr, _D))  # the rows ``block`` of Φ P⁰
     B = np.empty((m, nr, nr))  # the block of Φ P⁰ Φᵀ + Q
@@ -454,7 +490,7 @@ def predict_block_kernel(
         _mix(xm[i], Pm[i], mu[i], dt[k], tau, wt, cbar, S, X0)
         for j in range(m):
             _unpack(X0[j], xm[i, 0], x0, P0)
-            _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
+            _phi_q_j(family[j], terms[k, j], omega[j], q_keys, x0, dt[k], t_bank, phi, Q)
             for a in range(_D):
                 acc = 0.0
                 for c in range(_D):
@@ -593,6 +629,7 @@ def predict_update_kernel(
     phiT = np.empty((_D, _D))
     phi = np.empty((_D, _D))
     Q = np.empty((_D, _D))
+    t_bank = np.empty(TERMS)
     xp = np.empty((m, _D))
     Pp = np.empty((m, _D, _D))
     log_w = np.empty(m)
@@ -603,7 +640,7 @@ def predict_update_kernel(
         _mix(xm[i], Pm[i], mu[i], dt[k], tau, wt, cbar, S, X0)
         for j in range(m):
             _unpack(X0[j], xm[i, 0], x0, P0)
-            _model_phi_q(family[j], terms[k, j], omega[j], q_keys, phi, Q)
+            _phi_q_j(family[j], terms[k, j], omega[j], q_keys, x0, dt[k], t_bank, phi, Q)
             _predict_j(phi, Q, x0, P0, T, phiT, xp[j], Pp[j])
         _update_one(xp, Pp, cbar, z[k], R[k], out_xm[i], out_Pm[i], out_mu[i], log_w, K, PHt)
         _combine_one(out_xm[i], out_Pm[i], out_mu[i], out_x[k], out_P[k])
