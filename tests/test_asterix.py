@@ -594,7 +594,9 @@ def test_jahorina_through_engine_one_track_per_aircraft():
     )
     assert d_speed.size > 300
     assert np.median(np.abs(d_speed)) < 20.0 and np.median(np.abs(d_track)) < 3.0
-    assert rms_track < 6.0 and rms_speed < 40.0
+    # measured: ground speed 6.1 m/s RMS, track angle 2.44° RMS (6.4 m/s, 2.66° with the fixed
+    # turn rates the banked turns replaced)
+    assert rms_track < 3.0 and rms_speed < 8.0
 
 
 def free_tcp_port() -> int:
