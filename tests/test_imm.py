@@ -682,3 +682,37 @@ def test_kernels_run_uncached_where_no_cache_directory_is_writable() -> None:
     st = f.update(f.predict(st, np.array([4.0])), np.array([[1.08e4, -2.99e4]]), 2500.0 * np.eye(2)[None])
     np.testing.assert_allclose(x_models, st.x_models, rtol=1e-12)
     np.testing.assert_allclose(mu, st.mu, rtol=1e-12)
+
+
+def test_threads_give_the_same_tracks_to_the_bit() -> None:
+    """imm_threads > 1 runs the per-track kernels on shares of the rows at once (the
+    engine's association prediction, output prediction and update in place): every result
+    equals the one-thread run's exactly, the rows given in any order, and rows the update
+    does not list stay untouched. Three threads over 1,000 rows: three shares."""
+    one, three = IMMFilter(), IMMFilter(threads=3)
+    assert three.threads == 3 and three._pool is not None
+    handed: list[int] = []  # the shares handed to the pool's two threads
+    submit = three._pool.submit
+    three._pool.submit = lambda fn, a, b: (handed.append(b - a), submit(fn, a, b))[1]  # type: ignore[method-assign]
+    rng = np.random.default_rng(31)
+    n = 1_100
+    st = _random_state(one, n, rng)
+    dt = rng.uniform(0.0, 12.0, n)
+    for a, b in zip(one.predict_gate(st, dt), three.predict_gate(st, dt)):
+        np.testing.assert_array_equal(a, b)
+    rows = rng.permutation(n)[:1_000]
+    for a, b in zip(one.predict_position_rows(st, rows, dt[rows]), three.predict_position_rows(st, rows, dt[rows])):
+        np.testing.assert_array_equal(a, b)
+    z = st.x_models[rows, 0][:, [0, 3]] + rng.normal(0.0, 80.0, (rows.size, 2))
+    R = np.broadcast_to(900.0 * np.eye(2), (rows.size, 2, 2))
+    s1, s3 = st.select(slice(None)), st.select(slice(None))
+    r1 = one.predict_update_rows(s1, rows, dt[rows], z, R)
+    r3 = three.predict_update_rows(s3, rows, dt[rows], z, R)
+    for a, b in zip(r1, r3):
+        np.testing.assert_array_equal(a, b)
+    for a, b in ((s1.x_models, s3.x_models), (s1.P_models, s3.P_models), (s1.mu, s3.mu)):
+        np.testing.assert_array_equal(a, b)
+    untouched = np.setdiff1d(np.arange(n), rows)
+    np.testing.assert_array_equal(s3.x_models[untouched], st.x_models[untouched])
+    assert not np.array_equal(s3.x_models[rows], st.x_models[rows])  # the update did happen
+    assert handed == [367, 367, 333, 334, 333, 334]  # two shares of three per call, three calls

@@ -106,7 +106,9 @@ class Engine:
         self.alt_filter = AltitudeFilter()
         # filter = "imm": the IMM (imm.py) replaces the Singer filter's manoeuvre detector;
         # tr.x, tr.P then hold its combined estimate (eq. 7-8), the models their own columns
-        self.imm = IMMFilter(trk.imm) if trk.filter == "imm" else None  # compiles its loops (imm.py)
+        self.imm = (
+            IMMFilter(trk.imm, threads=trk.imm_threads) if trk.filter == "imm" else None
+        )  # compiles its loops (imm.py)
         association.warm_up()  # the other compiled loops, now rather than in the first period
         live_gate.warm_up()
         self.manoeuvres = ManoeuvreDetector(

@@ -112,6 +112,8 @@ for reading and for the tests.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -136,6 +138,9 @@ _LOG_2PI = math.log(2.0 * math.pi)
 #: the blocks of the covariance that association (position, velocity) and the output read
 _POSITION_VELOCITY = np.array([0, 1, 3, 4], dtype=np.int64)
 _POSITION = np.array([0, 3], dtype=np.int64)
+
+#: the fewest tracks a thread is given a share of (IMMFilter._run_in_shares)
+_MIN_SHARE = 256
 
 #: a model of the IMM
 Model = SingerFilter | CoordinatedTurnModel | BankedTurnModel
@@ -279,8 +284,12 @@ class IMMFilter:
     """IMM filter (module docstring, eq. 0-8) over N tracks of M models; it keeps no
     state between calls (any thread may use it)."""
 
-    def __init__(self, params: IMMParams | None = None) -> None:
+    def __init__(self, params: IMMParams | None = None, threads: int = 1) -> None:
         self.params = IMMParams() if params is None else params
+        #: the per-track kernels run on this many threads, each on a share of the tracks
+        #: (``_run_in_shares``); the extra ones are this pool's
+        self.threads = max(int(threads), 1)
+        self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="imm") if self.threads > 1 else None
         #: the M models, in mode order
         self.models: tuple[Model, ...] = self.params.models()
         self._dwell_s = self.params.dwell_s()
@@ -404,6 +413,22 @@ class IMMFilter:
         imm_kernels.model_terms_kernel(_c64(dt_s), *self._terms_args, out)
         return out
 
+    def _run_in_shares(self, n: int, share: Callable[[int, int], None]) -> None:
+        """share(a, b) for the rows a:b of n, in ``threads`` shares at once: the calling
+        thread takes the first, the pool the others. The kernels release the GIL (nogil,
+        imm_kernels.py) and each share writes only its own rows, so the shares run in
+        parallel and the result is the same to the bit as one call over all rows. Below
+        ``_MIN_SHARE`` rows a share, fewer shares (a pool's hand-over costs ~50 µs)."""
+        k = min(self.threads, n // _MIN_SHARE)
+        if self._pool is None or k < 2:
+            share(0, n)
+            return
+        edges = [n * c // k for c in range(k + 1)]
+        others = [self._pool.submit(share, edges[c], edges[c + 1]) for c in range(1, k)]
+        share(edges[0], edges[1])
+        for f in others:
+            f.result()
+
     def _dt(self, dt_s: ArrayLike, n: int) -> Float:
         return np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
 
@@ -453,7 +478,16 @@ class IMMFilter:
         cov = np.empty((n, m, 2, 2))
         x = np.empty((n, STATE_DIM))
         P = np.empty((n, STATE_DIM, STATE_DIM))
-        imm_kernels.predict_block_kernel(*_arrays(state), rows, *self._model_args(dt), block, xy, cov, x, P)
+        xm, Pm, mu = _arrays(state)
+        dt, tau, terms, family, omega, q_keys = self._model_args(dt)
+
+        def share(a: int, b: int) -> None:
+            imm_kernels.predict_block_kernel(
+                xm, Pm, mu, rows[a:b], dt[a:b], tau, terms[a:b], family, omega, q_keys, block,
+                xy[a:b], cov[a:b], x[a:b], P[a:b],
+            )  # fmt: skip
+
+        self._run_in_shares(n, share)
         return x, P, xy, cov
 
     def predict_gate(self, state: IMMState, dt_s: ArrayLike) -> tuple[Float, Float, Float, Float]:
@@ -493,9 +527,17 @@ class IMMFilter:
         dt = self._dt(dt_s, k)
         x = np.empty((k, STATE_DIM))
         P = np.empty((k, STATE_DIM, STATE_DIM))
-        imm_kernels.predict_update_kernel(
-            *_arrays(state), rows, *self._model_args(dt), _c64(z), _c64(R), out.x_models, out.P_models, out.mu, x, P
-        )
+        xm, Pm, mu = _arrays(state)
+        dt, tau, terms, family, omega, q_keys = self._model_args(dt)
+        z, R = _c64(z), _c64(R)
+
+        def share(a: int, b: int) -> None:
+            imm_kernels.predict_update_kernel(
+                xm, Pm, mu, rows[a:b], dt[a:b], tau, terms[a:b], family, omega, q_keys, z[a:b], R[a:b],
+                out.x_models, out.P_models, out.mu, x[a:b], P[a:b],
+            )  # fmt: skip
+
+        self._run_in_shares(k, share)
         return x, P
 
     def log_likelihoods(self, state: IMMState, z: ArrayLike, R: ArrayLike) -> Float:
