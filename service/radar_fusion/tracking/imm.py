@@ -29,7 +29,7 @@ would need) and the per-model measurement update is one Kalman update per model.
 
 Why banks, not rates.  Measured side by side (50×3 and ADS-B cases of the bench, and a
 900 s case of 65 real flights over Switzerland), fixed rates of 1.5 and 3°/s against
-banks of 15° and 25°: on the real flights, whose turns are at 0.5-1°/s (25° at airliner
+banks of 15° and 25°: on the real flights, whose turns are at 0.5-1°/s (a 25° bank at airliner
 speeds), the turning position RMS went 109 → 81 m, straight flight 49.4 → 48.4 m,
 velocity 9.4 → 8.6 m/s; on simulated traffic turning at ICAO's rate one or 25° bank,
 whichever is less, the turns above 1.5°/s went 69 → 60 m (200 aircraft, 300 s).  A
