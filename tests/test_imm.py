@@ -287,14 +287,11 @@ def test_predict_over_zero_dt_changes_nothing() -> None:
     np.testing.assert_allclose(out.P_models[:, singer], st.P_models[:, singer], rtol=1e-15, atol=1e-9)
     np.testing.assert_allclose(out.x_models[..., pv], st.x_models[..., pv], rtol=1e-15, atol=1e-12)
     np.testing.assert_allclose(out.P_models[:, :, pv][..., pv], st.P_models[:, :, pv][..., pv], rtol=1e-15, atol=1e-9)
-    rates = turn_rates_deg_s(imm.params, st.x_models[1])  # no mixing over dt = 0: each its own state
-    for j, rate in enumerate(rates, start=2):
-        w = -math.radians(rate)
-        if j >= 2 + 2 * len(imm.params.turn_rates_deg_s):  # a banked turn: each track at its own speed
-            speed = np.maximum(np.hypot(st.x_models[:, j, 1], st.x_models[:, j, 4]), 50.0)
-            w = w * np.hypot(st.x_models[1, j, 1], st.x_models[1, j, 4]).clip(50.0) / speed
-        np.testing.assert_allclose(out.x_models[:, j, 2], -w * st.x_models[:, j, 4], atol=1e-12)
-        np.testing.assert_allclose(out.x_models[:, j, 5], w * st.x_models[:, j, 1], atol=1e-12)
+    for n in range(2):  # no mixing over dt = 0: each model at its own state (a banked turn at its speed)
+        for j, rate in enumerate(turn_rates_deg_s(imm.params, st.x_models[n]), start=2):
+            w = -math.radians(rate)
+            np.testing.assert_allclose(out.x_models[n, j, 2], -w * st.x_models[n, j, 4], atol=1e-12)
+            np.testing.assert_allclose(out.x_models[n, j, 5], w * st.x_models[n, j, 1], atol=1e-12)
 
 
 def test_params_are_a_strict_frozen_config_section() -> None:

@@ -363,10 +363,13 @@ def truth_lines(rows: list[dict[str, Any]]) -> list[str]:
     return out
 
 
+def _verdict(ok: bool) -> str:
+    return "MET" if ok else "NOT MET"
+
+
 def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
     """Issue 7's goals and issue 16's data age, each MET / NOT MET / NOT MEASURED, from this run's figures."""
     out = []
-    verdict = lambda ok: "MET" if ok else "NOT MET"
     for row in rows:
         ref, e, b = row.get("reference"), row["engine"], row.get("bus")
         if not ref:
@@ -380,7 +383,7 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
             r_b = b["plots_per_s"] / ref["plots_per_s"]
             txt += f", whole daemon {r_b:,.0f}×"
             ok = ok and r_b >= GOAL_SPEEDUP
-        out.append(f"{txt} -> ≥ {GOAL_SPEEDUP:.0f}× {verdict(ok)}")
+        out.append(f"{txt} -> ≥ {GOAL_SPEEDUP:.0f}× {_verdict(ok)}")
         acc = row.get("accuracy")
         if acc and ref.get("scores"):
             o, s = acc["ours"], ref["scores"]
@@ -389,9 +392,9 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
             ok_p = o["pos_rms_m"] <= s["pos_rms_m"]
             out.append(
                 f"{row['label']}: at least as accurate as Stone Soup: GOSPA {o['gospa_mean_m']:.0f} vs "
-                f"{s['gospa_mean_m']:.0f} m {verdict(ok_g)} (after the settling time "
-                f"{o['gospa_settled_mean_m']:.0f} vs {s['gospa_settled_mean_m']:.0f} m {verdict(ok_gs)}); "
-                f"position RMS {o['pos_rms_m']:.0f} vs {s['pos_rms_m']:.0f} m {verdict(ok_p)}"
+                f"{s['gospa_mean_m']:.0f} m {_verdict(ok_g)} (after the settling time "
+                f"{o['gospa_settled_mean_m']:.0f} vs {s['gospa_settled_mean_m']:.0f} m {_verdict(ok_gs)}); "
+                f"position RMS {o['pos_rms_m']:.0f} vs {s['pos_rms_m']:.0f} m {_verdict(ok_p)}"
             )
     big = [r for r in rows if r["case"].get("aircraft") == 4000 and r["case"]["kind"] == "benchmark"]
     if not big:
@@ -399,7 +402,7 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
     for r in big:
         v = r["engine"]["plots_per_s"]
         out.append(
-            f"engine ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at {r['label']}: {v:,.0f} -> {verdict(v >= GOAL_PLOTS_PER_S)}"
+            f"engine ≥ {GOAL_PLOTS_PER_S:,.0f} plots/s at {r['label']}: {v:,.0f} -> {_verdict(v >= GOAL_PLOTS_PER_S)}"
         )
     e2e = [r for r in rows if (r["case"].get("aircraft"), r["case"].get("radars")) == GOAL_E2E_SIZE]
     if not e2e or not e2e[0].get("bus_paced"):
@@ -407,7 +410,7 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
     else:
         v = e2e[0]["bus_paced"]["e2e_p99_ms"]
         out.append(
-            f"end-to-end p99 < {GOAL_E2E_P99_MS:.0f} ms at 1,000×10: {v:.0f} ms -> {verdict(v < GOAL_E2E_P99_MS)}"
+            f"end-to-end p99 < {GOAL_E2E_P99_MS:.0f} ms at 1,000×10: {v:.0f} ms -> {_verdict(v < GOAL_E2E_P99_MS)}"
         )
     world = [r for r in rows if (r["case"].get("aircraft"), r["case"].get("radars")) == WORLD_SIZE]
     if world and world[0].get("bus_paced"):
@@ -416,7 +419,7 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
         out.append(
             f"end-to-end p99 ≤ {GOAL_WORLD_E2E_P99_MS:.0f} ms at {WORLD_SIZE[0]:,}×{WORLD_SIZE[1]} at "
             f"{bp['speed']:g}×: {v:.0f} ms over {bp['e2e_periods']} periods, daemon peak RSS "
-            f"{bp['daemon_peak_rss_mb']:.0f} MB -> {verdict(v <= GOAL_WORLD_E2E_P99_MS)}"
+            f"{bp['daemon_peak_rss_mb']:.0f} MB -> {_verdict(v <= GOAL_WORLD_E2E_P99_MS)}"
         )
     for row in rows:
         bp = row.get("bus_paced")
@@ -430,7 +433,7 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
             share = bp["plots_late"] / n_in if n_in else 0.0
             txt += f", plots late {100 * share:.3f} % (≤ {100 * GOAL_LATE_SHARE:g} %)"
             ok = ok and share <= GOAL_LATE_SHARE
-        out.append(f"{txt} -> {verdict(ok)}")
+        out.append(f"{txt} -> {_verdict(ok)}")
     for row in rows:
         acc = row.get("accuracy")
         if not acc or not acc.get("best_single_radar"):
@@ -441,14 +444,14 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
         ok2 = o["pos_rms_m"] <= ESASSP_3NM_M / 3.0
         txt = (
             f"{row['label']}: fused position RMS {o['pos_rms_m']:.0f} m < best single radar "
-            f"({acc['best_single_radar']}) {one['pos_rms_m']:.0f} m {verdict(ok1)}"
+            f"({acc['best_single_radar']}) {one['pos_rms_m']:.0f} m {_verdict(ok1)}"
         )
         if same.get("aircraft"):
             txt += (
                 f"; on the {same['aircraft']} aircraft it tracks: fused {same['fused_m']:.0f} m vs "
-                f"{same['single_m']:.0f} m {verdict(same['fused_m'] < same['single_m'])}"
+                f"{same['single_m']:.0f} m {_verdict(same['fused_m'] < same['single_m'])}"
             )
-        out.append(txt + f"; ≤ {ESASSP_3NM_M / 3:.0f} m (a third of ESASSP 3 NM) {verdict(ok2)}")
+        out.append(txt + f"; ≤ {ESASSP_3NM_M / 3:.0f} m (a third of ESASSP 3 NM) {_verdict(ok2)}")
     return out
 
 
@@ -458,7 +461,6 @@ def goal_lines_issue15(rows: list[dict[str, Any]]) -> list[str]:
     share, straight flight against the straight-flight PCRB and turning against straight
     (where the truth turned above evaluate's turning rate); the engine at 4,000×10."""
     out = []
-    verdict = lambda ok: "MET" if ok else "NOT MET"
     for row in rows:
         acc = row.get("accuracy")
         if not acc:
@@ -477,13 +479,13 @@ def goal_lines_issue15(rows: list[dict[str, Any]]) -> list[str]:
                 ok = ok and r <= goal
             parts.append(f"completeness {100 * o['completeness_mean']:.1f} vs {100 * ref['completeness_mean']:.1f} %")
             ok = ok and o["completeness_mean"] >= ref["completeness_mean"]
-            out.append(f"{label}: against Stone Soup: {', '.join(parts)} -> {verdict(ok)}")
+            out.append(f"{label}: against Stone Soup: {', '.join(parts)} -> {_verdict(ok)}")
         ids, shown = o["track_ids_per_target_mean"], o.get("n_displayed_tracks") or 0
         false_share = o["false_tracks"] / shown if shown else 0.0
         out.append(
             f"{label}: {ids:.3f} track ids per aircraft (≤ {GOAL15_IDS_PER_AIRCRAFT:g}), false tracks "
             f"{o['false_tracks']} of {shown} ({100 * false_share:.1f} %, ≤ {100 * GOAL15_FALSE_SHARE:g} %) -> "
-            f"{verdict(ids <= GOAL15_IDS_PER_AIRCRAFT and false_share <= GOAL15_FALSE_SHARE)}"
+            f"{_verdict(ids <= GOAL15_IDS_PER_AIRCRAFT and false_share <= GOAL15_FALSE_SHARE)}"
         )
         pcrb = (row.get("sim") or {}).get("pcrb_straight_pos_rms_m")
         straight = o.get("pos_rms_straight_m", math.nan)
@@ -491,21 +493,21 @@ def goal_lines_issue15(rows: list[dict[str, Any]]) -> list[str]:
             r = straight / pcrb
             out.append(
                 f"{label}: straight flight {straight:.0f} m, {r:.2f}× its PCRB {pcrb:.0f} m "
-                f"(≤ {GOAL15_STRAIGHT_PCRB:g}×) -> {verdict(r <= GOAL15_STRAIGHT_PCRB)}"
+                f"(≤ {GOAL15_STRAIGHT_PCRB:g}×) -> {_verdict(r <= GOAL15_STRAIGHT_PCRB)}"
             )
         turning = o.get("pos_rms_turning_m", math.nan)
         if o.get("n_pairs_turning") and not math.isnan(turning) and not math.isnan(straight):
             r = turning / straight
             out.append(
                 f"{label}: turning {turning:.0f} m ({o['n_pairs_turning']} pairs), {r:.2f}× straight flight "
-                f"(≤ {GOAL15_TURNING_STRAIGHT:g}×) -> {verdict(r <= GOAL15_TURNING_STRAIGHT)}"
+                f"(≤ {GOAL15_TURNING_STRAIGHT:g}×) -> {_verdict(r <= GOAL15_TURNING_STRAIGHT)}"
             )
     for r in rows:
         if (r["case"].get("aircraft"), r["case"].get("radars")) == GOAL_PLOTS_SIZE:
             v = r["engine"]["plots_per_s"]
             out.append(
                 f"engine ≥ {GOAL15_PLOTS_PER_S:,.0f} plots/s at {r['label']} (issue 15: IMM and registration on): "
-                f"{v:,.0f} -> {verdict(v >= GOAL15_PLOTS_PER_S)}"
+                f"{v:,.0f} -> {_verdict(v >= GOAL15_PLOTS_PER_S)}"
             )
     return out
 

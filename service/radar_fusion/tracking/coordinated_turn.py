@@ -278,9 +278,7 @@ class CoordinatedTurnModel:
     def predict(self, x: ArrayLike, P: ArrayLike, dt_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """x(k+1|k) = Φ x, P(k+1|k) = Φ P Φᵀ + Q₆ over dt_s (scalar or (N,)), x (N,6), P (N,6,6),
         computed on [x, vx, y, vy] (Φ = M·F·S: F·S P Sᵀ·Fᵀ + Q, then lifted by M)."""
-        return _predict_ct(
-            np.asarray(x, dtype=float), np.asarray(P, dtype=float), dt_s, self.turn_rate_rad_s, self.q_m2_s3
-        )
+        return _predict_ct(x, P, dt_s, self.turn_rate_rad_s, self.q_m2_s3)
 
 
 def banked_turn_rate_rad_s(vx_mps: ArrayLike, vy_mps: ArrayLike, bank_deg: float) -> np.ndarray:
@@ -326,15 +324,16 @@ class BankedTurnModel:
     def predict(self, x: ArrayLike, P: ArrayLike, dt_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """x(k+1|k) = Φ x, P(k+1|k) = Φ P Φᵀ + Q₆ over dt_s (scalar or (N,)), each track at
         the rate (5) of its own speed in x (N,6), P (N,6,6)."""
-        return _predict_ct(
-            np.asarray(x, dtype=float), np.asarray(P, dtype=float), dt_s, self.turn_rate_rad_s(x), self.q_m2_s3
-        )
+        x = np.asarray(x, dtype=float)
+        return _predict_ct(x, P, dt_s, self.turn_rate_rad_s(x), self.q_m2_s3)
 
 
 def _predict_ct(
-    x: np.ndarray, P: np.ndarray, dt_s: ArrayLike, w: ArrayLike, q_m2_s3: float
+    x: ArrayLike, P: ArrayLike, dt_s: ArrayLike, w: ArrayLike, q_m2_s3: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (2-4) on [x, vx, y, vy], lifted: ω scalar or per track (N,)."""
+    x = np.asarray(x, dtype=float)
+    P = np.asarray(P, dtype=float)
     dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (x.shape[0],)))
     w_n = np.broadcast_to(np.asarray(w, dtype=float), (x.shape[0],))
     F = ct_transition_4d(dt, w_n)
