@@ -102,8 +102,8 @@ after the last update, p_ij = Π[i, j] from mode i to mode j:
        x = Σ_j μ_j x_j                                                                  (7)
        P = Σ_j μ_j [P_j + (x_j − x)(x_j − x)ᵀ]                                         (8)
 
-Steps 1-5 run in compiled loops (imm_kernels.py, numba), one pass over each track's M
-models, with Φ_j and Q_j laid out from their distinct entries (``model_terms``, computed
+Steps 1-5 run in compiled loops (imm_kernels.py, numba), 64 tracks at a time in vector
+lanes, with Φ_j and Q_j applied from their distinct entries (``model_terms``, computed
 here with the models' own formulas; a banked turn's from its mixed state, in the loop).
 ``mix`` states eq. 1-4 as batched numpy products, and each model's own ``predict`` step 2,
 for reading and for the tests.
@@ -407,8 +407,9 @@ class IMMFilter:
         eq. 12 and q_ij of §4 (singer_filter.py, its series and switch), the turns' T_s, T_c,
         cos ωT, sin ωT of eq. 2 and q f_pp, q f_pv, q f_po, q T of eq. 3
         (coordinated_turn.py); a banked turn's q alone, since the rest depends on its mixed
-        state; compiled (imm_kernels.model_terms_kernel).  imm_kernels lays them out as 6×6
-        matrices, as singer_filter.singer_matrices_into and coordinated_turn.ct_matrices_into do."""
+        state; compiled (imm_kernels.model_terms_kernel).  imm_kernels applies them as the
+        rows of Φ_j and the entries of Q_j that singer_filter.singer_matrices_into and
+        coordinated_turn.ct_matrices_into lay out."""
         out = np.empty((dt_s.size, self.n_models, imm_kernels.TERMS))
         imm_kernels.model_terms_kernel(_c64(dt_s), *self._terms_args, out)
         return out
@@ -441,8 +442,8 @@ class IMMFilter:
         (scalar or (N,)).  The result carries μ = c̄ (eq. 1).
 
         Every model is linear, x_j = Φ_j x⁰_j, P_j = Φ_j P⁰_j Φ_jᵀ + Q_j (Shu eq. 8, 11;
-        coordinated_turn.py eq. 4): the same equations as each model's ``predict``, run per
-        track by imm_kernels.predict_kernel (one pass over each track's models)."""
+        coordinated_turn.py eq. 4): the same equations as each model's ``predict``, run by
+        imm_kernels.predict_kernel."""
         n, m = len(state), self.n_models
         dt = self._dt(dt_s, n)
         x_pred = np.empty((n, m, STATE_DIM))

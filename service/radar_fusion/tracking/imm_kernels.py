@@ -5,8 +5,12 @@ at thousands of tracks.  Written as batched numpy products, one IMM prediction o
 tracks × 6 models made a dozen passes over (N, M, 6, 6) arrays (the mixed covariances,
 the outer products, Φ and Q, Φ P⁰, Φ P⁰ Φᵀ), 7 MB each: it was bound by memory traffic,
 not arithmetic, and was the largest part of the engine's period (issue 15's throughput
-goal).  Here each track's M states are read once, everything in between lives in a few
-6×6 scratch matrices in the L1 cache, and only the results are written:
+goal).  Here the tracks are taken 64 at a time, one per lane: a chunk's states are
+gathered once into lane-last scratch arrays (a few hundred kB, in the L2 cache), every
+step of the cycle is a loop over the lanes innermost, which the compiler turns into
+vector instructions (it does not for a single track's 6×6 loops, nor for chunks of 8
+tracks), and only the results are scattered back.  Against one track at a time this made
+the engine's three IMM passes about 1.7× faster (4,000 × 10: 100-121k → 136-151k plots/s):
 
 * :func:`predict_kernel`, steps 1-2 (eq. 0-4 and each model's prediction);
 * :func:`predict_block_kernel`, steps 1, 2 and 5 for association and output: each
@@ -22,8 +26,9 @@ computes their distinct entries, ``TERMS`` numbers per track and model, with the
 formulas (compiled twins of singer_filter.py's Shu eq. 12 and §4 and of
 coordinated_turn.py's eq. 2-3, the same series and switches; the numpy functions there
 stay the statement that the tests check against Van Loan's method), and
-:func:`_model_phi_q` lays them out in a 6×6 pair, the same placement as
-singer_filter.singer_matrices_into and coordinated_turn.ct_matrices_into.
+:func:`_predict_model` applies them as the rows of Φ they are (at most three entries
+besides zeros a row), the same placement as singer_filter.singer_matrices_into and
+coordinated_turn.ct_matrices_into.
 
 Compiled by numba on first use and cached on disk (compiled.py), so a process pays the
 compilation (a few seconds) only when the code changed, and imm.IMMFilter runs the
@@ -65,90 +70,10 @@ BANK = 2
 #: distinct entries of Φ and Q per track and model (the longer family's count):
 #: Singer: T, Φ02, Φ12, Φ22 of one axis block, then Q's six q_ij in ``q_keys`` order;
 #: coordinated turn: T_s, T_c, cos ωT, sin ωT, then q f_pp, q f_pv, q f_po, q T;
-#: banked turn: q alone (the rest depends on the mixed state: :func:`_phi_q_j`)
+#: banked turn: q alone (the rest depends on the mixed state: :func:`_predict_model`)
 TERMS = 10
 
 _D = 6  # the state [x, vx, ax, y, vy, ay]
-
-
-@_compiled
-def _model_phi_q(family: int, t: np.ndarray, omega: float, q_keys: np.ndarray, phi: np.ndarray, Q: np.ndarray) -> None:
-    """Φ and Q (6×6) of one model from its ``TERMS`` numbers t.
-
-    Singer (singer_filter.singer_matrices_into): per axis block [[1, T, Φ02], [0, 1, Φ12],
-    [0, 0, Φ22]] and Q's block from q_ij, for x and y alike.  Coordinated turn
-    (coordinated_turn.ct_matrices_into, eq. 4): the rows and Q₆ entries listed there."""
-    phi[:, :] = 0.0
-    Q[:, :] = 0.0
-    if family == SINGER:
-        for o in (0, 3):
-            phi[o, o] = 1.0
-            phi[o + 1, o + 1] = 1.0
-            phi[o, o + 1] = t[0]
-            phi[o, o + 2] = t[1]
-            phi[o + 1, o + 2] = t[2]
-            phi[o + 2, o + 2] = t[3]
-            for k in range(6):
-                i = o + q_keys[k, 0]
-                j = o + q_keys[k, 1]
-                Q[i, j] = t[4 + k]
-                Q[j, i] = t[4 + k]
-        return
-    s_w, c_w, c, s = t[0], t[1], t[2], t[3]
-    pp, pv, po, vv = t[4], t[5], t[6], t[7]
-    w = omega
-    phi[0, 0] = 1.0
-    phi[3, 3] = 1.0
-    phi[0, 1] = s_w
-    phi[0, 4] = -c_w
-    phi[3, 1] = c_w
-    phi[3, 4] = s_w
-    phi[1, 1] = c
-    phi[1, 4] = -s
-    phi[4, 1] = s
-    phi[4, 4] = c
-    phi[2, 1] = -w * s
-    phi[2, 4] = -w * c
-    phi[5, 1] = w * c
-    phi[5, 4] = -w * s
-    Q[0, 0] = pp
-    Q[3, 3] = pp
-    Q[1, 1] = vv
-    Q[4, 4] = vv
-    Q[0, 1] = Q[1, 0] = Q[3, 4] = Q[4, 3] = pv
-    Q[0, 4] = Q[4, 0] = po
-    Q[3, 1] = Q[1, 3] = -po
-    Q[0, 2] = Q[2, 0] = Q[3, 5] = Q[5, 3] = -w * po
-    Q[0, 5] = Q[5, 0] = w * pv
-    Q[3, 2] = Q[2, 3] = -w * pv
-    Q[1, 5] = Q[5, 1] = w * vv
-    Q[4, 2] = Q[2, 4] = -w * vv
-    Q[2, 2] = Q[5, 5] = w * w * vv
-
-
-@_compiled
-def _phi_q_j(
-    family: int,
-    t: np.ndarray,
-    omega: float,
-    q_keys: np.ndarray,
-    x0: np.ndarray,
-    dt: float,
-    t_bank: np.ndarray,
-    phi: np.ndarray,
-    Q: np.ndarray,
-) -> None:
-    """Φ_j and Q_j of model j for a track whose mixed state is x0: from its ``TERMS`` t, or
-    for a banked turn (``omega`` its signed g tan φ) at the rate ω = g tan φ / v of x0's
-    speed v, floored at MIN_TURN_SPEED_MPS (coordinated_turn.py eq. 5,
-    banked_turn_rate_rad_s), with its q in t[0]; t_bank is scratch for its terms."""
-    if family == BANK:
-        v = math.sqrt(x0[1] * x0[1] + x0[4] * x0[4])
-        w = omega / max(v, MIN_TURN_SPEED_MPS)
-        _turn_terms(dt, w, t[0], t_bank)
-        _model_phi_q(CT, t_bank, w, q_keys, phi, Q)
-    else:
-        _model_phi_q(family, t, omega, q_keys, phi, Q)
 
 
 @_compiled
@@ -274,132 +199,371 @@ def model_terms_kernel(
 #: the packed upper triangle of a symmetric 6×6 matrix: entry q is (_UT[q, 0], _UT[q, 1])
 _UT = np.array([(a, b) for a in range(_D) for b in range(a, _D)], dtype=np.int64)
 _NP = _D + _UT.shape[0]  # a mixing row: the 6 deviations, then the 21 packed covariances
+#: tracks worked on at once, one per lane (the last axis of every scratch array below): each
+#: step loops over the lanes innermost, straight-line arithmetic the compiler turns into
+#: vector instructions.  A chunk's tracks are gathered into the lanes and the results
+#: scattered back; lanes past the last track repeat it and are never written back.
+_L = 64
+
+
+@_compiled
+def _lane_track(k0: int, nl: int, lane: int) -> int:
+    """The chunk's index k of a lane (lanes from nl on repeat the last track)."""
+    return k0 + min(lane, nl - 1)
+
+
+@_compiled
+def _gather_mixing(
+    xm: np.ndarray, Pm: np.ndarray, mu: np.ndarray, rows: np.ndarray, k0: int, nl: int,
+    X: np.ndarray, S: np.ndarray, MU: np.ndarray,
+) -> None:  # fmt: skip
+    """Tracks rows[k0 : k0 + nl] into the lanes for mixing: the model states X (M, 6, L),
+    the packed model covariances into S[:, _D:] (M, _NP, L), μ into MU (M, L)."""
+    m = MU.shape[0]
+    for lane in range(_L):
+        i = rows[_lane_track(k0, nl, lane)]
+        for j in range(m):
+            MU[j, lane] = mu[i, j]
+            for a in range(_D):
+                X[j, a, lane] = xm[i, j, a]
+            for q in range(_NP - _D):
+                S[j, _D + q, lane] = Pm[i, j, _UT[q, 0], _UT[q, 1]]
+
+
+@_compiled
+def _gather_models(
+    xm: np.ndarray, Pm: np.ndarray, w: np.ndarray, rows: np.ndarray, k0: int, nl: int,
+    X: np.ndarray, P: np.ndarray, W: np.ndarray,
+) -> None:  # fmt: skip
+    """Tracks rows[k0 : k0 + nl] into the lanes whole: X (M, 6, L), P (M, 6, 6, L), W (M, L)."""
+    m = W.shape[0]
+    for lane in range(_L):
+        i = rows[_lane_track(k0, nl, lane)]
+        for j in range(m):
+            W[j, lane] = w[i, j]
+            for a in range(_D):
+                X[j, a, lane] = xm[i, j, a]
+                for b in range(_D):
+                    P[j, a, b, lane] = Pm[i, j, a, b]
+
+
+@_compiled
+def _gather_per_track(dt: np.ndarray, terms: np.ndarray, k0: int, nl: int, DT: np.ndarray, TJ: np.ndarray) -> None:
+    """Each lane's dt into DT (L,) and its models' ``TERMS`` into TJ (M, TERMS, L)."""
+    for lane in range(_L):
+        k = _lane_track(k0, nl, lane)
+        DT[lane] = dt[k]
+        for j in range(TJ.shape[0]):
+            for q in range(TERMS):
+                TJ[j, q, lane] = terms[k, j, q]
+
+
+@_compiled
+def _scatter_models(
+    X: np.ndarray, P: np.ndarray, W: np.ndarray, rows: np.ndarray, k0: int, nl: int,
+    xm: np.ndarray, Pm: np.ndarray, w: np.ndarray,
+) -> None:  # fmt: skip
+    """The lanes' X, P, W back into the rows rows[k0 : k0 + nl] of xm, Pm, w."""
+    m = W.shape[0]
+    for lane in range(nl):
+        i = rows[k0 + lane]
+        for j in range(m):
+            w[i, j] = W[j, lane]
+            for a in range(_D):
+                xm[i, j, a] = X[j, a, lane]
+                for b in range(_D):
+                    Pm[i, j, a, b] = P[j, a, b, lane]
+
+
+@_compiled
+def _scatter_combined(x: np.ndarray, P: np.ndarray, k0: int, nl: int, out_x: np.ndarray, out_P: np.ndarray) -> None:
+    """The lanes' combined x (6, L), P (6, 6, L) into out_x[k0 : k0 + nl], out_P[k0 : k0 + nl]."""
+    for lane in range(nl):
+        for a in range(_D):
+            out_x[k0 + lane, a] = x[a, lane]
+            for b in range(_D):
+                out_P[k0 + lane, a, b] = P[a, b, lane]
 
 
 @_compiled
 def _mix(
-    xm: np.ndarray,
-    Pm: np.ndarray,
-    mu: np.ndarray,
-    dt: float,
-    tau: np.ndarray,
-    wt: np.ndarray,
-    cbar: np.ndarray,
-    S: np.ndarray,
-    X0: np.ndarray,
-) -> None:
-    """Eq. 0-4 for one track's M models: c̄ (M,) into cbar and, per model j, the mixed
-    initial condition into X0[j] (``_NP`` numbers): x⁰_j − x_0 (6), then P⁰_j packed (21).
+    X: np.ndarray, S: np.ndarray, MU: np.ndarray, DT: np.ndarray, tau: np.ndarray,
+    stay: np.ndarray, wt: np.ndarray, cbar: np.ndarray, X0: np.ndarray,
+) -> None:  # fmt: skip
+    """Eq. 0-4 for the lanes' M models: c̄ (M, L) into cbar and, per model j, the mixed
+    initial condition into X0[j] (``_NP`` numbers a lane): x⁰_j − x_0 (6), then P⁰_j packed
+    (21).  S holds the packed P_i (``_gather_mixing``) and is scratch after.
 
     With e_i = x_i − x_0 (model 0's state as the reference, so nothing of the size of a
     position cancels) and Σ_i μ_{i|j} = 1, eq. 3-4 are
 
         x⁰_j = x_0 + Σ_i μ_{i|j} e_i,   P⁰_j = Σ_i μ_{i|j} (P_i + e_i e_iᵀ) − e⁰_j e⁰_jᵀ
 
-    (imm.IMMFilter.mix), i.e. one (M×M)·(M×27) product of the μ_{i|j} with the rows
-    S_i = [e_i, packed(P_i + e_i e_iᵀ)]: its inner loops run over contiguous rows."""
-    m = xm.shape[0]
-    d = max(dt, 0.0)
+    (imm.IMMFilter.mix), i.e. the μ_{i|j} times the rows S_i = [e_i, packed(P_i + e_i e_iᵀ)]."""
+    m = MU.shape[0]
     for i in range(m):
-        X0[i, 0] = math.exp(-d / tau[i])  # eq. 0: p_ii (X0 is scratch until it is filled)
+        for lane in range(_L):
+            stay[i, lane] = math.exp(-max(DT[lane], 0.0) / tau[i])  # eq. 0: p_ii
     for j in range(m):
-        c = 0.0
+        for lane in range(_L):
+            cbar[j, lane] = 0.0
         for i in range(m):
-            p = X0[i, 0] if i == j else (1.0 - X0[i, 0]) / (m - 1)
-            wt[j, i] = p * mu[i]
-            c += wt[j, i]
-        cbar[j] = c  # eq. 1
+            if i == j:
+                for lane in range(_L):
+                    wt[j, i, lane] = stay[i, lane] * MU[i, lane]
+            else:
+                for lane in range(_L):
+                    wt[j, i, lane] = (1.0 - stay[i, lane]) / (m - 1) * MU[i, lane]
+            for lane in range(_L):
+                cbar[j, lane] += wt[j, i, lane]  # eq. 1
     for j in range(m):
-        if cbar[j] > 0.0:
-            for i in range(m):
-                wt[j, i] /= cbar[j]  # eq. 2
-        else:  # a mode nothing can reach (c̄_j = 0) keeps its own state
-            for i in range(m):
-                wt[j, i] = 1.0 if i == j else 0.0
+        for i in range(m):
+            same = 1.0 if i == j else 0.0
+            for lane in range(_L):
+                c = cbar[j, lane]
+                # eq. 2; a mode nothing can reach (c̄_j = 0) keeps its own state
+                wt[j, i, lane] = wt[j, i, lane] / c if c > 0.0 else same
     for i in range(m):
         for a in range(_D):
-            S[i, a] = xm[i, a] - xm[0, a]
-        for q in range(_UT.shape[0]):
+            for lane in range(_L):
+                S[i, a, lane] = X[i, a, lane] - X[0, a, lane]
+        for q in range(_NP - _D):
             a, b = _UT[q, 0], _UT[q, 1]
-            S[i, _D + q] = Pm[i, a, b] + S[i, a] * S[i, b]
+            for lane in range(_L):
+                S[i, _D + q, lane] += S[i, a, lane] * S[i, b, lane]
     for j in range(m):
         for q in range(_NP):
-            X0[j, q] = 0.0
+            for lane in range(_L):
+                X0[j, q, lane] = 0.0
         for i in range(m):
-            w = wt[j, i]
             for q in range(_NP):
-                X0[j, q] += w * S[i, q]  # eq. 3 and the sum of eq. 4
-        for q in range(_UT.shape[0]):
-            X0[j, _D + q] -= X0[j, _UT[q, 0]] * X0[j, _UT[q, 1]]  # − e⁰_j e⁰_jᵀ
+                for lane in range(_L):
+                    X0[j, q, lane] += wt[j, i, lane] * S[i, q, lane]  # eq. 3 and the sum of eq. 4
+        for q in range(_NP - _D):
+            a, b = _UT[q, 0], _UT[q, 1]
+            for lane in range(_L):
+                X0[j, _D + q, lane] -= X0[j, a, lane] * X0[j, b, lane]  # − e⁰_j e⁰_jᵀ
 
 
 @_compiled
 def _unpack(X0j: np.ndarray, x_ref: np.ndarray, x0: np.ndarray, P0: np.ndarray) -> None:
-    """x⁰_j (6) and P⁰_j (6×6, symmetric) from a mixing row of ``_mix``."""
+    """x⁰_j (6, L) and P⁰_j (6, 6, L), symmetric, from the mixing rows X0j (_NP, L)."""
     for a in range(_D):
-        x0[a] = x_ref[a] + X0j[a]
-    for q in range(_UT.shape[0]):
+        for lane in range(_L):
+            x0[a, lane] = x_ref[a, lane] + X0j[a, lane]
+    for q in range(_NP - _D):
         a, b = _UT[q, 0], _UT[q, 1]
-        P0[a, b] = X0j[_D + q]
-        P0[b, a] = X0j[_D + q]
+        for lane in range(_L):
+            P0[a, b, lane] = X0j[_D + q, lane]
+            P0[b, a, lane] = X0j[_D + q, lane]
 
 
 @_compiled
-def _predict_j(
-    phi: np.ndarray,
-    Q: np.ndarray,
-    x0: np.ndarray,
-    P0: np.ndarray,
-    T: np.ndarray,
-    phiT: np.ndarray,
-    xp: np.ndarray,
-    Pp: np.ndarray,
-) -> None:
-    """x = Φ x⁰, P = Φ P⁰ Φᵀ + Q (Shu eq. 8, 11; coordinated_turn.py eq. 4); P exactly
-    symmetric.  Dense 6×6 products written as row updates (T[a, :] += Φ[a, c] P⁰[c, :]),
-    which the compiler vectorises: faster than skipping Φ's zeros entry by entry."""
-    for a in range(_D):
-        acc = 0.0
-        for c in range(_D):
-            acc += phi[a, c] * x0[c]
-        xp[a] = acc
-        for c in range(_D):
-            phiT[c, a] = phi[a, c]
-    for a in range(_D):
-        for b in range(_D):
-            T[a, b] = 0.0
-        for c in range(_D):
-            f = phi[a, c]
+def _predict_model(
+    family: int, TJ: np.ndarray, omega: float, q_keys: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+    DT: np.ndarray, W: np.ndarray, TB: np.ndarray, tb: np.ndarray, T: np.ndarray, xp: np.ndarray, Pp: np.ndarray,
+) -> None:  # fmt: skip
+    """Model j's prediction in every lane from its mixed x⁰ (6, L), P⁰ (6, 6, L):
+    x = Φ x⁰, P = Φ P⁰ Φᵀ + Q (Shu eq. 8, 11; coordinated_turn.py eq. 4), P exactly
+    symmetric, with Φ and Q from the model's ``TERMS`` TJ (TERMS, L) (a banked turn's from
+    x⁰, below).  Every row of Φ has at most three entries besides zeros, so Φ P⁰ (into T)
+    and (Φ P⁰) Φᵀ are written out row by row and column by column from them:
+
+    * Singer (singer_filter.singer_matrices_into, Shu eq. 12): per axis block (o = 0 for
+      x, 3 for y) [[1, T, Φ02], [0, 1, Φ12], [0, 0, Φ22]], the terms T, Φ02, Φ12, Φ22,
+      then Q's block entries q_ij in ``q_keys`` order;
+    * coordinated turn (coordinated_turn.ct_matrices_into, eq. 2-4), the terms T_s, T_c,
+      cos ωT, sin ωT, q f_pp, q f_pv, q f_po, q T:
+      x ← x + T_s vx − T_c vy, vx ← cos vx − sin vy, ax ← −ω sin vx − ω cos vy,
+      y ← y + T_c vx + T_s vy, vy ← sin vx + cos vy, ay ← ω cos vx − ω sin vy;
+    * banked turn: the coordinated turn at ω = g tan φ / v of x⁰'s speed v (``omega`` is
+      the signed g tan φ), v floored at MIN_TURN_SPEED_MPS (eq. 5,
+      banked_turn_rate_rad_s), its q in TJ[0]; its terms are computed into TB (W: the
+      lanes' ω; tb: scratch)."""
+    if family == SINGER:
+        for o in range(0, _D, 3):
+            for lane in range(_L):
+                xp[o, lane] = x0[o, lane] + TJ[0, lane] * x0[o + 1, lane] + TJ[1, lane] * x0[o + 2, lane]
+                xp[o + 1, lane] = x0[o + 1, lane] + TJ[2, lane] * x0[o + 2, lane]
+                xp[o + 2, lane] = TJ[3, lane] * x0[o + 2, lane]
             for b in range(_D):
-                T[a, b] += f * P0[c, b]
-    for a in range(_D):
+                for lane in range(_L):
+                    p2 = P0[o + 2, b, lane]
+                    T[o, b, lane] = P0[o, b, lane] + TJ[0, lane] * P0[o + 1, b, lane] + TJ[1, lane] * p2
+                    T[o + 1, b, lane] = P0[o + 1, b, lane] + TJ[2, lane] * p2
+                    T[o + 2, b, lane] = TJ[3, lane] * p2
+        for a in range(_D):
+            for o in range(0, _D, 3):
+                for lane in range(_L):
+                    t2 = T[a, o + 2, lane]
+                    Pp[a, o, lane] = T[a, o, lane] + TJ[0, lane] * T[a, o + 1, lane] + TJ[1, lane] * t2
+                    Pp[a, o + 1, lane] = T[a, o + 1, lane] + TJ[2, lane] * t2
+                    Pp[a, o + 2, lane] = TJ[3, lane] * t2
+        for o in range(0, _D, 3):
+            for k in range(q_keys.shape[0]):
+                a, b = o + q_keys[k, 0], o + q_keys[k, 1]
+                for lane in range(_L):
+                    Pp[a, b, lane] += TJ[4 + k, lane]
+    else:
+        TC = TJ
+        if family == BANK:
+            for lane in range(_L):
+                v = math.sqrt(x0[1, lane] * x0[1, lane] + x0[4, lane] * x0[4, lane])
+                W[lane] = omega / max(v, MIN_TURN_SPEED_MPS)
+                _turn_terms(DT[lane], W[lane], TJ[0, lane], tb)
+                for q in range(TERMS):
+                    TB[q, lane] = tb[q]
+            TC = TB
+        else:
+            for lane in range(_L):
+                W[lane] = omega
+        for lane in range(_L):
+            s_w, c_w, c, s, w = TC[0, lane], TC[1, lane], TC[2, lane], TC[3, lane], W[lane]
+            v1, v4 = x0[1, lane], x0[4, lane]
+            xp[0, lane] = x0[0, lane] + s_w * v1 - c_w * v4
+            xp[1, lane] = c * v1 - s * v4
+            xp[2, lane] = -w * s * v1 - w * c * v4
+            xp[3, lane] = x0[3, lane] + c_w * v1 + s_w * v4
+            xp[4, lane] = s * v1 + c * v4
+            xp[5, lane] = w * c * v1 - w * s * v4
         for b in range(_D):
-            Pp[a, b] = Q[a, b]
-        for c in range(_D):
-            t = T[a, c]
-            for b in range(_D):
-                Pp[a, b] += t * phiT[c, b]
+            for lane in range(_L):
+                s_w, c_w, c, s, w = TC[0, lane], TC[1, lane], TC[2, lane], TC[3, lane], W[lane]
+                v1, v4 = P0[1, b, lane], P0[4, b, lane]
+                T[0, b, lane] = P0[0, b, lane] + s_w * v1 - c_w * v4
+                T[1, b, lane] = c * v1 - s * v4
+                T[2, b, lane] = -w * s * v1 - w * c * v4
+                T[3, b, lane] = P0[3, b, lane] + c_w * v1 + s_w * v4
+                T[4, b, lane] = s * v1 + c * v4
+                T[5, b, lane] = w * c * v1 - w * s * v4
+        for a in range(_D):
+            for lane in range(_L):
+                s_w, c_w, c, s, w = TC[0, lane], TC[1, lane], TC[2, lane], TC[3, lane], W[lane]
+                v1, v4 = T[a, 1, lane], T[a, 4, lane]
+                Pp[a, 0, lane] = T[a, 0, lane] + s_w * v1 - c_w * v4
+                Pp[a, 1, lane] = c * v1 - s * v4
+                Pp[a, 2, lane] = -w * s * v1 - w * c * v4
+                Pp[a, 3, lane] = T[a, 3, lane] + c_w * v1 + s_w * v4
+                Pp[a, 4, lane] = s * v1 + c * v4
+                Pp[a, 5, lane] = w * c * v1 - w * s * v4
+        for lane in range(_L):  # Q (coordinated_turn.ct_matrices_into): its upper triangle
+            pp, pv, po, vv, w = TC[4, lane], TC[5, lane], TC[6, lane], TC[7, lane], W[lane]
+            Pp[0, 0, lane] += pp
+            Pp[3, 3, lane] += pp
+            Pp[1, 1, lane] += vv
+            Pp[4, 4, lane] += vv
+            Pp[0, 1, lane] += pv
+            Pp[3, 4, lane] += pv
+            Pp[0, 4, lane] += po
+            Pp[1, 3, lane] -= po
+            Pp[0, 2, lane] -= w * po
+            Pp[3, 5, lane] -= w * po
+            Pp[0, 5, lane] += w * pv
+            Pp[2, 3, lane] -= w * pv
+            Pp[1, 5, lane] += w * vv
+            Pp[2, 4, lane] -= w * vv
+            Pp[2, 2, lane] += w * w * vv
+            Pp[5, 5, lane] += w * w * vv
     for a in range(_D):
         for b in range(a + 1, _D):
-            Pp[b, a] = Pp[a, b]
+            for lane in range(_L):
+                Pp[b, a, lane] = Pp[a, b, lane]
 
 
 @_compiled
-def _combine_one(xm: np.ndarray, Pm: np.ndarray, w: np.ndarray, x: np.ndarray, P: np.ndarray) -> None:
-    """Eq. 7-8 for one track: x = Σ w_j x_j, P = Σ w_j [P_j + (x_j − x)(x_j − x)ᵀ]."""
-    m = xm.shape[0]
+def _combine(X: np.ndarray, P: np.ndarray, w: np.ndarray, x: np.ndarray, Pc: np.ndarray) -> None:
+    """Eq. 7-8 in every lane: x = Σ w_j x_j, P = Σ w_j [P_j + (x_j − x)(x_j − x)ᵀ];
+    X (M, 6, L), P (M, 6, 6, L), w (M, L) into x (6, L), Pc (6, 6, L)."""
+    m = w.shape[0]
     for a in range(_D):
-        acc = 0.0
+        for lane in range(_L):
+            x[a, lane] = 0.0
         for j in range(m):
-            acc += w[j] * xm[j, a]
-        x[a] = acc
+            for lane in range(_L):
+                x[a, lane] += w[j, lane] * X[j, a, lane]
     for a in range(_D):
         for b in range(a, _D):
-            acc = 0.0
+            for lane in range(_L):
+                Pc[a, b, lane] = 0.0
             for j in range(m):
-                acc += w[j] * (Pm[j, a, b] + (xm[j, a] - x[a]) * (xm[j, b] - x[b]))
-            P[a, b] = acc
-            P[b, a] = acc
+                for lane in range(_L):
+                    d = (X[j, a, lane] - x[a, lane]) * (X[j, b, lane] - x[b, lane])
+                    Pc[a, b, lane] += w[j, lane] * (P[j, a, b, lane] + d)
+            for lane in range(_L):
+                Pc[b, a, lane] = Pc[a, b, lane]
+
+
+@_compiled
+def _gather_measurements(z: np.ndarray, R: np.ndarray, k0: int, nl: int, Z: np.ndarray, RL: np.ndarray) -> None:
+    """Each lane's measurement into Z (2, L) and its covariance into RL (2, 2, L)."""
+    for lane in range(_L):
+        k = _lane_track(k0, nl, lane)
+        for a in range(2):
+            Z[a, lane] = z[k, a]
+            for b in range(2):
+                RL[a, b, lane] = R[k, a, b]
+
+
+@_compiled
+def _update(
+    XP: np.ndarray, PP: np.ndarray, cbar: np.ndarray, Z: np.ndarray, RL: np.ndarray,
+    XU: np.ndarray, PU: np.ndarray, MU: np.ndarray, logw: np.ndarray, K: np.ndarray, PHt: np.ndarray, G: np.ndarray,
+) -> None:  # fmt: skip
+    """Steps 3-4 in every lane: each model's Kalman update of XP (M, 6, L), PP (M, 6, 6, L)
+    with the measurement Z (2, L) of covariance RL (2, 2, L), H picking x and y:
+
+        S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x ← x + K ν, P ← P − K (P Hᵀ)ᵀ     (Shu eq. 7, 9, 10)
+
+    into XU, PU (P symmetrised, ½ (P + Pᵀ), as imm.IMMFilter.update does); its
+    log-likelihood log Λ_j (eq. 5) and μ_j ∝ Λ_j c̄_j into MU (eq. 6, by log-sum-exp; c̄_j =
+    0 gives μ_j = 0).  logw (M, L), K and PHt (6, 2, L), G (7, L): scratch."""
+    m = cbar.shape[0]
+    log_2pi = math.log(2.0 * math.pi)
+    for j in range(m):
+        for a in range(_D):
+            for lane in range(_L):
+                PHt[a, 0, lane] = PP[j, a, 0, lane]
+                PHt[a, 1, lane] = PP[j, a, 3, lane]
+        for lane in range(_L):
+            s00 = PHt[0, 0, lane] + RL[0, 0, lane]
+            s01 = PHt[0, 1, lane] + RL[0, 1, lane]
+            s10 = PHt[3, 0, lane] + RL[1, 0, lane]
+            s11 = PHt[3, 1, lane] + RL[1, 1, lane]
+            det = s00 * s11 - s01 * s10
+            G[0, lane] = s11 / det  # S⁻¹
+            G[1, lane] = -s01 / det
+            G[2, lane] = -s10 / det
+            G[3, lane] = s00 / det
+            G[4, lane] = Z[0, lane] - XP[j, 0, lane]  # ν
+            G[5, lane] = Z[1, lane] - XP[j, 3, lane]
+            G[6, lane] = det
+        for a in range(_D):
+            for lane in range(_L):
+                K[a, 0, lane] = PHt[a, 0, lane] * G[0, lane] + PHt[a, 1, lane] * G[2, lane]
+                K[a, 1, lane] = PHt[a, 0, lane] * G[1, lane] + PHt[a, 1, lane] * G[3, lane]
+                XU[j, a, lane] = XP[j, a, lane] + K[a, 0, lane] * G[4, lane] + K[a, 1, lane] * G[5, lane]
+        for a in range(_D):
+            for b in range(a, _D):
+                for lane in range(_L):
+                    pab = PP[j, a, b, lane] - (K[a, 0, lane] * PHt[b, 0, lane] + K[a, 1, lane] * PHt[b, 1, lane])
+                    pba = PP[j, b, a, lane] - (K[b, 0, lane] * PHt[a, 0, lane] + K[b, 1, lane] * PHt[a, 1, lane])
+                    PU[j, a, b, lane] = 0.5 * (pab + pba)
+                    PU[j, b, a, lane] = PU[j, a, b, lane]
+        for lane in range(_L):
+            nu0, nu1 = G[4, lane], G[5, lane]
+            d2 = nu0 * (G[0, lane] * nu0 + G[1, lane] * nu1) + nu1 * (G[2, lane] * nu0 + G[3, lane] * nu1)
+            lw = -0.5 * d2 - 0.5 * math.log(G[6, lane]) - log_2pi  # eq. 5
+            logw[j, lane] = lw + math.log(cbar[j, lane]) if cbar[j, lane] > 0.0 else -np.inf
+    for lane in range(_L):
+        top = logw[0, lane]
+        for j in range(1, m):
+            top = max(top, logw[j, lane])
+        total = 0.0
+        for j in range(m):
+            MU[j, lane] = math.exp(logw[j, lane] - top)
+            total += MU[j, lane]
+        for j in range(m):
+            MU[j, lane] /= total  # eq. 6
 
 
 @_compiled
@@ -418,25 +582,25 @@ def predict_kernel(
     out_cbar: np.ndarray,
 ) -> None:
     """Steps 1-2 (eq. 0-4, each model's prediction) for N tracks into out_xm, out_Pm and
-    out_cbar (c̄ of eq. 1). xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (M,) dwell times, terms (N,M,TERMS),
-    family and omega (M,) (a banked turn's omega is its signed g tan φ), q_keys (6,2) the Singer q_ij order."""
+    out_cbar (c̄ of eq. 1). xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (M,) dwell
+    times, terms (N,M,TERMS), family and omega (M,) (a banked turn's omega is its signed
+    g tan φ), q_keys (6,2) the Singer q_ij order."""
     n, m = mu.shape
-    wt = np.empty((m, m))
-    S = np.empty((m, _NP))
-    X0 = np.empty((m, _NP))
-    x0 = np.empty(_D)
-    P0 = np.empty((_D, _D))
-    T = np.empty((_D, _D))
-    phiT = np.empty((_D, _D))
-    phi = np.empty((_D, _D))
-    Q = np.empty((_D, _D))
-    t_bank = np.empty(TERMS)
-    for k in range(n):
-        _mix(xm[k], Pm[k], mu[k], dt[k], tau, wt, out_cbar[k], S, X0)
+    rows = np.arange(n)
+    X, XP, X0, S = np.empty((m, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _NP, _L)), np.empty((m, _NP, _L))
+    PP = np.empty((m, _D, _D, _L))
+    MU, cbar, stay, wt = np.empty((m, _L)), np.empty((m, _L)), np.empty((m, _L)), np.empty((m, m, _L))
+    DT, W, TJ, TB, tb = np.empty(_L), np.empty(_L), np.empty((m, TERMS, _L)), np.empty((TERMS, _L)), np.empty(TERMS)
+    x0, P0, T = np.empty((_D, _L)), np.empty((_D, _D, _L)), np.empty((_D, _D, _L))
+    for k0 in range(0, n, _L):
+        nl = min(_L, n - k0)
+        _gather_mixing(xm, Pm, mu, rows, k0, nl, X, S, MU)
+        _gather_per_track(dt, terms, k0, nl, DT, TJ)
+        _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
         for j in range(m):
-            _unpack(X0[j], xm[k, 0], x0, P0)
-            _phi_q_j(family[j], terms[k, j], omega[j], q_keys, x0, dt[k], t_bank, phi, Q)
-            _predict_j(phi, Q, x0, P0, T, phiT, out_xm[k, j], out_Pm[k, j])
+            _unpack(X0[j], X[0], x0, P0)
+            _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
+        _scatter_models(XP, PP, cbar, rows, k0, nl, out_xm, out_Pm, out_cbar)
 
 
 @_compiled
@@ -460,11 +624,10 @@ def predict_block_kernel(
     """Steps 1, 2 and 5 for a reader of part of the covariance: the combination (eq. 7-8,
     weights c̄) x (N,6) and the rows and columns ``block`` of P (N,6,6), NaN elsewhere,
     and each model's predicted position out_xy (N,M,2) and its covariance out_cov_xy
-    (N,M,2,2).  Only the rows ``block`` of each Φ_j P⁰_j Φ_jᵀ are formed, not the
-    per-model 6×6 covariances.  ``block`` lists state indices in order and holds 0 and 3
-    (x and y): [0, 1, 3, 4] for association (position and velocity; the model-conditioned
-    gates, imm.py "Gating"), [0, 3] for the output.  Track k is row rows[k] of the state
-    (no copy of the rows taken); dt, terms and the outputs per k."""
+    (N,M,2,2).  ``block`` lists state indices in order and holds 0 and 3 (x and y):
+    [0, 1, 3, 4] for association (position and velocity; the model-conditioned gates,
+    imm.py "Gating"), [0, 3] for the output.  Track k is row rows[k] of the state (no
+    copy of the rows taken); dt, terms and the outputs per k."""
     n, m = rows.shape[0], mu.shape[1]
     nr = block.size
     ix = iy = 0  # where x and y are in the block
@@ -473,124 +636,57 @@ def predict_block_kernel(
             ix = r
         elif block[r] == 3:
             iy = r
-    wt = np.empty((m, m))
-    cbar = np.empty(m)
-    S = np.empty((m, _NP))
-    X0 = np.empty((m, _NP))
-    x0 = np.empty(_D)
-    P0 = np.empty((_D, _D))
-    phi = np.empty((_D, _D))
-    Q = np.empty((_D, _D))
-    t_bank = np.empty(TERMS)
-    xp = np.empty((m, _D))
-    T = np.empty((nr, _D))  # the rows ``block`` of Φ P⁰
-    B = np.empty((m, nr, nr))  # the block of Φ P⁰ Φᵀ + Q
-    for k in range(n):
-        i = rows[k]
-        _mix(xm[i], Pm[i], mu[i], dt[k], tau, wt, cbar, S, X0)
+    X, XP, X0, S = np.empty((m, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _NP, _L)), np.empty((m, _NP, _L))
+    MU, cbar, stay, wt = np.empty((m, _L)), np.empty((m, _L)), np.empty((m, _L)), np.empty((m, m, _L))
+    DT, W, TJ, TB, tb = np.empty(_L), np.empty(_L), np.empty((m, TERMS, _L)), np.empty((TERMS, _L)), np.empty(TERMS)
+    x0, P0, T, Pp = np.empty((_D, _L)), np.empty((_D, _D, _L)), np.empty((_D, _D, _L)), np.empty((_D, _D, _L))
+    B = np.empty((m, nr, nr, _L))  # each model's block of Φ P⁰ Φᵀ + Q
+    xc, Pb = np.empty((_D, _L)), np.empty((nr, nr, _L))  # the combination
+    for k0 in range(0, n, _L):
+        nl = min(_L, n - k0)
+        _gather_mixing(xm, Pm, mu, rows, k0, nl, X, S, MU)
+        _gather_per_track(dt, terms, k0, nl, DT, TJ)
+        _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
         for j in range(m):
-            _unpack(X0[j], xm[i, 0], x0, P0)
-            _phi_q_j(family[j], terms[k, j], omega[j], q_keys, x0, dt[k], t_bank, phi, Q)
-            for a in range(_D):
-                acc = 0.0
-                for c in range(_D):
-                    acc += phi[a, c] * x0[c]
-                xp[j, a] = acc
+            _unpack(X0[j], X[0], x0, P0)
+            _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], Pp)
             for r in range(nr):
-                a = block[r]
-                for b in range(_D):
-                    T[r, b] = 0.0
-                for c in range(_D):
-                    f = phi[a, c]
-                    for b in range(_D):
-                        T[r, b] += f * P0[c, b]
-            for r in range(nr):
-                for u in range(r, nr):
-                    b = block[u]
-                    acc = 0.0
-                    for c in range(_D):
-                        acc += T[r, c] * phi[b, c]
-                    B[j, r, u] = acc + Q[block[r], b]
-                    B[j, u, r] = B[j, r, u]
-            out_xy[k, j, 0] = xp[j, 0]
-            out_xy[k, j, 1] = xp[j, 3]
-            out_cov_xy[k, j, 0, 0] = B[j, ix, ix]
-            out_cov_xy[k, j, 0, 1] = B[j, ix, iy]
-            out_cov_xy[k, j, 1, 0] = B[j, iy, ix]
-            out_cov_xy[k, j, 1, 1] = B[j, iy, iy]
+                for u in range(nr):
+                    for lane in range(_L):
+                        B[j, r, u, lane] = Pp[block[r], block[u], lane]
         for a in range(_D):  # eq. 7 with c̄
-            acc = 0.0
+            for lane in range(_L):
+                xc[a, lane] = 0.0
             for j in range(m):
-                acc += cbar[j] * xp[j, a]
-            out_x[k, a] = acc
-        for a in range(_D):
-            for b in range(_D):
-                out_P[k, a, b] = np.nan
+                for lane in range(_L):
+                    xc[a, lane] += cbar[j, lane] * XP[j, a, lane]
         for r in range(nr):  # eq. 8 on the block
             a = block[r]
             for u in range(r, nr):
                 b = block[u]
-                acc = 0.0
+                for lane in range(_L):
+                    Pb[r, u, lane] = 0.0
                 for j in range(m):
-                    acc += cbar[j] * (B[j, r, u] + (xp[j, a] - out_x[k, a]) * (xp[j, b] - out_x[k, b]))
-                out_P[k, a, b] = acc
-                out_P[k, b, a] = acc
-
-
-@_compiled
-def _update_one(
-    xm: np.ndarray,
-    Pm: np.ndarray,
-    cbar: np.ndarray,
-    z: np.ndarray,
-    R: np.ndarray,
-    out_xm: np.ndarray,
-    out_Pm: np.ndarray,
-    out_mu: np.ndarray,
-    log_w: np.ndarray,
-    K: np.ndarray,
-    PHt: np.ndarray,
-) -> None:
-    """Steps 3-4 for one track (update_kernel)."""
-    m = cbar.shape[0]
-    log_2pi = math.log(2.0 * math.pi)
-    for j in range(m):
-        P = Pm[j]
-        x = xm[j]
-        for a in range(_D):
-            PHt[a, 0] = P[a, 0]
-            PHt[a, 1] = P[a, 3]
-        s00 = PHt[0, 0] + R[0, 0]
-        s01 = PHt[0, 1] + R[0, 1]
-        s10 = PHt[3, 0] + R[1, 0]
-        s11 = PHt[3, 1] + R[1, 1]
-        det = s00 * s11 - s01 * s10
-        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
-        nu0 = z[0] - x[0]
-        nu1 = z[1] - x[3]
-        for a in range(_D):
-            K[a, 0] = PHt[a, 0] * i00 + PHt[a, 1] * i10
-            K[a, 1] = PHt[a, 0] * i01 + PHt[a, 1] * i11
-        ox = out_xm[j]
-        for a in range(_D):
-            ox[a] = x[a] + K[a, 0] * nu0 + K[a, 1] * nu1
-        oP = out_Pm[j]
-        for a in range(_D):
-            for b in range(a, _D):
-                pab = P[a, b] - (K[a, 0] * PHt[b, 0] + K[a, 1] * PHt[b, 1])
-                pba = P[b, a] - (K[b, 0] * PHt[a, 0] + K[b, 1] * PHt[a, 1])
-                oP[a, b] = 0.5 * (pab + pba)
-                oP[b, a] = oP[a, b]
-        d2 = nu0 * (i00 * nu0 + i01 * nu1) + nu1 * (i10 * nu0 + i11 * nu1)
-        log_w[j] = -0.5 * d2 - 0.5 * math.log(det) - log_2pi  # eq. 5
-        log_w[j] += math.log(cbar[j]) if cbar[j] > 0.0 else -np.inf
-    top = log_w.max()
-    total = 0.0
-    for j in range(m):
-        out_mu[j] = math.exp(log_w[j] - top)
-        total += out_mu[j]
-    for j in range(m):
-        out_mu[j] /= total  # eq. 6
+                    for lane in range(_L):
+                        d = (XP[j, a, lane] - xc[a, lane]) * (XP[j, b, lane] - xc[b, lane])
+                        Pb[r, u, lane] += cbar[j, lane] * (B[j, r, u, lane] + d)
+        for lane in range(nl):
+            k = k0 + lane
+            for j in range(m):
+                out_xy[k, j, 0] = XP[j, 0, lane]
+                out_xy[k, j, 1] = XP[j, 3, lane]
+                out_cov_xy[k, j, 0, 0] = B[j, ix, ix, lane]
+                out_cov_xy[k, j, 0, 1] = B[j, ix, iy, lane]
+                out_cov_xy[k, j, 1, 0] = B[j, iy, ix, lane]
+                out_cov_xy[k, j, 1, 1] = B[j, iy, iy, lane]
+            for a in range(_D):
+                out_x[k, a] = xc[a, lane]
+                for b in range(_D):
+                    out_P[k, a, b] = np.nan
+            for r in range(nr):
+                for u in range(r, nr):
+                    out_P[k, block[r], block[u]] = Pb[r, u, lane]
+                    out_P[k, block[u], block[r]] = Pb[r, u, lane]
 
 
 @_compiled
@@ -616,34 +712,30 @@ def predict_update_kernel(
     """One whole cycle per track, steps 1-5: predict_kernel over dt, then update_kernel
     with z, R and the combination, without writing the prediction out.  Track k is row
     rows[k] of the state and of out_xm, out_Pm, out_mu, which may be the state's own arrays
-    (a row is read whole before it is written: the update in place); dt, terms, z, R,
-    out_x and out_P per k."""
+    (a chunk's rows are read whole before they are written: the update in place); dt,
+    terms, z, R, out_x and out_P per k."""
     n, m = rows.shape[0], mu.shape[1]
-    wt = np.empty((m, m))
-    cbar = np.empty(m)
-    S = np.empty((m, _NP))
-    X0 = np.empty((m, _NP))
-    x0 = np.empty(_D)
-    P0 = np.empty((_D, _D))
-    T = np.empty((_D, _D))
-    phiT = np.empty((_D, _D))
-    phi = np.empty((_D, _D))
-    Q = np.empty((_D, _D))
-    t_bank = np.empty(TERMS)
-    xp = np.empty((m, _D))
-    Pp = np.empty((m, _D, _D))
-    log_w = np.empty(m)
-    K = np.empty((_D, 2))
-    PHt = np.empty((_D, 2))
-    for k in range(n):
-        i = rows[k]
-        _mix(xm[i], Pm[i], mu[i], dt[k], tau, wt, cbar, S, X0)
+    X, XP, X0, S = np.empty((m, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _NP, _L)), np.empty((m, _NP, _L))
+    PP, XU, PU = np.empty((m, _D, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _D, _D, _L))
+    MU, cbar, stay, wt = np.empty((m, _L)), np.empty((m, _L)), np.empty((m, _L)), np.empty((m, m, _L))
+    DT, W, TJ, TB, tb = np.empty(_L), np.empty(_L), np.empty((m, TERMS, _L)), np.empty((TERMS, _L)), np.empty(TERMS)
+    x0, P0, T = np.empty((_D, _L)), np.empty((_D, _D, _L)), np.empty((_D, _D, _L))
+    Z, RL, MUU, logw = np.empty((2, _L)), np.empty((2, 2, _L)), np.empty((m, _L)), np.empty((m, _L))
+    K, PHt, G = np.empty((_D, 2, _L)), np.empty((_D, 2, _L)), np.empty((7, _L))
+    xc, Pc = np.empty((_D, _L)), np.empty((_D, _D, _L))
+    for k0 in range(0, n, _L):
+        nl = min(_L, n - k0)
+        _gather_mixing(xm, Pm, mu, rows, k0, nl, X, S, MU)
+        _gather_per_track(dt, terms, k0, nl, DT, TJ)
+        _gather_measurements(z, R, k0, nl, Z, RL)
+        _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
         for j in range(m):
-            _unpack(X0[j], xm[i, 0], x0, P0)
-            _phi_q_j(family[j], terms[k, j], omega[j], q_keys, x0, dt[k], t_bank, phi, Q)
-            _predict_j(phi, Q, x0, P0, T, phiT, xp[j], Pp[j])
-        _update_one(xp, Pp, cbar, z[k], R[k], out_xm[i], out_Pm[i], out_mu[i], log_w, K, PHt)
-        _combine_one(out_xm[i], out_Pm[i], out_mu[i], out_x[k], out_P[k])
+            _unpack(X0[j], X[0], x0, P0)
+            _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
+        _update(XP, PP, cbar, Z, RL, XU, PU, MUU, logw, K, PHt, G)
+        _combine(XU, PU, MUU, xc, Pc)
+        _scatter_models(XU, PU, MUU, rows, k0, nl, out_xm, out_Pm, out_mu)
+        _scatter_combined(xc, Pc, k0, nl, out_x, out_P)
 
 
 @_compiled
@@ -657,23 +749,31 @@ def update_kernel(
     out_Pm: np.ndarray,
     out_mu: np.ndarray,
 ) -> None:
-    """Steps 3-4 for N tracks: each model's Kalman update
-    with the measurement z (N,2) of covariance R (N,2,2), H picking x and y:
-
-        S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x ← x + K ν, P ← P − K (P Hᵀ)ᵀ     (Shu eq. 7, 9, 10)
-
-    its log-likelihood log Λ_j (eq. 5) and μ_j ∝ Λ_j c̄_j (eq. 6, by log-sum-exp; c̄_j =
-    0 gives μ_j = 0).  P is symmetrised (½ (P + Pᵀ)) as imm.IMMFilter.update does."""
+    """Steps 3-4 for N tracks (``_update``): each model's Kalman update with the
+    measurement z (N,2) of covariance R (N,2,2), and the mode probabilities."""
     n, m = cbar.shape
-    log_w = np.empty(m)
-    K = np.empty((_D, 2))
-    PHt = np.empty((_D, 2))
-    for k in range(n):
-        _update_one(xm[k], Pm[k], cbar[k], z[k], R[k], out_xm[k], out_Pm[k], out_mu[k], log_w, K, PHt)
+    rows = np.arange(n)
+    XP, XU, PP, PU = np.empty((m, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _D, _D, _L)), np.empty((m, _D, _D, _L))
+    CB, MUU, logw = np.empty((m, _L)), np.empty((m, _L)), np.empty((m, _L))
+    Z, RL, G = np.empty((2, _L)), np.empty((2, 2, _L)), np.empty((7, _L))
+    K, PHt = np.empty((_D, 2, _L)), np.empty((_D, 2, _L))
+    for k0 in range(0, n, _L):
+        nl = min(_L, n - k0)
+        _gather_models(xm, Pm, cbar, rows, k0, nl, XP, PP, CB)
+        _gather_measurements(z, R, k0, nl, Z, RL)
+        _update(XP, PP, CB, Z, RL, XU, PU, MUU, logw, K, PHt, G)
+        _scatter_models(XU, PU, MUU, rows, k0, nl, out_xm, out_Pm, out_mu)
 
 
 @_compiled
 def combine_kernel(xm: np.ndarray, Pm: np.ndarray, w: np.ndarray, out_x: np.ndarray, out_P: np.ndarray) -> None:
     """Step 5 (eq. 7-8) for N tracks with weights w (N,M)."""
-    for k in range(w.shape[0]):
-        _combine_one(xm[k], Pm[k], w[k], out_x[k], out_P[k])
+    n, m = w.shape
+    rows = np.arange(n)
+    X, P, Wl = np.empty((m, _D, _L)), np.empty((m, _D, _D, _L)), np.empty((m, _L))
+    xc, Pc = np.empty((_D, _L)), np.empty((_D, _D, _L))
+    for k0 in range(0, n, _L):
+        nl = min(_L, n - k0)
+        _gather_models(xm, Pm, w, rows, k0, nl, X, P, Wl)
+        _combine(X, P, Wl, xc, Pc)
+        _scatter_combined(xc, Pc, k0, nl, out_x, out_P)
