@@ -171,19 +171,25 @@ class Stca:
         d0 = np.hypot(x_lin[ib, 0] - x_lin[ia, 0], y_lin[ib, 0] - y_lin[ia, 0])
         prox = (d0 < prox_h) & (np.abs(dz[:, 0]) < prox_v)
         hit = np.flatnonzero(conflict | prox)
-        out = []
+        # the hits as Python lists first: thousands a period in dense traffic, and indexing
+        # numpy arrays one scalar at a time cost more than the whole prediction above
         ids = tr.track_id[e]
-        for pk in hit:
-            id_a, id_b = sorted((int(ids[ia[pk]]), int(ids[ib[pk]])))
-            tv = fig["t_violation_s"][pk]
-            mv = fig["min_vsep_ft"][pk]
-            figures = {
-                "time_to_cpa_s": float(fig["t_cpa_s"][pk]),
-                "min_sep_m": float(fig["min_sep_m"][pk]),
-                "min_vsep_ft": float(mv) if np.isfinite(mv) else float(abs(dz[pk, 0])),
-                "time_to_violation_s": float(tv) if np.isfinite(tv) else 0.0,
-            }
-            out.append(Hit(("stca", id_a, id_b), "stca", [id_a, id_b], figures, immediate=bool(prox[pk])))
+        id_a, id_b = ids[ia[hit]], ids[ib[hit]]
+        mv, tv = fig["min_vsep_ft"][hit], fig["t_violation_s"][hit]
+        columns = zip(
+            np.minimum(id_a, id_b).tolist(),
+            np.maximum(id_a, id_b).tolist(),
+            fig["t_cpa_s"][hit].tolist(),
+            fig["min_sep_m"][hit].tolist(),
+            np.where(np.isfinite(mv), mv, np.abs(dz[hit, 0])).tolist(),
+            np.where(np.isfinite(tv), tv, 0.0).tolist(),
+            prox[hit].tolist(),
+            strict=True,
+        )
+        out = []
+        for lo, hi, t_cpa, sep, vsep, t_viol, immediate in columns:
+            figures = {"time_to_cpa_s": t_cpa, "min_sep_m": sep, "min_vsep_ft": vsep, "time_to_violation_s": t_viol}
+            out.append(Hit(("stca", lo, hi), "stca", [lo, hi], figures, immediate=immediate))
         return out
 
 
@@ -223,10 +229,15 @@ def candidate_pairs(
                 if not only_turning and b < a:
                     continue  # (a, b) and (b, a) are the same pairs of groups
                 r = s_max_m + (top[ga[0]] + top[gb[0]]) * factor * T_s + 1.0
-                found = tree_a.sparse_distance_matrix(trees[b], r, output_type="ndarray")
-                i, j = src[found["i"]], gb[found["j"]]
+                if b == a and not only_turning:  # within a group: each pair once, no distances kept
+                    found = tree_a.query_pairs(r, output_type="ndarray")
+                    i, j = ga[found[:, 0]], ga[found[:, 1]]
+                    dist = np.hypot(pts[i, 0] - pts[j, 0], pts[i, 1] - pts[j, 1])
+                else:
+                    found = tree_a.sparse_distance_matrix(trees[b], r, output_type="ndarray")
+                    i, j, dist = src[found["i"]], gb[found["j"]], found["v"]
                 reach = s_max_m + (speed_mps[i] + speed_mps[j]) * factor * T_s + 1.0
-                keep = (i != j) & (found["v"] <= reach)
+                keep = (i != j) & (dist <= reach)
                 i, j = i[keep], j[keep]
                 keys.append(np.minimum(i, j).astype(np.int64) * n + np.maximum(i, j))
     key = sorted_unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
