@@ -1,20 +1,25 @@
-"""Columnar plot validation (wire_columns.py, issue 16 item 1) against the model (wire.Plot).
+"""Columnar plot validation (wire_columns.py, issue 16 item 1) and the bytes fast path
+(wire_bytes.py) against the model (wire.Plot).
 
-The property: for any PlotBatch payload, ``decode_plot_batch`` (the columns) and
+The property: for any PlotBatch payload, ``decode_plot_batch`` (the bytes, else the columns) and
 ``decode_plot_batch_by_model`` (wire.Plot, one plot at a time) give the same rejection,
 or the same accepted plots (every column, bit for bit) and the same rejections by
 reason. The generated plots are mostly near the contract's edges (boundary values, NaN,
 ±inf, out of range, bad Mode S strings and kinds) with every other type mixed in (bools,
 huge integers, floats for integers, strings, bytes, nested lists and maps, missing and
 extra fields, non-map plots, unicode); then realistic batches of the simulator, clean and
-corrupted. FUZZ_EXAMPLES=5000 runs a longer search.
+corrupted; and every payload also encoded the other ways msgpack allows (float32, wide
+integers, str8/16/32, map16/32, array16/32), which the bytes parser reads itself.
+FUZZ_EXAMPLES=5000 runs a longer search.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import random
+import struct
 from collections import Counter
 
 import msgpack
@@ -24,6 +29,7 @@ from hypothesis import strategies as st
 
 from radar_fusion import wire
 from radar_fusion.tools import simulate as sim
+from radar_fusion.wire_bytes import decode_plot_batch_bytes
 from radar_fusion.wire_columns import validate_plot_columns
 
 EXAMPLES = settings(
@@ -46,6 +52,7 @@ def same_result(payload: bytes) -> wire.DecodedPlots | wire.Rejection:
     """Decode by columns (however few the plots), as the daemon does, and by the model;
     assert they agree; return the columnar result."""
     ref = wire.decode_plot_batch_by_model(payload)
+    SEEN["read from the bytes" if decode_plot_batch_bytes(payload) is not None else "handed back"] += 1
     for fast in (wire.decode_plot_batch(payload), wire.decode_plot_batch(payload, columns_from=0)):
         if isinstance(ref, wire.Rejection):
             assert fast == ref
@@ -62,6 +69,63 @@ def same_result(payload: bytes) -> wire.DecodedPlots | wire.Rejection:
 
 def pack(obj) -> bytes:
     return msgpack.packb(obj, use_bin_type=True)
+
+
+def pack_other_ways(obj, rng: random.Random) -> bytes:
+    """``obj`` in msgpack, each value in a form drawn at random among those msgpack allows
+    for it (msgpack-python packs the shortest): integers in any wider int/uint, floats
+    as float32 where exact, str in str8/16/32, maps and arrays in their 16/32 forms."""
+    out = bytearray()
+
+    def header(n: int, fix: int, fix_max: int, w8: int | None, w16: int, w32: int) -> None:
+        forms = ([fix | n] if n <= fix_max else []) + ([w8] if w8 is not None and n < 256 else [])
+        forms += [w16] if n < 65536 else []
+        choice = rng.choice(forms + [w32])
+        if choice == w8:
+            out.extend(bytes([w8, n]))
+        elif choice == w16:
+            out.extend(bytes([w16]) + struct.pack(">H", n))
+        elif choice == w32:
+            out.extend(bytes([w32]) + struct.pack(">I", n))
+        else:
+            out.append(choice)
+
+    def put(v) -> None:
+        if v is None or isinstance(v, bool):
+            out.extend(msgpack.packb(v))
+        elif isinstance(v, int):
+            forms = [msgpack.packb(v)]
+            for code, fmt in ((0xCC, ">B"), (0xCD, ">H"), (0xCE, ">I"), (0xCF, ">Q"), (0xD0, ">b"), (0xD1, ">h"),
+                              (0xD2, ">i"), (0xD3, ">q")):  # fmt: skip
+                with contextlib.suppress(struct.error):  # v does not fit this form
+                    forms.append(bytes([code]) + struct.pack(fmt, v))
+            out.extend(rng.choice(forms))
+        elif isinstance(v, float):
+            forms = [b"\xcb" + struct.pack(">d", v)]
+            f32 = struct.pack(">f", v) if abs(v) < 3e38 or not math.isfinite(v) else None
+            if f32 is not None and (struct.unpack(">f", f32)[0] == v or math.isnan(v)):
+                forms.append(b"\xca" + f32)
+            out.extend(rng.choice(forms))
+        elif isinstance(v, str):
+            raw = v.encode()
+            header(len(raw), 0xA0, 31, 0xD9, 0xDA, 0xDB)
+            out.extend(raw)
+        elif isinstance(v, (bytes, bytearray)):
+            out.extend(msgpack.packb(bytes(v), use_bin_type=True))
+        elif isinstance(v, (list, tuple)):
+            header(len(v), 0x90, 15, None, 0xDC, 0xDD)
+            for x in v:
+                put(x)
+        elif isinstance(v, dict):
+            header(len(v), 0x80, 15, None, 0xDE, 0xDF)
+            for k, x in v.items():
+                put(k)
+                put(x)
+        else:
+            raise TypeError(type(v))
+
+    put(obj)
+    return bytes(out)
 
 
 def batch(plots, **kw) -> bytes:
@@ -145,8 +209,9 @@ def plots(draw) -> object:
 
 
 @EXAMPLES
-@given(st.lists(plots(), max_size=25))
-def test_columns_and_model_agree_on_any_plots(plot_list):
+@given(st.lists(plots(), max_size=25), st.randoms(use_true_random=False))
+def test_columns_and_model_agree_on_any_plots(plot_list, rng):
+    same_result(pack_other_ways({"v": 1, "radar_id": "r1", "seq": 7, "plots": plot_list}, rng))
     d = same_result(batch(plot_list))
     assert isinstance(d, wire.DecodedPlots)
     assert len(d) + sum(d.rejected.values()) == len(plot_list)  # every plot accepted or counted
@@ -178,6 +243,29 @@ def test_columns_and_model_agree_on_well_typed_numbers(plot_list):
 )
 def test_columns_and_model_agree_on_whole_messages(message):
     same_result(pack(message))
+    same_result(pack_other_ways(message, random.Random(len(message))))
+
+
+@EXAMPLES
+@given(
+    st.lists(
+        st.fixed_dictionaries(
+            {k: VALID[k] for k in REQUIRED}, optional={k: v for k, v in VALID.items() if k not in REQUIRED}
+        ),
+        max_size=30,
+    ),
+    st.randoms(use_true_random=False),
+)
+def test_the_bytes_path_reads_every_valid_batch_however_encoded(plot_list, rng):
+    """A batch the contract accepts whole is read from its bytes, in any encoding, with
+    the model's values."""
+    for payload in (
+        batch(plot_list),
+        pack_other_ways({"seq": 2**63 - 1, "radar_id": "r_1.x-Y", "plots": plot_list, "v": 1}, rng),
+    ):
+        assert decode_plot_batch_bytes(payload) is not None
+        d = same_result(payload)
+        assert len(d) == len(plot_list) and d.rejected == {}
 
 
 # ------------------------------------------------------------------------ examples
@@ -293,6 +381,7 @@ def test_realistic_batches_decode_the_same_both_ways(simulated):
     for _, key, payload in simulated.messages:
         if not key.endswith("/plots"):
             continue
+        assert decode_plot_batch_bytes(payload) is not None  # the daemon's fast path
         d = same_result(payload)
         assert isinstance(d, wire.DecodedPlots) and d.rejected == {}
         obj = msgpack.unpackb(payload, raw=False)
@@ -306,3 +395,28 @@ def test_realistic_batches_decode_the_same_both_ways(simulated):
         n_batches += 1
         n_plots += len(d)
     assert n_batches > 30 and n_plots > 1000
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        b"",
+        b"\xc1",
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot()]})[:-1],  # cut short
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot()]}) + b"\x00",  # bytes after it
+        pack({"v": True, "radar_id": "r1", "seq": 7, "plots": []}),
+        pack({"v": 1, "radar_id": "r 1", "seq": 7, "plots": []}),
+        pack({"v": 1, "radar_id": "r1", "seq": -1, "plots": []}),
+        pack({"v": 1, "radar_id": "r1", "seq": 2**64 - 1, "plots": []}),
+        pack({"v": 1, "radar_id": "r1", "plots": []}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(t=math.nan)]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), "x": {"k": 1}}]}),  # a map in an extra
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), "x": "é"}]}),  # non-ASCII text
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), 3: 1}]}),  # a key not a str
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot()], "x": msgpack.ExtType(1, b"a")}),
+        b"\x85\xa1v\x01\xa8radar_id\xa2r1\xa3seq\x07\xa5plots\x90\xa3seq\x08",  # seq twice: the last
+    ],
+)
+def test_the_bytes_path_hands_back_what_it_cannot_take_as_is(payload):
+    assert decode_plot_batch_bytes(payload) is None
+    same_result(payload)

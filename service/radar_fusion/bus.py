@@ -39,6 +39,7 @@ from typing import Any, cast
 import msgpack
 import zenoh
 
+from . import wire_bytes
 from .config import BusConfig, Settings
 from .engine import Engine, PeriodOutput
 from .engine.state import StateMismatch, load_state, restore, save_state, set_state_aside, snapshot
@@ -226,6 +227,7 @@ class FusionDaemon:
         # base_dir: where the config file lives; relative areas/MSA file paths resolve there
         in_process = self.safety_nets_mode == "in_process"
         self.engine = Engine(settings, safety_nets=SafetyNets.from_settings(settings, base_dir) if in_process else None)
+        wire_bytes.warm_up()  # the plot decoder's compiled parser, now rather than at the first batch
         self.safety_nets_child: SafetyNetsChild | None = None
         if self.safety_nets_mode == "child":
             self.safety_nets_child = SafetyNetsChild(settings, base_dir, log_format=log_format)

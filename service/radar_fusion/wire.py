@@ -417,11 +417,15 @@ def decode_plot_batch(
 ) -> DecodedPlots | Rejection:
     """Decode and validate a PlotBatch; bad plots are dropped and counted in ``rejected``.
 
-    A batch of ``columns_from`` plots or more is validated as columns (wire_columns.py: the
+    A well-formed batch is read straight from its bytes (wire_bytes.py); any other, a
+    batch of ``columns_from`` plots or more is validated as columns (wire_columns.py: the
     model's rules for the whole batch at once, with the model's reasons), a smaller one by
     the model, as :func:`decode_plot_batch_by_model` does; both give the same result."""
+    from .wire_bytes import decode_plot_batch_bytes
     from .wire_columns import validate_plot_columns
 
+    if len(payload) <= max_bytes and (fast := decode_plot_batch_bytes(payload)) is not None:
+        return fast  # well-formed: read straight from the bytes (wire_bytes.py)
     env = _plot_batch_envelope(payload, max_bytes)
     if isinstance(env, Rejection):
         return env
