@@ -275,6 +275,45 @@ def test_live_gate_disabled_and_multi_plot_batches():
     np.testing.assert_array_equal(acc[np.argsort(perm)], expected)
 
 
+def test_live_gate_batches_give_the_verdicts_of_plot_by_plot():
+    """Six radar tracks interleaved, with wild plots, a run that relocks and a gap that
+    restarts a track, fed in shuffled batches of any size (several plots of a track in one
+    batch) and then one plot at a time: the same verdicts and counts (each track's plots
+    are decided in time order, the tracks independently)."""
+    rng = np.random.default_rng(11)
+    keys, ts, rs, azs = [], [], [], []
+    for key in range(6):
+        t, r, az = _track(60, turn_deg_s=2.0 if key % 2 else 0.0, turn=(100.0, 150.0), seed=20 + key)
+        r = r.copy()
+        wild = rng.random(60) < 0.06
+        r[wild] += rng.choice([-1, 1], wild.sum()) * rng.uniform(1500, 4000, wild.sum())
+        if key == 2:
+            r[35:] += 4000.0  # a genuine jump: relocks
+        if key == 4:
+            t = np.where(np.arange(60) >= 30, t + 120.0, t)  # a gap beyond max_gap_s
+        keys.append(np.full(60, key))
+        ts.append(t + key * 0.1)
+        rs.append(r)
+        azs.append(az)
+    key, t, r, az = (np.concatenate(a) for a in (keys, ts, rs, azs))
+    by_time = np.argsort(t, kind="stable")
+    one = LiveOutlierGate()
+    single = np.empty(t.size, bool)
+    for i in by_time:
+        single[i] = one.filter(key[i : i + 1], t[i : i + 1], r[i : i + 1], az[i : i + 1])[0]
+    batched_gate = LiveOutlierGate()
+    batched = np.empty(t.size, bool)
+    start = 0
+    while start < t.size:
+        part = by_time[start : start + int(rng.integers(1, 40))]
+        shuffled = rng.permutation(part)
+        batched[shuffled] = batched_gate.filter(key[shuffled], t[shuffled], r[shuffled], az[shuffled])
+        start += part.size
+    np.testing.assert_array_equal(batched, single)
+    assert (batched_gate.rejected, batched_gate.relocked) == (one.rejected, one.relocked)
+    assert one.relocked >= 1 and 5 <= one.rejected <= 40
+
+
 def test_live_gate_memory_is_bounded():
     gate = LiveOutlierGate(max_keys=500, evict_after_s=100.0)
     rng = np.random.default_rng(0)

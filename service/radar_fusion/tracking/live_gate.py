@@ -327,80 +327,23 @@ class LiveOutlierGate:
         t_now = float(t_s.max())
         if t_now - self._last_sweep_t > 0.25 * self.evict_after_s:
             self._sweep(t_now)
-        # Sort by key then time; rank = occurrence of the plot within its key.
+        # Sorted by key then time: each key's plots are decided in time order (_decide_in_order).
         order = np.lexsort((t_s, keys))
         ks = keys[order]
         first = np.concatenate(([True], ks[1:] != ks[:-1]))
         group = np.cumsum(first) - 1
         urows = self._rows_for(ks[first], t_now)
         rows = np.empty(n, dtype=np.int64)
-        rank = np.empty(n, dtype=np.int64)
         rows[order] = urows[group]
-        rank[order] = np.arange(n) - np.flatnonzero(first)[group]
-        tracked = rows >= 0
-        for r in range(int(rank.max()) + 1):
-            sel = np.flatnonzero(tracked & (rank == r))
-            if sel.size:
-                accept[sel] = self._decide(rows[sel], t_s[sel], x[sel], y[sel])
+        self.relocked += _decide_in_order(
+            order, rows, t_s, x, y,
+            self._t, self._x, self._y, self._pt, self._px, self._py,
+            self._count, self._head, self._npend, self._last_t,
+            float(self.max_gap_s), int(self.min_history), int(self.k), float(self.sigma_floor_m),
+            float(self.threshold), int(self.relock_after), accept,
+        )  # fmt: skip
         self.rejected += int(n - accept.sum())
         return accept
-
-    def _decide(
-        self, rows: NDArray[np.int64], t: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64]
-    ) -> NDArray[np.bool_]:
-        """Decide one plot per row (rows unique), update the rows, return accept."""
-        w = self.window
-        stale = (t - self._last_t[rows]) > self.max_gap_s
-        if stale.any():
-            self._count[rows[stale]] = 0
-            self._head[rows[stale]] = 0
-            self._npend[rows[stale]] = 0
-        count = self._count[rows]
-        gated = count >= self.min_history
-        ok = np.ones(rows.size, dtype=bool)
-        gi = np.flatnonzero(gated)
-        if gi.size:
-            ratio = _kmd_ratio(
-                rows[gi], t[gi], x[gi], y[gi], count[gi], self._t, self._x, self._y, self.k, self.sigma_floor_m
-            )
-            ok[gi] = ratio <= self.threshold
-        # Rejected plots: keep aside; relock after relock_after consecutive rejections.
-        rej = np.flatnonzero(~ok)
-        if rej.size:
-            rr = rows[rej]
-            npend = self._npend[rr]
-            relock = npend >= self.relock_after - 1
-            keep = ~relock
-            if keep.any():
-                kr, kp = rr[keep], npend[keep]
-                self._px[kr, kp] = x[rej[keep]]
-                self._py[kr, kp] = y[rej[keep]]
-                self._pt[kr, kp] = t[rej[keep]]
-                self._npend[kr] = kp + 1
-            if relock.any():
-                for r in rr[relock].tolist():
-                    p = min(int(self._npend[r]), w - 1)
-                    src = slice(int(self._npend[r]) - p, int(self._npend[r]))
-                    self._x[r, :p] = self._px[r, src]
-                    self._y[r, :p] = self._py[r, src]
-                    self._t[r, :p] = self._pt[r, src]
-                    self._count[r] = p
-                    self._head[r] = p
-                ok[rej[relock]] = True
-                self.relocked += int(relock.sum())
-        # Accepted plots enter the ring buffer.
-        acc = np.flatnonzero(ok)
-        if acc.size:
-            ar = rows[acc]
-            h = self._head[ar]
-            self._x[ar, h] = x[acc]
-            self._y[ar, h] = y[acc]
-            self._t[ar, h] = t[acc]
-            self._head[ar] = (h + 1) % w
-            self._count[ar] = np.minimum(self._count[ar] + 1, w)
-            self._npend[ar] = 0
-        self._last_t[rows] = np.maximum(self._last_t[rows], t)
-        return ok
 
     def reset(self) -> None:
         """Forget every key."""
@@ -416,7 +359,11 @@ def radar_track_keys(radar: np.ndarray, track_no: np.ndarray, mode_s: np.ndarray
 
 
 def warm_up() -> None:
-    """Run the compiled k-mean distance once, on one window (see association.warm_up)."""
+    """Run the compiled loops once, on one radar track of a few plots, so that they are
+    compiled (or loaded from the cache) now, not in the first period (see association.warm_up)."""
+    gate = LiveOutlierGate.from_params(LiveGateParams())
+    n = 12
+    gate.filter(np.zeros(n, np.int64), 1.0 + np.arange(n, dtype=float), np.full(n, 1e5), np.zeros(n))
     w = np.zeros((1, 4))
     _kmd_ratio(np.zeros(1, np.int64), np.ones(1), np.ones(1), np.ones(1), np.full(1, 4, np.int64), w, w, w, 3, 150.0)
 
@@ -447,8 +394,35 @@ def _kmd_ratio(
     k: int,
     sigma_floor_m: float,
 ) -> np.ndarray:
-    """The standardised k-mean distance of each new plot (t, x, y) against the first
-    count[i] plots of its window (row rows[i] of win_t, win_x, win_y), per plot:
+    """The standardised k-mean distance (:func:`_kmd_one`) of each new plot (t, x, y)
+    against the first count[i] plots of its window, row rows[i] of win_t, win_x, win_y."""
+    w = win_t.shape[1]
+    out = np.empty(rows.shape[0])
+    scratch = (np.empty(w), np.empty(w), np.empty(w))
+    for i in range(rows.shape[0]):
+        out[i] = _kmd_one(rows[i], t[i], x[i], y[i], count[i], win_t, win_x, win_y, k, sigma_floor_m, *scratch)
+    return out
+
+
+@compiled
+def _kmd_one(
+    row: int,
+    t: float,
+    x: float,
+    y: float,
+    m: int,
+    win_t: np.ndarray,
+    win_x: np.ndarray,
+    win_y: np.ndarray,
+    k: int,
+    sigma_floor_m: float,
+    dt: np.ndarray,
+    r2: np.ndarray,
+    d: np.ndarray,
+) -> float:
+    """The standardised k-mean distance of a new plot (t, x, y) against the first m plots
+    of its window (row ``row`` of win_t, win_x, win_y); dt, r2, d: scratch of the window's
+    length:
 
     * a least-squares constant-velocity line through the window (time about its mean);
     * the residual scale about it, robust to a wild plot that got in: for 2-D Gaussian
@@ -457,55 +431,125 @@ def _kmd_ratio(
       of the k smallest distances from the new plot to them (Hu 2013's k-mean distance;
       inf when the window holds fewer than k);
     * ratio = that mean / sqrt(scale² + sigma_floor_m²)."""
-    n = rows.shape[0]
-    w = win_t.shape[1]
-    out = np.empty(n)
-    dt = np.empty(w)
-    r2 = np.empty(w)
-    d = np.empty(w)
     ln2 = np.log(2.0)
-    for i in range(n):
+    tbar = 0.0
+    xbar = 0.0
+    ybar = 0.0
+    for j in range(m):
+        dt[j] = win_t[row, j] - t  # <= 0 for past plots
+        tbar += dt[j]
+        xbar += win_x[row, j]
+        ybar += win_y[row, j]
+    tbar /= m
+    xbar /= m
+    ybar /= m
+    stt = 0.0
+    sxt = 0.0
+    syt = 0.0
+    for j in range(m):
+        c = dt[j] - tbar
+        stt += c * c
+        sxt += c * (win_x[row, j] - xbar)
+        syt += c * (win_y[row, j] - ybar)
+    vx = sxt / stt if stt > 0.0 else 0.0
+    vy = syt / stt if stt > 0.0 else 0.0
+    for j in range(m):
+        c = dt[j] - tbar
+        rx = win_x[row, j] - (xbar + vx * c)
+        ry = win_y[row, j] - (ybar + vy * c)
+        r2[j] = rx * rx + ry * ry
+        ex = win_x[row, j] - vx * dt[j]
+        ey = win_y[row, j] - vy * dt[j]
+        d[j] = np.hypot(x - ex, y - ey)
+    _sort_head(r2, m)
+    median = 0.5 * (r2[(m - 1) // 2] + r2[m // 2])
+    var_fit = median / ln2 * m / max(m - 2.0, 1.0)
+    if m < k:
+        return np.inf
+    _sort_head(d, m)
+    kmd = 0.0
+    for j in range(k):
+        kmd += d[j]
+    kmd /= k
+    return kmd / np.sqrt(var_fit + sigma_floor_m * sigma_floor_m)
+
+
+@compiled
+def _decide_in_order(
+    order: np.ndarray,
+    rows: np.ndarray,
+    t: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    win_t: np.ndarray,
+    win_x: np.ndarray,
+    win_y: np.ndarray,
+    pend_t: np.ndarray,
+    pend_x: np.ndarray,
+    pend_y: np.ndarray,
+    count: np.ndarray,
+    head: np.ndarray,
+    npend: np.ndarray,
+    last_t: np.ndarray,
+    max_gap_s: float,
+    min_history: int,
+    k: int,
+    sigma_floor_m: float,
+    threshold: float,
+    relock_after: int,
+    accept: np.ndarray,
+) -> int:
+    """Decide the plots in ``order`` (each key's in time order), one at a time, updating
+    their rows (rows[i] of the window, the pending plots and the counters; −1: accepted
+    untracked) and accept[i]; returns how many relocked. Per plot:
+
+    * after a gap over max_gap_s the row starts afresh;
+    * with min_history plots or more in the window, the plot passes when its standardised
+      k-mean distance (:func:`_kmd_one`) is at most ``threshold``;
+    * a refused plot is kept aside; the relock_after-th refusal in a row passes, and the
+      window restarts from the plots kept aside (the radar track moved: a re-lock);
+    * a passed plot enters the window (a ring of the last ``window`` plots)."""
+    w = win_t.shape[1]
+    dt, r2, d = np.empty(w), np.empty(w), np.empty(w)
+    relocked = 0
+    for q in range(order.shape[0]):
+        i = order[q]
         row = rows[i]
-        m = count[i]
-        tbar = 0.0
-        xbar = 0.0
-        ybar = 0.0
-        for j in range(m):
-            dt[j] = win_t[row, j] - t[i]  # <= 0 for past plots
-            tbar += dt[j]
-            xbar += win_x[row, j]
-            ybar += win_y[row, j]
-        tbar /= m
-        xbar /= m
-        ybar /= m
-        stt = 0.0
-        sxt = 0.0
-        syt = 0.0
-        for j in range(m):
-            c = dt[j] - tbar
-            stt += c * c
-            sxt += c * (win_x[row, j] - xbar)
-            syt += c * (win_y[row, j] - ybar)
-        vx = sxt / stt if stt > 0.0 else 0.0
-        vy = syt / stt if stt > 0.0 else 0.0
-        for j in range(m):
-            c = dt[j] - tbar
-            rx = win_x[row, j] - (xbar + vx * c)
-            ry = win_y[row, j] - (ybar + vy * c)
-            r2[j] = rx * rx + ry * ry
-            ex = win_x[row, j] - vx * dt[j]
-            ey = win_y[row, j] - vy * dt[j]
-            d[j] = np.hypot(x[i] - ex, y[i] - ey)
-        _sort_head(r2, m)
-        median = 0.5 * (r2[(m - 1) // 2] + r2[m // 2])
-        var_fit = median / ln2 * m / max(m - 2.0, 1.0)
-        if m < k:
-            out[i] = np.inf
+        if row < 0:
             continue
-        _sort_head(d, m)
-        kmd = 0.0
-        for j in range(k):
-            kmd += d[j]
-        kmd /= k
-        out[i] = kmd / np.sqrt(var_fit + sigma_floor_m * sigma_floor_m)
-    return out
+        if t[i] - last_t[row] > max_gap_s:
+            count[row] = 0
+            head[row] = 0
+            npend[row] = 0
+        ok = True
+        if count[row] >= min_history:
+            ratio = _kmd_one(row, t[i], x[i], y[i], count[row], win_t, win_x, win_y, k, sigma_floor_m, dt, r2, d)
+            ok = ratio <= threshold
+        if not ok:
+            held = npend[row]
+            if held >= relock_after - 1:
+                p = min(held, w - 1)
+                for j in range(p):
+                    win_x[row, j] = pend_x[row, held - p + j]
+                    win_y[row, j] = pend_y[row, held - p + j]
+                    win_t[row, j] = pend_t[row, held - p + j]
+                count[row] = p
+                head[row] = p
+                ok = True
+                relocked += 1
+            else:
+                pend_x[row, held] = x[i]
+                pend_y[row, held] = y[i]
+                pend_t[row, held] = t[i]
+                npend[row] = held + 1
+        if ok:
+            h = head[row]
+            win_x[row, h] = x[i]
+            win_y[row, h] = y[i]
+            win_t[row, h] = t[i]
+            head[row] = (h + 1) % w
+            count[row] = min(count[row] + 1, w)
+            npend[row] = 0
+        last_t[row] = max(last_t[row], t[i])
+        accept[i] = ok
+    return relocked
