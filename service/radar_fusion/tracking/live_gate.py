@@ -7,6 +7,7 @@ recent plots of its own radar track, as :class:`LiveOutlierGate` describes.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -431,7 +432,7 @@ def _kmd_one(
       of the k smallest distances from the new plot to them (Hu 2013's k-mean distance;
       inf when the window holds fewer than k);
     * ratio = that mean / sqrt(scale² + sigma_floor_m²)."""
-    ln2 = np.log(2.0)
+    ln2 = math.log(2.0)
     tbar = 0.0
     xbar = 0.0
     ybar = 0.0
@@ -465,13 +466,13 @@ def _kmd_one(
     median = 0.5 * (r2[(m - 1) // 2] + r2[m // 2])
     var_fit = median / ln2 * m / max(m - 2.0, 1.0)
     if m < k:
-        return np.inf
+        return math.inf
     _sort_head(d, m)
     kmd = 0.0
     for j in range(k):
         kmd += d[j]
     kmd /= k
-    return kmd / np.sqrt(var_fit + sigma_floor_m * sigma_floor_m)
+    return kmd / math.sqrt(var_fit + sigma_floor_m * sigma_floor_m)
 
 
 @compiled
