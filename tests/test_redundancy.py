@@ -40,6 +40,19 @@ def test_a_standby_waits_while_an_active_lives_and_takes_over_above_its_epoch():
     assert e.took_over() == 4  # above every epoch seen: epochs only grow
 
 
+def test_a_standby_waits_the_handover_time_after_the_active_went():
+    """The active's last TrackBatches travel behind its token's withdrawal (Zenoh sends
+    declarations first): the standby takes over handover_s after the withdrawal, having
+    seen them, not at once."""
+    e = Election("b:2", started_s=0.0, handover_s=0.5)
+    e.active_seen("a:1", 3, True, now_s=5.0)
+    e.active_seen("a:1", 3, False, now_s=10.0)
+    assert e.decide(10.0) is None and e.decide(10.49) is None
+    assert e.decide(10.5) == "take_over"
+    lone = Election("c:3", started_s=0.0, handover_s=0.5)  # no active was ever seen: settle_s alone
+    assert lone.decide(1.0) == "take_over"
+
+
 def test_epochs_grow_across_a_restart_of_the_whole_pair():
     """A display that stayed up drops what is below the highest epoch it saw: a pair that
     restarted from nothing must not start again at 1."""

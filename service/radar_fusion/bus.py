@@ -199,7 +199,9 @@ class FusionDaemon:
         self.instance = red.instance or default_instance()
         if red.enabled and red.instance is None:  # the child learns whose alerts it publishes
             settings = settings.model_copy(update={"redundancy": red.model_copy(update={"instance": self.instance})})
-        self.election = Election(self.instance, time.monotonic(), red.settle_s) if red.enabled else None
+        self.election = (
+            Election(self.instance, time.monotonic(), red.settle_s, handover_s=red.handover_s) if red.enabled else None
+        )
         self.role: Role = "standby" if red.enabled else "active"
         self.epoch = 0  # the epoch this daemon publishes under while active (0: no redundancy)
         self._control: queue.SimpleQueue = queue.SimpleQueue()  # election events, others' states
@@ -428,7 +430,7 @@ class FusionDaemon:
             if kind == "member":
                 election.member_seen(item[1], item[3])
             elif kind == "active":
-                election.active_seen(item[1], item[2], item[3])
+                election.active_seen(item[1], item[2], item[3], time.monotonic())
             elif kind == "tracks":
                 instance, epoch, period = item[1:]
                 election.epoch_seen(instance, epoch)

@@ -119,6 +119,15 @@ class RedundancyConfig(_Section):
         description="at start, listen this long for an active before taking over (an active already on the "
         "bus is seen at once through liveliness history; this covers its tokens still in flight)",
     )
+    handover_s: float = Field(
+        0.5,
+        ge=0,
+        le=10,
+        description="after the active's token is withdrawn, wait this long before taking over: its last "
+        "TrackBatches, published before the withdrawal but on a lower priority than Zenoh's declarations, "
+        "arrive meanwhile, and the standby does not publish those periods again (on loopback a standby that "
+        "took over at once republished the active's last two periods)",
+    )
 
 
 class MetricsConfig(_Section):

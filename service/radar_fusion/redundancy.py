@@ -35,6 +35,7 @@ the lost active has already published (it saw its TrackBatch): every period once
 from __future__ import annotations
 
 import logging
+import math
 import os
 import socket
 from dataclasses import dataclass, field
@@ -64,6 +65,7 @@ class Election:
     instance: str
     started_s: float
     settle_s: float = 1.0
+    handover_s: float = 0.0  # after the last active's token went, wait this long (RedundancyConfig.handover_s)
     role: Role = "standby"
     epoch: int = 0  # ours while active
     highest_epoch: int = 0  # the highest seen anywhere, ours included
@@ -71,14 +73,15 @@ class Election:
     members: set[str] = field(default_factory=set)  # other instances on the bus
     takeovers: int = 0
     stand_downs: int = 0
+    active_gone_s: float = -math.inf  # when the last active token seen was withdrawn
 
     # ------------------------------------------------------------- what is seen
     def member_seen(self, instance: str, alive: bool) -> None:
         if instance != self.instance:
             (self.members.add if alive else self.members.discard)(instance)
 
-    def active_seen(self, instance: str, epoch: int, alive: bool) -> None:
-        """An active token appeared (``alive``) or was withdrawn."""
+    def active_seen(self, instance: str, epoch: int, alive: bool, now_s: float = -math.inf) -> None:
+        """An active token appeared (``alive``) or was withdrawn (seen at ``now_s``)."""
         if instance == self.instance:
             return
         if alive:
@@ -86,6 +89,7 @@ class Election:
             self.highest_epoch = max(self.highest_epoch, epoch)
         elif self.actives.get(instance) == epoch:
             del self.actives[instance]
+            self.active_gone_s = max(self.active_gone_s, now_s)
 
     def epoch_seen(self, instance: str | None, epoch: int) -> None:
         """A TrackBatch or state of ``epoch`` from ``instance`` (an active's stamp)."""
@@ -105,6 +109,8 @@ class Election:
             return None
         if self.actives or now_s - self.started_s < self.settle_s:
             return None
+        if now_s - self.active_gone_s < self.handover_s:
+            return None  # the gone active's last TrackBatches may still be on their way
         standbys = self.members - set(self.actives)
         if any(_rank(i) > _rank(self.instance) for i in standbys):
             return None  # another standby comes first; if it does not move, it is not on the bus
