@@ -329,10 +329,10 @@ def test_live_gate_memory_is_bounded():
 
 
 def test_live_gate_ratio_against_a_hand_computation():
-    """The live gate's standardised k-mean distance (live_gate._kmd_ratio) against the
+    """The live gate's standardised k-mean distance (live_gate._kmd_one) against the
     same rule written independently: np.polyfit's line through the window, the median
     residual scale, the window carried forward and the k nearest."""
-    from radar_fusion.tracking.live_gate import _kmd_ratio
+    from radar_fusion.tracking.live_gate import _kmd_one
 
     rng = np.random.default_rng(3)
     w, k, floor = 8, 3, 150.0
@@ -344,7 +344,8 @@ def test_live_gate_ratio_against_a_hand_computation():
     t = win_t[np.arange(5), count - 1] + 4.0
     x = win_x[np.arange(5), count - 1] + vx[:, 0] * 4.0 + np.array([30.0, -2000.0, 500.0, 0.0, 9000.0])
     y = win_y[np.arange(5), count - 1] + vy[:, 0] * 4.0
-    got = _kmd_ratio(np.arange(5), t, x, y, count, win_t, win_x, win_y, k, floor)
+    scratch = (np.empty(w), np.empty(w), np.empty(w))
+    got = np.array([_kmd_one(i, t[i], x[i], y[i], count[i], win_t, win_x, win_y, k, floor, *scratch) for i in range(5)])
     for i in range(5):
         m = count[i]
         ts, xs, ys = win_t[i, :m], win_x[i, :m], win_y[i, :m]

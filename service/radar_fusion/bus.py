@@ -110,9 +110,9 @@ def tool_client_config(config_path: str | None, connect: list[str] | None, prefi
     return zenoh_config("client", connect=connect or ["tcp/127.0.0.1:7447"]), prefix or "atc"
 
 
-def batch_stamp(payload: bytes) -> tuple[str, int, int] | None:
-    """(instance, epoch, period) of a TrackBatch's bytes, or None without a stamp: the
-    head and the tail are read, the tracks between only skipped."""
+def batch_head(payload: bytes) -> dict[str, Any]:
+    """A TrackBatch's fields but its tracks, from its bytes: the head and the tail are
+    read, the tracks between only skipped."""
     unpacker = msgpack.Unpacker(raw=False, max_buffer_size=max(len(payload), 1 << 20))
     unpacker.feed(payload)
     fields: dict[str, Any] = {}
@@ -122,6 +122,13 @@ def batch_stamp(payload: bytes) -> tuple[str, int, int] | None:
             unpacker.skip()
         else:
             fields[key] = unpacker.unpack()
+    return fields
+
+
+def batch_stamp(payload: bytes) -> tuple[str, int, int] | None:
+    """(instance, epoch, period) of a TrackBatch's bytes (:func:`batch_head`), or None
+    without a stamp."""
+    fields = batch_head(payload)
     instance, epoch, period = fields.get("instance"), fields.get("epoch"), fields.get("period")
     if isinstance(instance, str) and type(epoch) is int and type(period) is int:
         return instance, epoch, period

@@ -727,18 +727,11 @@ E2E_PARTS = (
 
 
 def _period_of(payload: bytes) -> int:
-    """A TrackBatch's period, read from its bytes without decoding its tracks (−1 if none)."""
-    import msgpack
+    """A TrackBatch's period, read without decoding its tracks (−1 if none)."""
+    from radar_fusion.bus import batch_head
 
-    unpacker = msgpack.Unpacker(raw=False, max_buffer_size=max(len(payload), 1 << 20))
-    unpacker.feed(payload)
-    for _ in range(unpacker.read_map_header()):
-        key = unpacker.unpack()
-        if key == "period":
-            period = unpacker.unpack()
-            return period if type(period) is int else -1
-        unpacker.skip()
-    return -1
+    period = batch_head(payload).get("period")
+    return period if type(period) is int else -1
 
 
 def _read_timing(path: Path) -> dict[int, dict[str, float]]:

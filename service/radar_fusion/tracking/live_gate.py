@@ -365,8 +365,6 @@ def warm_up() -> None:
     gate = LiveOutlierGate.from_params(LiveGateParams())
     n = 12
     gate.filter(np.zeros(n, np.int64), 1.0 + np.arange(n, dtype=float), np.full(n, 1e5), np.zeros(n))
-    w = np.zeros((1, 4))
-    _kmd_ratio(np.zeros(1, np.int64), np.ones(1), np.ones(1), np.ones(1), np.full(1, 4, np.int64), w, w, w, 3, 150.0)
 
 
 @compiled
@@ -380,29 +378,6 @@ def _sort_head(a: np.ndarray, m: int) -> None:
             a[j + 1] = a[j]
             j -= 1
         a[j + 1] = v
-
-
-@compiled
-def _kmd_ratio(
-    rows: np.ndarray,
-    t: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    count: np.ndarray,
-    win_t: np.ndarray,
-    win_x: np.ndarray,
-    win_y: np.ndarray,
-    k: int,
-    sigma_floor_m: float,
-) -> np.ndarray:
-    """The standardised k-mean distance (:func:`_kmd_one`) of each new plot (t, x, y)
-    against the first count[i] plots of its window, row rows[i] of win_t, win_x, win_y."""
-    w = win_t.shape[1]
-    out = np.empty(rows.shape[0])
-    scratch = (np.empty(w), np.empty(w), np.empty(w))
-    for i in range(rows.shape[0]):
-        out[i] = _kmd_one(rows[i], t[i], x[i], y[i], count[i], win_t, win_x, win_y, k, sigma_floor_m, *scratch)
-    return out
 
 
 @compiled
