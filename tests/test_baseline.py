@@ -184,3 +184,32 @@ def test_bench_side_by_side_end_to_end(tmp_path, capsys):
     md = (report / "report.md").read_text()
     assert "Stone Soup" in md and "| 6×2 |" in md
     assert "engine / Stone Soup" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("turn_rate_dps", [0.0, 2.0])
+def test_pcrb_in_turns_is_taken_at_the_times_the_truth_turns(turn_rate_dps):
+    """The bound over the turning times (truth above evaluate's 1.5°/s) beside the one over
+    straight flight: with every aircraft turning at 2°/s all the time, every settled time is
+    a turning one (the turning bound is the whole one, no straight time); flying straight,
+    there is no turning time."""
+    import dataclasses
+
+    from radar_fusion.tools.simulate.scenario import Leg
+
+    scenario = sm.scenario_for_benchmark(6, 3, 60.0, 5)
+    targets = []
+    for tg in scenario.targets:
+        plan = dataclasses.replace(tg.plan, legs=(Leg(scenario.duration_s + 60.0, turn_rate_dps),))
+        targets.append(dataclasses.replace(tg, plan=plan))
+    scenario = dataclasses.replace(scenario, targets=targets)
+    sim = sm.simulate(scenario, encode=False)
+    settings = config.settings_from_dict(tomllib.loads(sm.config_toml(scenario)))
+    f = compare.measurement_floor(sim, settings, settle_s=20.0)
+    assert f["pcrb_points"] > 20
+    if turn_rate_dps:
+        assert f["pcrb_turning_points"] == f["pcrb_points"]
+        assert f["pcrb_turning_pos_rms_m"] == pytest.approx(f["pcrb_pos_rms_m"], rel=1e-12)
+        assert math.isnan(f["pcrb_straight_pos_rms_m"])
+    else:
+        assert f["pcrb_turning_points"] == 0 and math.isnan(f["pcrb_turning_pos_rms_m"])
+        assert f["pcrb_straight_pos_rms_m"] == pytest.approx(f["pcrb_pos_rms_m"], rel=1e-12)

@@ -50,7 +50,8 @@ def test_issue15_verdicts_are_the_ratios_of_the_run():
     """bench --report's issue-15 lines: each ratio from the figures given (here chosen so
     that position 56/82 = 0.683 passes 0.7 and velocity 10/16 = 0.625 fails 0.6), the
     false-track share over the displayed tracks, straight flight over its PCRB, turning over
-    straight, and the engine at 4,000×10 against 150k plots/s."""
+    straight with where its error is (onset / steady, outside the turn, its PCRB), and the
+    engine at 4,000×10 against 150k plots/s."""
     from radar_fusion.tools.bench.report import goal_lines_issue15
 
     ours = {
@@ -64,6 +65,10 @@ def test_issue15_verdicts_are_the_ratios_of_the_run():
         "pos_rms_straight_m": 40.0,
         "pos_rms_turning_m": 58.0,
         "n_pairs_turning": 30,
+        "pos_rms_turn_onset_m": 80.0,
+        "pos_rms_turn_steady_m": 45.0,
+        "n_pairs_turn_onset": 12,
+        "turning_outward_mean_m": 21.0,
     }
     ss = {"pos_rms_m": 82.0, "vel_rms_mps": 16.0, "gospa_mean_m": 800.0, "completeness_mean": 0.98}
     row = {
@@ -72,17 +77,19 @@ def test_issue15_verdicts_are_the_ratios_of_the_run():
         "engine": {"plots_per_s": 20_000.0},
         "accuracy": {"ours": ours},
         "reference": {"scores": ss},
-        "sim": {"pcrb_straight_pos_rms_m": 32.0},
+        "sim": {"pcrb_straight_pos_rms_m": 32.0, "pcrb_turning_pos_rms_m": 40.0},
     }
     big = {
         "label": "4,000×10",
         "case": {"kind": "benchmark", "aircraft": 4000, "radars": 10},
         "engine": {"plots_per_s": 151_000.0},
     }
-    vs_ss, ids, straight, turning, engine = goal_lines_issue15([row, big])
+    vs_ss, ids, straight, turning, detail, engine = goal_lines_issue15([row, big])
     assert "position RMS 0.68×" in vs_ss and "velocity RMS 0.62×" in vs_ss and "GOSPA 0.50×" in vs_ss
     assert vs_ss.endswith("NOT MET")  # velocity
     assert "1.020 track ids" in ids and "(2.5 %" in ids and ids.endswith("NOT MET")  # 1 false of 40 > 2 %
     assert "1.25× its PCRB" in straight and straight.endswith("NOT MET")
     assert "1.45× straight" in turning and turning.endswith("-> MET")
+    assert "first 24 s of a turn 80 m (12 pairs), after 45 m (18)" in detail
+    assert "21 m outside the turn" in detail and "PCRB at the turning times 40 m (1.45× it)" in detail
     assert "151,000" in engine and engine.endswith("-> MET")

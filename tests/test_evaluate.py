@@ -460,3 +460,89 @@ def test_a_track_at_its_own_earlier_time_is_scored_against_the_truth_then():
     a2, b2 = dict(a, t=t_b), dict(b, t=t_b)
     s2 = ev.evaluate([batch(t_b, [a2, b2])], truth, ev.EvalParams(settle_s=0.0))
     assert s2.pos_rms_m > 300.0
+
+
+def test_turn_onset_and_steady_parts_and_the_offset_outside_the_turn():
+    """Two aircraft fly straight for 40 s, then turn at 3°/s (one right, one left) for 80 s.
+    Their tracks are 10 m ahead in straight flight, 80 m outside the turn in its first 24 s
+    and 20 m outside after: the scorer splits the turning RMS into those two parts and
+    finds the mean offset outside the turn, both turn directions alike."""
+    speed_mps, rate_deg_s, t_turn = 150.0, 3.0, 40.0
+
+    def state(sign, t_rel):
+        """Exact position and velocity, heading 30° at first; sign +1 turns right."""
+        psi0 = math.radians(30.0)
+        w = sign * math.radians(rate_deg_s)
+        if t_rel <= t_turn:
+            psi, x, y = psi0, speed_mps * math.sin(psi0) * t_rel, speed_mps * math.cos(psi0) * t_rel
+        else:
+            x0, y0 = speed_mps * math.sin(psi0) * t_turn, speed_mps * math.cos(psi0) * t_turn
+            psi = psi0 + w * (t_rel - t_turn)
+            x = x0 - speed_mps / w * (math.cos(psi) - math.cos(psi0))
+            y = y0 + speed_mps / w * (math.sin(psi) - math.sin(psi0))
+        return x, y, speed_mps * math.sin(psi), speed_mps * math.cos(psi)
+
+    origins = {"R": (+1, 0.0), "L": (-1, 60_000.0)}
+    cols = {k: [] for k in ("t_s", "target_id", "x_m", "y_m", "vx_mps", "vy_mps", "detectable")}
+    for tid, (sign, x_shift) in origins.items():
+        for t in SECONDS:
+            x, y, vx, vy = state(sign, t - T0)
+            for k, v in zip(("t_s", "target_id", "x_m", "y_m", "vx_mps", "vy_mps", "detectable"),
+                            (t, tid, x + x_shift, y, vx, vy, 1)):  # fmt: skip
+                cols[k].append(v)
+    truth = ev.Truth.from_columns(**cols)
+    batches = []
+    expect_onset, expect_steady, expect_straight = [], [], []
+    for t in BATCH_TIMES:
+        tracks = []
+        for n, (sign, x_shift) in enumerate(origins.values()):
+            x, y, vx, vy = state(sign, t - T0)
+            ux, uy = vx / speed_mps, vy / speed_mps
+            right = np.array([uy, -ux])  # unit vector to the right of the direction of flight
+            since_turn = t - T0 - t_turn
+            if since_turn < 0:
+                d = 10.0 * np.array([ux, uy])  # ahead
+                expect_straight.append(10.0)
+            else:
+                off = 80.0 if since_turn < 24.0 else 20.0
+                d = -sign * off * right  # outside: left of a right turn, right of a left turn
+                (expect_onset if off == 80.0 else expect_steady).append(off)
+            tracks.append(track(n + 1, t, x + x_shift + d[0], y + d[1], vx, vy))
+        batches.append(batch(t, tracks))
+    s = ev.evaluate(batches, truth, ev.EvalParams(settle_s=0.0))
+    # the batch at 40.5 s (0.5 s into the turn) already turns faster than 1.5°/s by central
+    # differences, the one at 36.5 s is below the straight-flight threshold: no pair between
+    assert s.n_pairs_turning == len(expect_onset) + len(expect_steady) == 2 * 20
+    assert s.n_pairs_turn_onset == len(expect_onset) == 2 * 6
+    assert s.pos_rms_turn_onset_m == pytest.approx(80.0, abs=1.5)
+    assert s.pos_rms_turn_steady_m == pytest.approx(20.0, abs=1.5)
+    expect_mean = (sum(expect_onset) + sum(expect_steady)) / (len(expect_onset) + len(expect_steady))
+    assert s.turning_outward_mean_m == pytest.approx(expect_mean, abs=1.5)
+    assert s.pos_rms_straight_m == pytest.approx(10.0, abs=0.5)
+    assert "first 24 s of a turn" in ev.format_table(s)
+    # 50 m inside the turn instead: the offset's sign follows
+    inside = []
+    for t in BATCH_TIMES:
+        moved = []
+        for n, (sign, x_shift) in enumerate(origins.values()):
+            x, y, vx, vy = state(sign, t - T0)
+            right = np.array([vy, -vx]) / speed_mps
+            d = sign * 50.0 * right if t - T0 >= t_turn else np.zeros(2)
+            moved.append(track(n + 1, t, x + x_shift + d[0], y + d[1], vx, vy))
+        inside.append(batch(t, moved))
+    s_in = ev.evaluate(inside, truth, ev.EvalParams(settle_s=0.0))
+    assert s_in.turning_outward_mean_m == pytest.approx(-50.0, abs=1.5)
+
+
+def test_turn_age_counts_from_the_first_batch_time_of_each_turn():
+    times = np.array([0.0, 4.0, 8.0, 12.0, 16.0, 20.0, 24.0])
+    rate = np.array(
+        [
+            [0.0, 0.1, 2.0, 2.0, -2.0, 0.0, 1.0],  # a turn from 8 s (a reversal is one turn), another at 24 s
+            [3.0, 3.0, np.nan, 3.0, 3.0, 3.0, 3.0],  # turning from the start; no rate at 8 s ends the run
+        ]
+    )
+    got = ev.turn_age_at(rate, times, 0.3)
+    nan = np.nan
+    np.testing.assert_array_equal(got[0], [nan, nan, 0.0, 4.0, 8.0, nan, 0.0])
+    np.testing.assert_array_equal(got[1], [0.0, 4.0, nan, 0.0, 4.0, 8.0, 12.0])

@@ -47,6 +47,15 @@ Definitions (every figure is taken at the batch times, i.e. each TrackBatch's ``
   percentile of e, over all associated pairs whose track status is in ``rms_statuses``
   (default: confirmed only). "Settled" figures leave out each track's first
   ``settle_s`` seconds, counted from its first appearance in the batches (any status).
+* Straight flight and turns: a pair is *straight* when its target's truth turn rate at
+  the batch time (:func:`truth_turn_rate_deg_s`) is below ``straight_below_deg_s`` and
+  *turning* when it is above ``turning_above_deg_s``, both among the settled pairs. A
+  turning pair is in the turn's *onset* when its target has been turning (rate above
+  ``straight_below_deg_s`` at every batch time since) for less than ``turn_onset_s``
+  seconds, counted from the first batch time of the turn, else in its *steady* part.
+  ``turning_outward_mean_m`` is the mean, over the turning pairs, of the track's offset
+  across the truth's direction of flight towards the outside of the turn: a filter that
+  is late into a turn flies wide of it, a positive offset.
 * GOSPA (García-Fernández, Rahmathullah, Svensson 2017, α = 2), per batch, between the
   detectable truth targets X (|X| = m) and the displayed, non-excused tracks Y
   (|Y| = n)::
@@ -150,6 +159,7 @@ class EvalParams:
     keep_previous: bool = True
     turning_above_deg_s: float = 1.5
     straight_below_deg_s: float = 0.3
+    turn_onset_s: float = 24.0
 
 
 @dataclass
@@ -192,6 +202,10 @@ class Scores:
     pos_rms_turning_m: float
     n_pairs_straight: int
     n_pairs_turning: int
+    pos_rms_turn_onset_m: float
+    pos_rms_turn_steady_m: float
+    n_pairs_turn_onset: int
+    turning_outward_mean_m: float
     gospa_mean_m: float
     gospa_localisation_mean: float
     gospa_missed_mean: float
@@ -225,6 +239,21 @@ class Scores:
                 continue
             out[k] = v
         return json.loads(json.dumps(out, default=float, allow_nan=True))
+
+
+def turn_age_at(turn_deg_s: np.ndarray, times_s: np.ndarray, turning_above_deg_s: float) -> np.ndarray:
+    """Seconds each target has been turning at each batch time, (K, T): the time since the
+    first batch time of the run of batch times, up to this one, at which its turn rate's
+    magnitude is above ``turning_above_deg_s``; NaN where it is not turning (or has no rate).
+    A turn under way at the first batch time counts from that time."""
+    k, n = turn_deg_s.shape
+    with np.errstate(invalid="ignore"):
+        turning = np.abs(turn_deg_s) > turning_above_deg_s  # NaN: not turning
+    # index of the latest batch time, up to each one, at which the target was not turning
+    last_off = np.maximum.accumulate(np.where(turning, -1, np.arange(n)[None, :]), axis=1)
+    start = np.minimum(last_off + 1, n - 1) if n else last_off
+    age = times_s[None, :] - times_s[start] if n else np.zeros((k, 0))
+    return np.where(turning, age, np.nan)
 
 
 def truth_turn_rate_deg_s(vx_mps: np.ndarray, vy_mps: np.ndarray, times_s: np.ndarray) -> np.ndarray:
@@ -340,6 +369,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     tat = interpolate_truth(truth, times, params.truth_max_gap_s)
     n_targets, n_times = truth.n_targets, times.shape[0]
     turn_deg_s = truth_turn_rate_deg_s(tat.vx_mps, tat.vy_mps, times)
+    turn_age_s = turn_age_at(turn_deg_s, times, params.straight_below_deg_s)
     c, p = params.gospa_c_m, params.gospa_p
     rms_statuses = set(params.rms_statuses)
 
@@ -347,7 +377,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     previous: dict[int, int] = {}  # track id -> target index, associations of the previous batch
     # Per-pair records (concatenated at the end).
     pair_batch, pair_target, pair_track, pair_epos, pair_evel, pair_settled, pair_rms = [], [], [], [], [], [], []
-    pair_turn = []
+    pair_turn, pair_turn_age, pair_outward = [], [], []
     # Per displayed track and batch: its id and its classification.
     cls_ids, cls_kind = [], []
     g_dist = np.zeros(n_times)
@@ -400,6 +430,15 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         pair_epos.append(e_pos)
         pair_evel.append(e_vel)
         pair_turn.append(np.abs(turn_deg_s[a_tgt, b]))
+        pair_turn_age.append(turn_age_s[a_tgt, b])
+        # across the truth's velocity, positive to its right; times the turn's sign (a right
+        # turn's inside is on the right), negated: positive outside the turn
+        t_vx, t_vy = tat.vx_mps[a_tgt, b], tat.vy_mps[a_tgt, b]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            right_m = ((x[a_trk] - tat.x_m[a_tgt, b]) * t_vy - (y[a_trk] - tat.y_m[a_tgt, b]) * t_vx) / np.hypot(
+                t_vx, t_vy
+            )
+        pair_outward.append(-np.sign(turn_deg_s[a_tgt, b]) * right_m)
         pair_settled.append(age >= params.settle_s)
         pair_rms.append(np.isin(status[a_trk], list(rms_statuses)) if a_trk.size else np.zeros(0, bool))
 
@@ -421,6 +460,8 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     epos, evel = cat(pair_epos, float), cat(pair_evel, float)
     settled, in_rms = cat(pair_settled, bool), cat(pair_rms, bool)
     turn = cat(pair_turn, float)
+    turn_age = cat(pair_turn_age, float)
+    outward = cat(pair_outward, float)
 
     # ID swaps (track side): consecutive associations of a track id with different targets.
     order = np.lexsort((pb, pk))
@@ -477,6 +518,8 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
     sel, sel_s = in_rms, in_rms & settled
     sel_straight = sel_s & (turn < params.straight_below_deg_s)  # NaN (no rate) is in neither
     sel_turning = sel_s & (turn > params.turning_above_deg_s)
+    sel_onset = sel_turning & (turn_age < params.turn_onset_s)
+    sel_steady = sel_turning & (turn_age >= params.turn_onset_s)
     v_known = np.isfinite(evel)  # a track of one update sends no velocity: none to score
 
     return Scores(
@@ -499,6 +542,10 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         pos_rms_turning_m=_rms(epos[sel_turning]),
         n_pairs_straight=int(np.count_nonzero(sel_straight)),
         n_pairs_turning=int(np.count_nonzero(sel_turning)),
+        pos_rms_turn_onset_m=_rms(epos[sel_onset]),
+        pos_rms_turn_steady_m=_rms(epos[sel_steady]),
+        n_pairs_turn_onset=int(np.count_nonzero(sel_onset)),
+        turning_outward_mean_m=mean(outward[sel_turning]),
         gospa_mean_m=mean(g_dist),
         gospa_localisation_mean=mean(g_loc),
         gospa_missed_mean=mean(g_mis),
@@ -560,6 +607,11 @@ def format_table(scores: Scores) -> str:
             f"settled position RMS straight (< {pr.straight_below_deg_s:g} deg/s) / "
             f"turning (> {pr.turning_above_deg_s:g} deg/s); pairs",
             f"{f(s.pos_rms_straight_m)} m / {f(s.pos_rms_turning_m)} m; {s.n_pairs_straight} / {s.n_pairs_turning}",
+        ),
+        (
+            f"  turning in the first {pr.turn_onset_s:g} s of a turn / after; pairs; mean offset outside the turn",
+            f"{f(s.pos_rms_turn_onset_m)} m / {f(s.pos_rms_turn_steady_m)} m; {s.n_pairs_turn_onset} / "
+            f"{s.n_pairs_turning - s.n_pairs_turn_onset}; {f(s.turning_outward_mean_m)} m",
         ),
         (
             f"GOSPA mean (c = {pr.gospa_c_m:.0f} m, p = {pr.gospa_p:g}, alpha = 2; "

@@ -46,6 +46,10 @@ SCORE_FIELDS = (
     "pos_rms_straight_m",
     "pos_rms_turning_m",
     "n_pairs_turning",
+    "pos_rms_turn_onset_m",
+    "pos_rms_turn_steady_m",
+    "n_pairs_turn_onset",
+    "turning_outward_mean_m",
     "gospa_mean_m",
     "gospa_missed_targets_mean",
     "gospa_false_tracks_mean",
@@ -139,7 +143,14 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     the filter's model of straight flight, a Singer model (Φ and Q from ``singer_filter``):
     with the IMM its quiet model (``[tracking.imm] quiet_*``), with the Singer filter its α and
     σ_m. A bound for that model, it is a floor for straight flight, where the truth follows it;
-    in turns no single model's bound applies. Measurements:
+    in turns no single model's bound applies. There the same recursion is the bound of a
+    filter told the turn: a turn of known rate only rotates the velocity (coordinated_turn.py
+    eq. 2), so with isotropic process noise it carries the same information as straight
+    flight but for the plots' covariances R seen at other angles, which are the same plots
+    here. Evaluated at the times in turns (truth turn rate above ``turning_above_deg_s``,
+    1.5°/s as ``evaluate`` splits them), it is the floor that the plots' geometry sets for the
+    turning figures: the aircraft that turn are not those that fly straight, and their
+    plots are not as good (their range, their radars). Measurements:
     every such plot of the aircraft, from all radars, at its own time with its own 2×2
     covariance R (sequential processing is the exact fused-measurement information);
     prior at the first plot (and again after a gap of more than 60 s without plots, when a
@@ -148,16 +159,20 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     association, no false or wild plots and no radar bias,
     so it is a floor. It is evaluated at the period times (as the tracks are scored) while
     the aircraft is detectable, from ``settle_s`` after its first plot on, and reported as
-    sqrt(mean(P_xx + P_yy)), comparable with the settled position RMS; and over the times in
+    sqrt(mean(P_xx + P_yy)), comparable with the settled position RMS; over the times in
     straight flight alone (truth turn rate below 0.3°/s, as ``evaluate`` splits them),
-    comparable with the settled straight-flight RMS.
+    comparable with the settled straight-flight RMS; and over the times in turns,
+    comparable with the settled turning RMS.
     """
     import numpy as np
 
     from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
     from radar_fusion.geo.units import M_PER_FT
+    from radar_fusion.tools.evaluate import EvalParams
     from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
     from radar_fusion.tracking.singer_filter import singer_process_noise, singer_transition
+
+    turning_above_deg_s = EvalParams().turning_above_deg_s
 
     cols = [c for c in sim.plot_columns if len(c)]
     if not cols:
@@ -235,6 +250,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     tr = sim.truth
     var_sum, count = 0.0, 0
     straight_sum, straight_count = 0.0, 0
+    turning_sum, turning_count = 0.0, 0
     for k, s in enumerate(start.tolist()):
         e = start[k + 1] if k + 1 < start.size else n
         target = int(tgt[s])
@@ -252,12 +268,13 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         lo = np.clip(np.searchsorted(tt, q, side="right") - 1, 0, tt.size - 1)
         hi = np.clip(lo + 1, 0, tt.size - 1)
         seen = det[lo] & det[hi]
-        q, straight = q[seen], np.maximum(rate_deg_s[lo], rate_deg_s[hi])[seen] < 0.3
+        rate_q = np.maximum(rate_deg_s[lo], rate_deg_s[hi])[seen]
+        q, straight, turning = q[seen], rate_q < 0.3, rate_q > turning_above_deg_s
         if q.size == 0:
             continue
         j = s + np.searchsorted(t[s:e], q, side="right") - 1
         near = q - t[j] <= gap_s  # no plot for longer: no track to bound
-        q, j, straight = q[near], j[near], straight[near]
+        q, j, straight, turning = q[near], j[near], straight[near], turning[near]
         if q.size == 0:
             continue
         dt = q - t[j]
@@ -268,9 +285,13 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         count += q.size
         straight_sum += float(np.sum(v[straight]))
         straight_count += int(straight.sum())
+        turning_sum += float(np.sum(v[turning]))
+        turning_count += int(turning.sum())
     out["pcrb_pos_rms_m"] = math.sqrt(var_sum / count) if count else math.nan
     out["pcrb_points"] = count
     out["pcrb_straight_pos_rms_m"] = math.sqrt(straight_sum / straight_count) if straight_count else math.nan
+    out["pcrb_turning_pos_rms_m"] = math.sqrt(turning_sum / turning_count) if turning_count else math.nan
+    out["pcrb_turning_points"] = turning_count
     return out
 
 

@@ -455,6 +455,26 @@ def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:
     return out
 
 
+def turning_detail(o: dict[str, Any], pcrb_turning_m: float | None) -> str:
+    """Where the turning error is (evaluate's onset / steady split and the offset outside
+    the turn) and the PCRB at the turning times: the floor that the turning aircraft's
+    plots set, to tell the filter's lag from their geometry."""
+    n_on = o.get("n_pairs_turn_onset") or 0
+    n_st = (o.get("n_pairs_turning") or 0) - n_on
+    from radar_fusion.tools.evaluate import EvalParams
+
+    onset_s = EvalParams().turn_onset_s
+    text = (
+        f"in the first {onset_s:g} s of a turn {_f(o.get('pos_rms_turn_onset_m', math.nan))} m ({n_on} pairs), "
+        f"after {_f(o.get('pos_rms_turn_steady_m', math.nan))} m ({n_st}); "
+        f"{_f(o.get('turning_outward_mean_m', math.nan))} m outside the turn on average"
+    )
+    if pcrb_turning_m is not None and math.isfinite(pcrb_turning_m):
+        turning = o.get("pos_rms_turning_m", math.nan)
+        text += f"; PCRB at the turning times {pcrb_turning_m:.0f} m ({turning / pcrb_turning_m:.2f}× it)"
+    return text
+
+
 def goal_lines_issue15(rows: list[dict[str, Any]]) -> list[str]:
     """Issue 15's goals, each MET / NOT MET from this run's figures: per case with accuracy
     scores, the ratios to Stone Soup (where it ran), track ids per aircraft, the false-track
@@ -502,6 +522,7 @@ def goal_lines_issue15(rows: list[dict[str, Any]]) -> list[str]:
                 f"{label}: turning {turning:.0f} m ({o['n_pairs_turning']} pairs), {r:.2f}× straight flight "
                 f"(≤ {GOAL15_TURNING_STRAIGHT:g}×) -> {_verdict(r <= GOAL15_TURNING_STRAIGHT)}"
             )
+            out.append("  " + turning_detail(o, (row.get("sim") or {}).get("pcrb_turning_pos_rms_m")))
     for r in rows:
         if (r["case"].get("aircraft"), r["case"].get("radars")) == GOAL_PLOTS_SIZE:
             v = r["engine"]["plots_per_s"]
