@@ -345,7 +345,9 @@ def test_live_gate_ratio_against_a_hand_computation():
     x = win_x[np.arange(5), count - 1] + vx[:, 0] * 4.0 + np.array([30.0, -2000.0, 500.0, 0.0, 9000.0])
     y = win_y[np.arange(5), count - 1] + vy[:, 0] * 4.0
     scratch = (np.empty(w), np.empty(w), np.empty(w))
-    got = np.array([_kmd_one(i, t[i], x[i], y[i], count[i], win_t, win_x, win_y, k, floor, *scratch) for i in range(5)])
+    got = np.array(
+        [_kmd_one(i, t[i], x[i], y[i], count[i], win_t, win_x, win_y, k, floor, floor, *scratch) for i in range(5)]
+    )
     for i in range(5):
         m = count[i]
         ts, xs, ys = win_t[i, :m], win_x[i, :m], win_y[i, :m]
@@ -360,3 +362,67 @@ def test_live_gate_ratio_against_a_hand_computation():
         want = np.sort(dist)[:k].mean() / math.sqrt(scale2 + floor**2)
         assert got[i] == pytest.approx(want, rel=1e-9)
     assert got[1] > 6.0 and got[4] > 6.0 and got[0] < 6.0  # the jumps are wild, the on-track plot is not
+    # Along and across the beam by different scales: every offset rotated into the new
+    # plot's (radial, cross) frame by an explicit rotation matrix and divided by its
+    # scale; the residual scale and the k-mean distance in those units, the floor 1.
+    s_r, s_c = 60.0, 400.0
+    got2 = np.array(
+        [_kmd_one(i, t[i], x[i], y[i], count[i], win_t, win_x, win_y, k, s_r, s_c, *scratch) for i in range(5)]
+    )
+    for i in range(5):
+        m = count[i]
+        if m < k:
+            assert got2[i] == math.inf
+            continue
+        ts, xs, ys = win_t[i, :m], win_x[i, :m], win_y[i, :m]
+        bx, ax = np.polyfit(ts, xs, 1)
+        by, ay = np.polyfit(ts, ys, 1)
+        phi = math.atan2(x[i], y[i])  # the beam's azimuth, clockwise from +y
+        rot = np.array([[math.sin(phi), math.cos(phi)], [math.cos(phi), -math.sin(phi)]])  # rows: radial, cross
+        unit = np.diag([1.0 / s_r, 1.0 / s_c]) @ rot
+        res = unit @ np.vstack([xs - (ax + bx * ts), ys - (ay + by * ts)])
+        scale2 = np.median((res**2).sum(axis=0)) / math.log(2.0) * m / max(m - 2, 1)
+        off = unit @ np.vstack([x[i] - (xs + bx * (t[i] - ts)), y[i] - (ys + by * (t[i] - ts))])
+        want = np.sort(np.hypot(*off))[:k].mean() / math.sqrt(scale2 + 1.0)
+        assert got2[i] == pytest.approx(want, rel=1e-9)
+
+
+def test_live_gate_standardises_with_the_plots_noise_at_long_range():
+    """A radar track 300 km out from a radar of 0.1° and 50 m noise: across the beam its
+    plots spread by 520 m, along it by 50 m. Standardised by that noise (σ_ρ along, ρ σ_θ
+    across, each at least the 150 m floor), every good plot of 40 scans passes over 20
+    seeds, and gross errors of the simulator's, 2 km in range (its smallest: 40 σ) and
+    2° in azimuth (10 km across: 20 σ), are still refused. (Across the beam the gate now
+    needs about 10 σ there: 1°, 5 km, is refused for most seeds, not all.) Standardised by
+    the 150 m floor both ways (the gate without the radar's noise), good plots are refused:
+    the spread is 3.5× the floor, and a window of four can fit them by chance too well."""
+    sigma_r_m, sigma_az_rad = 50.0, math.radians(0.1)
+
+    def far_track(seed):
+        rng = np.random.default_rng(seed)
+        t = np.arange(40) * 5.0
+        xs = 180_000.0 + 220.0 * t  # eastbound, ~300 km out
+        ys = np.full_like(t, 240_000.0)
+        r = np.hypot(xs, ys) + rng.normal(0.0, sigma_r_m, t.size)
+        az = np.degrees(np.arctan2(xs, ys)) + np.degrees(rng.normal(0.0, sigma_az_rad, t.size))
+        return t, r, az
+
+    def feed(t, r, az, with_noise):
+        gate = LiveOutlierGate()
+        noise = (sigma_r_m, sigma_az_rad) if with_noise else (None, None)
+        return np.array(
+            [gate.filter(np.array([7]), t[i : i + 1], r[i : i + 1], az[i : i + 1], *noise)[0] for i in range(t.size)]
+        )
+
+    refused_without = 0
+    for seed in range(20):
+        t, r, az = far_track(seed)
+        assert feed(t, r, az, with_noise=True).all(), seed
+        refused_without += int((~feed(t, r, az, with_noise=False)).sum())
+        r_wild, az_wild = r.copy(), az.copy()
+        r_wild[25] += 2000.0
+        az_wild[31] += 2.0
+        acc = feed(t, r_wild, az_wild, with_noise=True)
+        assert not acc[25] and not acc[31], seed
+        assert acc[(np.arange(40) != 25) & (np.arange(40) != 31)].all(), seed
+    assert refused_without >= 1, refused_without  # 2 of 800 with these seeds

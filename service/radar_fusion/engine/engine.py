@@ -253,8 +253,14 @@ class Engine:
             keys = radar_track_keys(raw.radar, raw.track_no, raw.mode_s)
             has_key = np.flatnonzero(keys >= 0)
             if has_key.size:
+                radar = raw.radar[has_key]
                 ok = self.outlier_gate.filter(
-                    keys[has_key], raw.t_s[has_key], raw.range_m[has_key], raw.azimuth_deg[has_key]
+                    keys[has_key],
+                    raw.t_s[has_key],
+                    raw.range_m[has_key],
+                    raw.azimuth_deg[has_key],
+                    self.sites.sigma_range_m[radar],
+                    self.sites.sigma_azimuth_rad[radar],
                 )
                 if not ok.all():
                     wild = has_key[~ok]

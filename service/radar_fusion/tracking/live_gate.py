@@ -44,8 +44,9 @@ class LiveGateParams(BaseModel):
     sigma_floor_m: float = Field(
         150.0,
         gt=0,
-        description="floor of the standardising spread, m (Hu's ε·δ): radar noise, and it keeps a perfectly "
-        "straight window from rejecting everything",
+        description="floor of the standardising noise scale, m, along and across the beam (Hu's ε·δ): the radar's "
+        "own noise is used where larger (σ_ρ along, ρ σ_θ across), and the floor keeps a perfectly straight window "
+        "from rejecting everything",
     )
     relock_after: int = Field(
         6,
@@ -78,12 +79,14 @@ class LiveOutlierGate:
     * the new plot is a sub-sequence of length one, so its height (eq. 2) and deviation
       (eq. 5) are 0 and only its level (eq. 4) can be outlying: its k-mean distance (the
       paper's mean distance to the k nearest points) to the carried-forward plots
-      measures that, in metres;
-    * as in eq. 1 the deviation is standardised, by sqrt(sigma_fit^2 + sigma_floor_m^2),
-      where sigma_fit^2 is the window's residual variance about its line, from the
+      measures that, in units of the plot's noise: along the beam of σ_ρ, across it of
+      ρ σ_θ (each at least sigma_floor_m), so a kilometre in range is gross at any range
+      while the same across the beam is 2 σ of a 0.1° radar at 300 km;
+    * as in eq. 1 the deviation is standardised, by sqrt(sigma_fit^2 + 1),
+      where sigma_fit^2 is the window's residual variance about its line in those units, from the
       median squared residual so one wild plot in the window cannot inflate it (it grows in a turn, so
-      a manoeuvre widens the gate) and sigma_floor_m plays the role of eps*delta (radar
-      noise; it also keeps a perfectly straight window from rejecting everything);
+      a manoeuvre widens the gate) and the 1, the noise scale itself, plays the role of eps*delta
+      (it also keeps a perfectly straight window from rejecting everything);
     * the plot is rejected when that ratio exceeds `threshold`.
 
     Rejected plots never enter the window, so a run of wild plots cannot drag it along.
@@ -308,12 +311,24 @@ class LiveOutlierGate:
 
     # -- decision ------------------------------------------------------------------
     def filter(
-        self, keys: npt.ArrayLike, t_s: npt.ArrayLike, range_m: npt.ArrayLike, azimuth_deg: npt.ArrayLike
+        self,
+        keys: npt.ArrayLike,
+        t_s: npt.ArrayLike,
+        range_m: npt.ArrayLike,
+        azimuth_deg: npt.ArrayLike,
+        sigma_range_m: npt.ArrayLike | None = None,
+        sigma_azimuth_rad: npt.ArrayLike | None = None,
     ) -> NDArray[np.bool_]:
         """Boolean mask `accept` for a batch of plots (True = pass on to clustering).
 
         keys: int64 per plot; t_s: detection time (s); range_m; azimuth_deg (clockwise
         from north). Plots of one key are decided in time order; state is updated.
+        sigma_range_m, sigma_azimuth_rad: the plots' radar noise (per plot or one for all).
+        Distances are standardised along the beam by σ_ρ and across it by ρ σ_θ, each at
+        least ``sigma_floor_m`` (:func:`_kmd_one`); without them, by ``sigma_floor_m`` both
+        ways. At 300 km a radar of 0.1° is 520 m across the beam and 50 m along it: with
+        150 m both ways its good plots were refused (a window of four can fit them by chance
+        too well), and a gross range error of a kilometre is 7 σ of a 150 m floor.
         """
         keys = np.asarray(keys, dtype=np.int64)
         n = keys.size
@@ -325,6 +340,13 @@ class LiveOutlierGate:
         rng = np.asarray(range_m, dtype=float)
         x = rng * np.sin(az)
         y = rng * np.cos(az)
+        scale_r_m = np.full(n, self.sigma_floor_m)
+        scale_c_m = np.full(n, self.sigma_floor_m)
+        if sigma_range_m is not None:
+            np.maximum(scale_r_m, np.nan_to_num(np.asarray(sigma_range_m, dtype=float)), out=scale_r_m)
+        if sigma_azimuth_rad is not None:
+            across_m = rng * np.asarray(sigma_azimuth_rad, dtype=float)
+            np.maximum(scale_c_m, np.nan_to_num(across_m), out=scale_c_m)
         t_now = float(t_s.max())
         if t_now - self._last_sweep_t > 0.25 * self.evict_after_s:
             self._sweep(t_now)
@@ -340,7 +362,7 @@ class LiveOutlierGate:
             order, rows, t_s, x, y,
             self._t, self._x, self._y, self._pt, self._px, self._py,
             self._count, self._head, self._npend, self._last_t,
-            float(self.max_gap_s), int(self.min_history), int(self.k), float(self.sigma_floor_m),
+            float(self.max_gap_s), int(self.min_history), int(self.k), scale_r_m, scale_c_m,
             float(self.threshold), int(self.relock_after), accept,
         )  # fmt: skip
         self.rejected += int(n - accept.sum())
@@ -391,14 +413,18 @@ def _kmd_one(
     win_x: np.ndarray,
     win_y: np.ndarray,
     k: int,
-    sigma_floor_m: float,
+    scale_r_m: float,
+    scale_c_m: float,
     dt: np.ndarray,
     r2: np.ndarray,
     d: np.ndarray,
 ) -> float:
     """The standardised k-mean distance of a new plot (t, x, y) against the first m plots
     of its window (row ``row`` of win_t, win_x, win_y); dt, r2, d: scratch of the window's
-    length:
+    length. Distances are measured in units of the plot's noise scale, along the beam
+    (the new plot's radial direction) in ``scale_r_m`` and across it in ``scale_c_m``
+    (both at least ``sigma_floor_m``: :meth:`LiveOutlierGate.filter`); with the two equal
+    to s, every step below is the one in metres divided by s:
 
     * a least-squares constant-velocity line through the window (time about its mean);
     * the residual scale about it, robust to a wild plot that got in: for 2-D Gaussian
@@ -406,7 +432,8 @@ def _kmd_one(
     * the window's plots carried forward to the new time, p_j + v (t − t_j), and the mean
       of the k smallest distances from the new plot to them (Hu 2013's k-mean distance;
       inf when the window holds fewer than k);
-    * ratio = that mean / sqrt(scale² + sigma_floor_m²)."""
+    * ratio = that mean / sqrt(scale² + 1), the 1 being the noise scale itself (Hu's
+      ε·δ; in metres: mean / sqrt(scale_m² + s²))."""
     ln2 = math.log(2.0)
     tbar = 0.0
     xbar = 0.0
@@ -429,14 +456,20 @@ def _kmd_one(
         syt += c * (win_y[row, j] - ybar)
     vx = sxt / stt if stt > 0.0 else 0.0
     vy = syt / stt if stt > 0.0 else 0.0
+    # the new plot's radial (along-beam) unit vector, scaled by the noise along and across
+    rho = math.hypot(x, y)
+    ux, uy = (x / rho, y / rho) if rho > 0.0 else (0.0, 1.0)
+    ar, ac = 1.0 / scale_r_m, 1.0 / scale_c_m
     for j in range(m):
         c = dt[j] - tbar
         rx = win_x[row, j] - (xbar + vx * c)
         ry = win_y[row, j] - (ybar + vy * c)
-        r2[j] = rx * rx + ry * ry
-        ex = win_x[row, j] - vx * dt[j]
-        ey = win_y[row, j] - vy * dt[j]
-        d[j] = np.hypot(x - ex, y - ey)
+        along = (rx * ux + ry * uy) * ar
+        across = (ry * ux - rx * uy) * ac
+        r2[j] = along * along + across * across
+        ex = x - (win_x[row, j] - vx * dt[j])
+        ey = y - (win_y[row, j] - vy * dt[j])
+        d[j] = math.hypot((ex * ux + ey * uy) * ar, (ey * ux - ex * uy) * ac)
     _sort_head(r2, m)
     median = 0.5 * (r2[(m - 1) // 2] + r2[m // 2])
     var_fit = median / ln2 * m / max(m - 2.0, 1.0)
@@ -447,7 +480,7 @@ def _kmd_one(
     for j in range(k):
         kmd += d[j]
     kmd /= k
-    return kmd / math.sqrt(var_fit + sigma_floor_m * sigma_floor_m)
+    return kmd / math.sqrt(var_fit + 1.0)
 
 
 @compiled
@@ -470,7 +503,8 @@ def _decide_in_order(
     max_gap_s: float,
     min_history: int,
     k: int,
-    sigma_floor_m: float,
+    scale_r_m: np.ndarray,
+    scale_c_m: np.ndarray,
     threshold: float,
     relock_after: int,
     accept: np.ndarray,
@@ -499,7 +533,9 @@ def _decide_in_order(
             npend[row] = 0
         ok = True
         if count[row] >= min_history:
-            ratio = _kmd_one(row, t[i], x[i], y[i], count[row], win_t, win_x, win_y, k, sigma_floor_m, dt, r2, d)
+            ratio = _kmd_one(
+                row, t[i], x[i], y[i], count[row], win_t, win_x, win_y, k, scale_r_m[i], scale_c_m[i], dt, r2, d
+            )
             ok = ratio <= threshold
         if not ok:
             held = npend[row]
