@@ -48,15 +48,6 @@ class LiveGateParams(BaseModel):
         "own noise is used where larger (σ_ρ along, ρ σ_θ across), and the floor keeps a perfectly straight window "
         "from rejecting everything",
     )
-    manoeuvre_accel_mps2: float = Field(
-        4.57,
-        ge=0,
-        description="the lateral acceleration a plot may have turned with since its radar track's newest plot "
-        "before its distance counts: the part of the distance within ½ a τ² of it (τ the time since that plot) "
-        "is not held against it. Default 4.57 m/s², g tan 25°: a turn at the standard 25° bank at any speed. "
-        "Over a 4 s scan 37 m, below the noise; over 12 s (a slow radar, or missed scans) 330 m, which without "
-        "it refused good plots of aircraft that began a turn between two plots",
-    )
     relock_after: int = Field(
         6,
         ge=2,
@@ -135,7 +126,6 @@ class LiveOutlierGate:
         enabled: bool = _DEFAULT.enabled,
         min_history: int = _DEFAULT.min_history,
         sigma_floor_m: float = _DEFAULT.sigma_floor_m,
-        manoeuvre_accel_mps2: float = _DEFAULT.manoeuvre_accel_mps2,
         relock_after: int = _DEFAULT.relock_after,
         max_gap_s: float = _DEFAULT.max_gap_s,
         evict_after_s: float = _DEFAULT.evict_after_s,
@@ -153,7 +143,6 @@ class LiveOutlierGate:
         self.enabled = bool(enabled)
         self.min_history = int(min_history)
         self.sigma_floor_m = float(sigma_floor_m)
-        self.manoeuvre_accel_mps2 = float(manoeuvre_accel_mps2)
         self.relock_after = int(relock_after)
         self.max_gap_s = float(max_gap_s)
         self.evict_after_s = float(evict_after_s)
@@ -374,7 +363,6 @@ class LiveOutlierGate:
             self._t, self._x, self._y, self._pt, self._px, self._py,
             self._count, self._head, self._npend, self._last_t,
             float(self.max_gap_s), int(self.min_history), int(self.k), scale_r_m, scale_c_m,
-            float(self.manoeuvre_accel_mps2),
             float(self.threshold), int(self.relock_after), accept,
         )  # fmt: skip
         self.rejected += int(n - accept.sum())
@@ -427,7 +415,6 @@ def _kmd_one(
     k: int,
     scale_r_m: float,
     scale_c_m: float,
-    accel_mps2: float,
     dt: np.ndarray,
     r2: np.ndarray,
     d: np.ndarray,
@@ -444,10 +431,7 @@ def _kmd_one(
       residuals E[r²] = median(r²)/ln 2, times m/(m − 2) for the two fitted parameters;
     * the window's plots carried forward to the new time, p_j + v (t − t_j), and the mean
       of the k smallest distances from the new plot to them (Hu 2013's k-mean distance;
-      inf when the window holds fewer than k), each distance first shortened by the
-      margin ½ a τ² (accel_mps2, τ = t − the window's newest plot time; not below 0)
-      along its own direction in metres: a turn begun since that plot displaces the
-      aircraft that far from the line;
+      inf when the window holds fewer than k);
     * ratio = that mean / sqrt(scale² + 1), the 1 being the noise scale itself (Hu's
       ε·δ; in metres: mean / sqrt(scale_m² + s²))."""
     ln2 = math.log(2.0)
@@ -476,11 +460,6 @@ def _kmd_one(
     rho = math.hypot(x, y)
     ux, uy = (x / rho, y / rho) if rho > 0.0 else (0.0, 1.0)
     ar, ac = 1.0 / scale_r_m, 1.0 / scale_c_m
-    newest = -math.inf  # the window's newest plot: a turn may have begun since
-    for j in range(m):
-        newest = max(newest, win_t[row, j])
-    tau = max(t - newest, 0.0)
-    margin_m = 0.5 * accel_mps2 * tau * tau
     for j in range(m):
         c = dt[j] - tbar
         rx = win_x[row, j] - (xbar + vx * c)
@@ -490,9 +469,7 @@ def _kmd_one(
         r2[j] = along * along + across * across
         ex = x - (win_x[row, j] - vx * dt[j])
         ey = y - (win_y[row, j] - vy * dt[j])
-        length_m = math.hypot(ex, ey)
-        shrink = max(1.0 - margin_m / length_m, 0.0) if length_m > 0.0 else 0.0
-        d[j] = shrink * math.hypot((ex * ux + ey * uy) * ar, (ey * ux - ex * uy) * ac)
+        d[j] = math.hypot((ex * ux + ey * uy) * ar, (ey * ux - ex * uy) * ac)
     _sort_head(r2, m)
     median = 0.5 * (r2[(m - 1) // 2] + r2[m // 2])
     var_fit = median / ln2 * m / max(m - 2.0, 1.0)
@@ -528,7 +505,6 @@ def _decide_in_order(
     k: int,
     scale_r_m: np.ndarray,
     scale_c_m: np.ndarray,
-    accel_mps2: float,
     threshold: float,
     relock_after: int,
     accept: np.ndarray,
@@ -558,9 +534,8 @@ def _decide_in_order(
         ok = True
         if count[row] >= min_history:
             ratio = _kmd_one(
-                row, t[i], x[i], y[i], count[row], win_t, win_x, win_y, k, scale_r_m[i], scale_c_m[i], accel_mps2,
-                dt, r2, d,
-            )  # fmt: skip
+                row, t[i], x[i], y[i], count[row], win_t, win_x, win_y, k, scale_r_m[i], scale_c_m[i], dt, r2, d
+            )
             ok = ratio <= threshold
         if not ok:
             held = npend[row]
