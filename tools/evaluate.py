@@ -421,7 +421,8 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         missed_per_time[b] = np.count_nonzero(tat.detectable[:, b]) - np.count_nonzero(det_of_pair)
 
         # Errors of the associated pairs.
-        e_pos = np.hypot(x[a_trk] - tat.x_m[a_tgt, b], y[a_trk] - tat.y_m[a_tgt, b])
+        dx_m, dy_m = x[a_trk] - tat.x_m[a_tgt, b], y[a_trk] - tat.y_m[a_tgt, b]
+        e_pos = np.hypot(dx_m, dy_m)
         e_vel = np.hypot(vx[a_trk] - tat.vx_mps[a_tgt, b], vy[a_trk] - tat.vy_mps[a_tgt, b])
         age = t - np.array([first_seen[int(v)] for v in ids[a_trk]]) if a_trk.size else np.zeros(0)
         pair_batch.append(np.full(a_trk.shape[0], b))
@@ -435,9 +436,7 @@ def evaluate(batches: Sequence[Mapping[str, Any]], truth: Truth | Any, params: E
         # turn's inside is on the right), negated: positive outside the turn
         t_vx, t_vy = tat.vx_mps[a_tgt, b], tat.vy_mps[a_tgt, b]
         with np.errstate(invalid="ignore", divide="ignore"):
-            right_m = ((x[a_trk] - tat.x_m[a_tgt, b]) * t_vy - (y[a_trk] - tat.y_m[a_tgt, b]) * t_vx) / np.hypot(
-                t_vx, t_vy
-            )
+            right_m = (dx_m * t_vy - dy_m * t_vx) / np.hypot(t_vx, t_vy)
         pair_outward.append(-np.sign(turn_deg_s[a_tgt, b]) * right_m)
         pair_settled.append(age >= params.settle_s)
         pair_rms.append(np.isin(status[a_trk], list(rms_statuses)) if a_trk.size else np.zeros(0, bool))

@@ -160,7 +160,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     so it is a floor. It is evaluated at the period times (as the tracks are scored) while
     the aircraft is detectable, from ``settle_s`` after its first plot on, and reported as
     sqrt(mean(P_xx + P_yy)), comparable with the settled position RMS; over the times in
-    straight flight alone (truth turn rate below 0.3°/s, as ``evaluate`` splits them),
+    straight flight alone (truth turn rate below ``EvalParams.straight_below_deg_s``, 0.3°/s,
+    as ``evaluate`` splits them),
     comparable with the settled straight-flight RMS; and over the times in turns,
     comparable with the settled turning RMS.
     """
@@ -172,7 +173,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
     from radar_fusion.tracking.singer_filter import singer_process_noise, singer_transition
 
-    turning_above_deg_s = EvalParams().turning_above_deg_s
+    straight_below_deg_s, turning_above_deg_s = EvalParams().straight_below_deg_s, EvalParams().turning_above_deg_s
 
     cols = [c for c in sim.plot_columns if len(c)]
     if not cols:
@@ -269,7 +270,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         hi = np.clip(lo + 1, 0, tt.size - 1)
         seen = det[lo] & det[hi]
         rate_q = np.maximum(rate_deg_s[lo], rate_deg_s[hi])[seen]
-        q, straight, turning = q[seen], rate_q < 0.3, rate_q > turning_above_deg_s
+        q, straight, turning = q[seen], rate_q < straight_below_deg_s, rate_q > turning_above_deg_s
         if q.size == 0:
             continue
         j = s + np.searchsorted(t[s:e], q, side="right") - 1
