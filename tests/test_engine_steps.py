@@ -689,3 +689,114 @@ def test_a_new_target_is_reported_at_the_time_its_fused_position_belongs_to():
     err_reported_m = float(np.hypot(*(xy - truth_xy(t_rep))))
     err_plain_mean_m = float(np.hypot(*(xy - truth_xy(T0 + 2.0))))
     assert err_plain_mean_m > 150.0 and err_reported_m < 20.0, (err_reported_m, err_plain_mean_m)
+
+
+# ------------------------------------------------------------------ far plots held a scan
+def _far_run(offset_m_by_period, skip_b=(), periods=16):
+    """The two-radar aircraft for ``periods`` periods; in period k radar a's plot (and b's,
+    unless k is in ``skip_b``) lies ``offset_m_by_period[k]`` metres off across a's beam
+    (a's azimuth) or, for b, along the same plane direction; None: a's plot is missing."""
+    eng = Engine(settings())
+    outs = {}
+    for k in range(periods):
+        t = T0 + 4.0 * k
+        off = offset_m_by_period.get(k, 0.0)
+        if off is not None:
+            p = plot_of(eng, 0, k + 1, t + 1.0)
+            if off:
+                p.azimuth_deg = p.azimuth_deg + np.degrees(off / p.range_m)
+            eng.ingest_plots(p)
+        if k not in skip_b:
+            eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0))
+        for out in eng.poll():
+            outs[round((out.t_s - T0) / 4.0)] = out
+    return eng, outs
+
+
+def test_a_far_plot_of_the_address_is_held_a_scan_and_dropped_when_the_next_is_in_the_gate():
+    """Period 12 has only radar a's plot, 1 km off across its beam: it joins by the Mode S
+    address, far beyond every IMM model's gate (engine._hold_far). It is held, not fused,
+    and when period 13's plots are inside the gate it is dropped. The track is then exactly
+    that of the same run with period 12's plots missing altogether (a coasted scan): the
+    wild plot moved nothing (issue 15 item 7; fused at the gate's edge instead, one such
+    plot had a young track fly at 700-1,000 m/s)."""
+    eng, outs = _far_run({12: 1_000.0}, skip_b={12})
+    ref, _ = _far_run({12: None}, skip_b={12})
+    assert eng.counters["plots_far_held"] == 1 and eng.counters["plots_far_dropped"] == 1
+    assert eng.counters["tracks_far_reinitiated"] == 0 and ref.counters["plots_far_held"] == 0
+    for name in ("x", "P", "x_models", "P_models", "mu", "t_state_s", "updates"):
+        np.testing.assert_array_equal(getattr(eng.tracks, name), getattr(ref.tracks, name), err_msg=name)
+    assert np.isnan(eng.tracks.held_t_s).all()
+    assert _track_error_m(outs[14]) < 30.0
+
+
+def test_an_aircraft_far_from_its_track_twice_re_initiates_it_from_the_two():
+    """From period 12 on, both radars see the aircraft 1.5 km behind where its track has it
+    (say the track had too fast a velocity), within what it could have flown since the last
+    update: period 12's cluster is held, period 13's is far too and agrees with it, and the
+    track is initiated again from the two by the two-point initiation (Shu §4), keeping its
+    id: its velocity is the aircraft's (the offset is constant) and its position the new
+    one, 1.5 km behind the old line."""
+    back_m = 1_500.0 * V_MPS / np.hypot(*V_MPS)
+    eng = Engine(settings())
+    outs = {}
+    for k in range(16):
+        t = T0 + 4.0 * k
+        for radar, dt in ((0, 1.0), (1, 3.0)):
+            xy = truth_xy(t + dt) - (back_m if k >= 12 else 0.0)
+            lat, lon = eng.plane.to_geodetic(xy[:1], xy[1:])
+            r_m, az_deg, _ = geodetic_to_polar(eng.sites, radar, lat, lon, np.array([FL * M_PER_FL]))
+            p = plot_of(eng, radar, k + 1, t + dt)
+            p.range_m, p.azimuth_deg = r_m, az_deg
+            eng.ingest_plots(p)
+        for out in eng.poll():
+            outs[round((out.t_s - T0) / 4.0)] = out
+            if round((out.t_s - T0) / 4.0) == 14:  # the period that re-initiated (13, reported at its end)
+                t_s = eng.tracks.t_state_s[0]
+                np.testing.assert_allclose(eng.tracks.x[0, [1, 4]], V_MPS, atol=1.0)
+                assert np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(t_s) + back_m)) < 5.0
+    assert eng.counters["plots_far_held"] == 1 and eng.counters["tracks_far_reinitiated"] == 1
+    assert eng.counters["plots_far_dropped"] == 0
+    assert eng.counters["tracks_initiated"] == 1 and eng.counters.get("tracks_merged", 0) == 0
+    assert all(out.track_columns.track_id.tolist() == [1] for out in outs.values())
+    assert np.isnan(eng.tracks.held_t_s[0])
+
+
+def test_a_held_measurement_survives_a_restart_and_a_state_from_before_it_loads():
+    """The held measurement is track state (engine/state.py): an engine restored from a
+    snapshot taken while one is held holds it too, and drops it when the next plots are in
+    the gate, as the one that took it does. A state written before the held columns existed
+    loads with nothing held."""
+    import msgpack
+
+    from radar_fusion.engine.state import restore, snapshot
+
+    def feed(engine, k, off_m=0.0):
+        t = T0 + 4.0 * k
+        p = plot_of(engine, 0, k + 1, t + 1.0)
+        p.azimuth_deg = p.azimuth_deg + np.degrees(off_m / p.range_m)
+        engine.ingest_plots(p)
+        if k != 12:
+            engine.ingest_plots(plot_of(engine, 1, k + 1, t + 3.0))
+        return engine.poll()
+
+    eng = Engine(settings())
+    for k in range(14):
+        feed(eng, k, 1_000.0 if k == 12 else 0.0)
+    assert eng.counters["plots_far_held"] == 1 and np.isfinite(eng.tracks.held_t_s).all()
+    data = snapshot(eng)
+    again = Engine(settings())
+    restore(again, data)
+    assert snapshot(again) == data
+    np.testing.assert_array_equal(again.tracks.held_z_m, eng.tracks.held_z_m)
+    for k in range(14, 18):
+        feed(eng, k)
+        feed(again, k)
+    assert again.counters["plots_far_dropped"] == eng.counters["plots_far_dropped"] == 1
+    assert np.isnan(again.tracks.held_t_s).all() and np.isnan(eng.tracks.held_t_s).all()
+    state = msgpack.unpackb(data, raw=False)
+    for name in ("held_z_m", "held_R_m2", "held_t_s"):
+        del state["tracks"][name]
+    old = Engine(settings())
+    restore(old, msgpack.packb(state, use_bin_type=True))
+    assert len(old.tracks) == 1 and np.isnan(old.tracks.held_t_s).all() and np.isnan(old.tracks.held_z_m).all()

@@ -483,6 +483,14 @@ class ClusterMeasurements:
     # (K, 2, 2) for a cluster of plots without any height, the unknown height's part of
     # its error (not in R_m2; the track's covariance floor), zero for the others
     height_cov_m2: np.ndarray | None = None
+    # (K,) bool: a track cluster whose every plot joined by its Mode S address alone, far
+    # beyond every model's gate (engine._hold_far)
+    far: np.ndarray | None = None
+    # (K,) time, (K, 2), (K, 2, 2): a measurement held from an earlier scan that the update
+    # re-initiates the track from (two-point, Shu §4) with this one; NaN time: none
+    t0_s: np.ndarray | None = None
+    z0_m: np.ndarray | None = None
+    R0_m2: np.ndarray | None = None
 
 
 @dataclass

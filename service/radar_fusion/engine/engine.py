@@ -212,6 +212,7 @@ class Engine:
         self.tracks.sources = np.zeros(len(self.tracks), np.uint64)
         if len(plots):
             clusters = self._fuse(plots, self._associate(plots, pred, t_ref_s), pred, t_ref_s)
+            self._hold_far(clusters)
             changed = np.concatenate([self._update(clusters, t_ref_s), self._initiate(clusters, t_ref_s)])
         self.track_t_s = t_ref_s
         out = self._predict_changed(pred, changed, t_ref_s)
@@ -527,6 +528,9 @@ class Engine:
         R_plot = R_plot * beyond[:, None, None]
         cluster_h_cov = self._height_spread(plots, res, used, lab, n_in, R_plot, pred)
         z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
+        # every plot of the cluster far beyond every model's gate (_hold_far)
+        near = res.plot_d2_gate[used] <= self.clustering.far_gate_factor * self.clustering.gate_chi2
+        far = (np.bincount(lab, weights=near, minlength=n_clusters) == 0) & (n_in > 0) & has_track
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
         mode_s = np.full(n_clusters, -1, np.int64)
@@ -550,6 +554,7 @@ class Engine:
             revisit_s=revisit_s,
             sources=sources,
             height_cov_m2=cluster_h_cov,
+            far=far,
         )
 
     def _height_spread(
@@ -645,6 +650,62 @@ class Engine:
             assumed_altitude_m=self.assumed_altitude_m,
         )
 
+    def _hold_far(self, cl: ClusterMeasurements) -> None:
+        """A track's cluster far beyond every gate is held for a scan, not fused (in place).
+
+        Such a cluster joined its track by the Mode S address alone, at d² above
+        ``far_gate_factor`` × ``gate_chi2`` of the combined prediction and of every IMM
+        model's (``cl.far``; in a turn a turn model expects the plots, so they are not far).
+        One scan cannot tell a wild plot from a wrong track (a two-point velocity from a wild
+        plot, a manoeuvre no model foresaw); fused at the gate's edge, one wild plot of a
+        precise radar had a young track fly at 700-1,000 m/s for half a minute (issue 15
+        item 7: 3 % wild plots at 1,000×10, settled velocity +82 %). Held instead:
+
+        * the track coasts; the measurement is kept (``held_*``) for ``far_hold_scans`` of
+          the track's revisit time;
+        * a later cluster inside the gates: the held one was a wild plot, dropped and
+          counted (``plots_far_dropped``);
+        * a later far cluster within reach of the held one (the distance an aircraft at
+          ``max_speed_mps`` flies between them, plus sqrt(gate_chi2) σ of their noise): the
+          track was wrong; it is initiated again from the two by the two-point initiation
+          (Shu §4), keeping its id and identity (``tracks_far_reinitiated``);
+        * a later far cluster out of reach of the held one: that one replaces it.
+        """
+        if not self.clustering.far_hold or cl.far is None or not len(self.tracks):
+            return
+        tr = self.tracks
+        k = np.flatnonzero(cl.valid & (cl.track_row >= 0))
+        rows = cl.track_row[k]
+        held = np.isfinite(tr.held_t_s[rows]) & (
+            cl.t_s[k] - tr.held_t_s[rows] <= self.clustering.far_hold_scans * tr.revisit_s[rows]
+        )
+        far = cl.far[k] & tr.initiated[rows]
+        near_after_held = held & ~far
+        if near_after_held.any():
+            self.counters["plots_far_dropped"] += int(near_after_held.sum())
+        tr.held_t_s[rows[~far]] = np.nan
+        if not far.any():
+            return
+        kf, rf, hf = k[far], rows[far], held[far]
+        reach_m = self.clustering.max_speed_mps * np.abs(cl.t_s[kf] - tr.held_t_s[rf]) + math.sqrt(
+            self.clustering.gate_chi2
+        ) * np.sqrt(np.linalg.eigvalsh(np.nan_to_num(tr.held_R_m2[rf]) + cl.R_m2[kf])[:, -1])
+        pair = hf & (np.hypot(*(cl.z_m[kf] - tr.held_z_m[rf]).T) <= reach_m)
+        if pair.any():
+            kp, rp = kf[pair], rf[pair]
+            n = cl.track_row.shape[0]
+            if cl.t0_s is None:
+                cl.t0_s, cl.z0_m, cl.R0_m2 = np.full(n, np.nan), np.full((n, 2), np.nan), np.full((n, 2, 2), np.nan)
+            assert cl.z0_m is not None and cl.R0_m2 is not None
+            cl.t0_s[kp], cl.z0_m[kp], cl.R0_m2[kp] = tr.held_t_s[rp], tr.held_z_m[rp], tr.held_R_m2[rp]
+            tr.held_t_s[rp] = np.nan
+            self.counters["tracks_far_reinitiated"] += int(pair.sum())
+        kh, rh = kf[~pair], rf[~pair]
+        if kh.size:
+            tr.held_z_m[rh], tr.held_R_m2[rh], tr.held_t_s[rh] = cl.z_m[kh], cl.R_m2[kh], cl.t_s[kh]
+            cl.valid[kh] = False
+            self.counters["plots_far_held"] += int(kh.size)
+
     # ---------------------------------------------------------------- update
     def _update(self, cl: ClusterMeasurements, t_ref_s: float) -> np.ndarray:
         """Tracks that got a cluster: each is predicted to its cluster's time, then the
@@ -661,6 +722,10 @@ class Engine:
         P_c = np.empty((rows.size,) + tr.P.shape[1:])
         z_m, R_m2 = cl.z_m[matched], cl.R_m2[matched]
         init = tr.initiated[rows]
+        again = None  # clusters that re-initiate their track from a held measurement (_hold_far)
+        if cl.t0_s is not None:
+            again = np.isfinite(cl.t0_s[matched])
+            init &= ~again
         if init.any():
             # With the IMM, per model only: its output is the combination after the update,
             # so the combined prediction at the cluster's time is not computed. Only the
@@ -684,13 +749,14 @@ class Engine:
             biased = ~np.isfinite(tr.alt_x[rows[two], 0]) & np.isfinite(cl.fl[matched[two]])
             if biased.any():
                 R1 = np.where(biased[:, None, None], cov_pos_m2(tr.P[rows[two]]), R1)
+            z1, t1 = tr.z1_m[rows[two]], tr.t_state_s[rows[two]]
+            if again is not None and again.any():
+                a, ma = again[two], matched[two]
+                assert cl.z0_m is not None and cl.R0_m2 is not None and cl.t0_s is not None
+                z1, R1, t1 = z1.copy(), R1.copy(), t1.copy()
+                z1[a], R1[a], t1[a] = cl.z0_m[ma[a]], cl.R0_m2[ma[a]], cl.t0_s[ma[a]]
             x, P = two_point_initiation(
-                tr.z1_m[rows[two]],
-                R1,
-                z_m[two],
-                R_m2[two],
-                cl.t_s[matched[two]] - tr.t_state_s[rows[two]],
-                self.filter.sigma_m_mps2,
+                z1, R1, z_m[two], R_m2[two], cl.t_s[matched[two]] - t1, self.filter.sigma_m_mps2
             )
             x_c[two], P_c[two] = x, P
             tr.initiated[rows[two]] = True

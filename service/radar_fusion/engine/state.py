@@ -53,6 +53,8 @@ from typing import TYPE_CHECKING, Any
 import msgpack
 import numpy as np
 
+from ..tracking.track_management import OPTIONAL_FIELDS
+
 if TYPE_CHECKING:
     from ..tracking.live_gate import LiveOutlierGate
     from .engine import Engine
@@ -184,6 +186,12 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise StateMismatch(f"a damaged state: {exc}") from exc
     # every check before anything is changed: a refused state leaves the engine as it was
+    n_rows = {c.shape[0] for c in columns.values()}
+    if len(n_rows) == 1:  # a state from before a column was added: that column's fill
+        for name in OPTIONAL_FIELDS:
+            if name not in columns and name in tr._fields:
+                shape, dtype, fill = tr._fields[name]
+                columns[name] = np.full((next(iter(n_rows)),) + shape, fill, dtype=dtype)
     if set(columns) != set(tr._fields):
         raise StateMismatch(f"state columns {sorted(columns)} differ from the track table's")
     n = {c.shape[0] for c in columns.values()}

@@ -539,12 +539,14 @@ def gated_pairs(
     last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     velocity_known: np.ndarray | None = None,
     models: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Steps 1-3 of clustering.py: candidate (plot, track) pairs, each plot aligned to
     t_ref with the track's velocity, kept when inside the Mahalanobis gate (and the
     absolute cap) with compatible identities. Returns the kept pairs' plot and track
-    indices, aligned positions and covariances, d², and the assignment cost: d², scaled by
-    :data:`IDENTITY_COST_FACTOR` for a plot with its track's Mode S address.
+    indices, aligned positions and covariances, d², the smallest d² over the combined
+    prediction and every model's (d² itself without ``models``; above ``gate_chi2`` only for
+    a plot that joined by its address alone), and the assignment cost: that smallest d²,
+    scaled by :data:`IDENTITY_COST_FACTOR` for a plot with its track's Mode S address.
 
     ``last``: the tracks' last measured positions, their covariances and times. With it
     (and ``params.identity_association``), a plot with a live track's address joins that
@@ -647,4 +649,4 @@ def gated_pairs(
         d2_gate = np.concatenate([d2_gate[keep], add_d2])
     own = (plot_ms[pair_plot] >= 0) & (plot_ms[pair_plot] == track_ms[pair_track])
     cost = np.where(own, d2_gate * IDENTITY_COST_FACTOR, d2_gate)
-    return pair_plot, pair_track, pair_xy, pair_cov, d2, cost
+    return pair_plot, pair_track, pair_xy, pair_cov, d2, d2_gate, cost

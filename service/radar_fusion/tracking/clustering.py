@@ -153,6 +153,26 @@ class ClusteringParams(BaseModel):
         "whose codes are both known and differ, are not clustered together, unless either code is an emergency or "
         "conspicuity code (association.NON_IDENTITY_MODE3A). Set false to ignore Mode 3/A altogether.",
     )
+    far_hold: bool = Field(
+        True,
+        description="A track's cluster whose every plot joined by its Mode S address alone, d² beyond "
+        "far_gate_factor × gate_chi2 of every model, is held for one scan instead of fused (the track coasts): "
+        "if the next scan's plots are within the gate, it was a wild plot and is dropped; if they are far too "
+        "and agree with it, the track was wrong (a wrong two-point velocity, a manoeuvre no model foresaw) and "
+        "is initiated again from the two, keeping its id (issue 15 item 7: one wild plot joining by its "
+        "address had made a track fly at 700-1,000 m/s)",
+    )
+    far_gate_factor: float = Field(
+        4.0,
+        ge=1.0,
+        description="far means d² > far_gate_factor × gate_chi2 against every model's prediction; default 4: twice "
+        "the gate's radius, 7.4 σ",
+    )
+    far_hold_scans: float = Field(
+        2.5,
+        gt=0,
+        description="a held measurement is kept this many of the track's revisit times (one missed scan)",
+    )
     track_anchor_weight: float = Field(
         1.0,
         gt=0,
@@ -184,6 +204,10 @@ class ClusterResult:
     plot_d2:            (M,) squared Mahalanobis distance of each plot in a track cluster to
                         that track's prediction (NaN for other plots); above ``gate_chi2``
                         only for a plot that joined by its Mode S address.
+    plot_d2_gate:       (M,) the smallest d² of that plot over the track's combined
+                        prediction and each IMM model's (the gate's d²; plot_d2 without
+                        the models): above ``gate_chi2`` only for a plot that joined by its
+                        Mode S address where no model expected it.
     seed_labels, seed_cluster_track, sse_seed_m2:
                         the same for the initial (seed) assignment, before transfers.
     sse_m2 and the seed's three are computed on first access, from ``seed`` and the arrays
@@ -197,6 +221,7 @@ class ClusterResult:
     n_iterations: int
     redundant: np.ndarray
     plot_d2: np.ndarray
+    plot_d2_gate: np.ndarray
     seed: _SeedRecord  # what the diagnostics below are computed from, on first access
 
     @property
@@ -555,7 +580,7 @@ def cluster_plots(
     )
 
     # 1-3: candidate pairs, time alignment with the track's velocity, gating.
-    pair_plot, pair_track, pair_xy, pair_cov, d2, cost = gated_pairs(
+    pair_plot, pair_track, pair_xy, pair_cov, d2, d2_gate, cost = gated_pairs(
         plot_xy,
         plot_cov,
         plot_t,
@@ -624,6 +649,8 @@ def cluster_plots(
     redundant = in_gate & (assign < 0)
     plot_d2 = np.full(n_plots, np.nan)
     plot_d2[used] = d2[assign[used]]
+    plot_d2_gate = np.full(n_plots, np.nan)
+    plot_d2_gate[used] = d2_gate[assign[used]]
 
     labels, cluster_track = _labels_from_assignment(assign, pair_track, new_idx, new_labels, n_plots)
     return ClusterResult(
@@ -634,5 +661,6 @@ def cluster_plots(
         n_iterations=max(track_rounds, new_sweeps),
         redundant=redundant,
         plot_d2=plot_d2,
+        plot_d2_gate=plot_d2_gate,
         seed=_SeedRecord(seed_assign, pair_track, pair_xy, new_idx, new_seed, track_xy, params.track_anchor_weight),
     )

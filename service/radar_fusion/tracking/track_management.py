@@ -161,7 +161,15 @@ _FIELDS = {
     "revisit_s": ((), float, np.nan),  # shortest rotation among the radars of the latest update
     "nis_avg": ((), float, 2.0),  # fading average of the normalised innovation squared (2 dof)
     "manoeuvre": ((), bool, False),  # manoeuvre detected: process noise raised
+    # a measurement far beyond every gate, held for one scan (engine._hold_far): NaN time = none
+    "held_z_m": ((2,), float, np.nan),
+    "held_R_m2": ((2, 2), float, np.nan),
+    "held_t_s": ((), float, np.nan),
 }
+
+#: columns added after the state format's first release: a state without them is read
+#: with their fill (engine/state.py)
+OPTIONAL_FIELDS = ("held_z_m", "held_R_m2", "held_t_s")
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
 # track axis: (N, M, 6), (N, M, 6, 6), (N, M). A table for the single-model Singer filter
@@ -201,6 +209,9 @@ class TrackTable:
     revisit_s: NDArray[np.float64]  # shortest rotation among the radars of the latest update
     nis_avg: NDArray[np.float64]  # fading average of the normalised innovation squared (2 dof)
     manoeuvre: NDArray[np.bool_]  # manoeuvre detected: process noise raised
+    held_z_m: NDArray[np.float64]  # (N, 2) a fused measurement held for one scan (engine._hold_far)
+    held_R_m2: NDArray[np.float64]  # (N, 2, 2) its covariance
+    held_t_s: NDArray[np.float64]  # its time, NaN: none held
     x_models: NDArray[np.float64]  # (N, M, 6) each IMM model's state at t_state_s
     P_models: NDArray[np.float64]  # (N, M, 6, 6)
     mu: NDArray[np.float64]  # (N, M) IMM mode probabilities
