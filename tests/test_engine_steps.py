@@ -800,3 +800,35 @@ def test_a_held_measurement_survives_a_restart_and_a_state_from_before_it_loads(
     old = Engine(settings())
     restore(old, msgpack.packb(state, use_bin_type=True))
     assert len(old.tracks) == 1 and np.isnan(old.tracks.held_t_s).all() and np.isnan(old.tracks.held_z_m).all()
+
+
+def test_a_track_that_ends_on_a_held_measurement_is_remembered_where_that_was():
+    """The address's last plot was held far from its track (the aircraft turned away at the
+    edge of cover, say) and then nothing came: the address memory that gives a later track
+    of the address its id back (life_cycle.reacquire_within_s) starts from the held
+    measurement, where and when the address was last seen, not from the track's older
+    state (on the Barcelona hour, remembered from the state, such a track's id was not
+    recalled 48 s later, 8 s past the window)."""
+    eng = Engine(settings())
+    held = None
+    for k in range(30):
+        t = T0 + 4.0 * k
+        if k < 12:
+            eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0))
+            eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0))
+        elif k == 12:
+            p = plot_of(eng, 0, k + 1, t + 1.0)
+            p.azimuth_deg = p.azimuth_deg + np.degrees(1_000.0 / p.range_m)
+            eng.ingest_plots(p)
+            eng.ingest_status(RadarStatus(radar_id="b", t=t + 3.9, kind="heartbeat"))
+        else:
+            for radar in ("a", "b"):
+                eng.ingest_status(RadarStatus(radar_id=radar, t=t + 3.9, kind="heartbeat"))
+        eng.poll()
+        if len(eng.tracks) and np.isfinite(eng.tracks.held_t_s[0]):
+            held = (eng.tracks.held_z_m[0].copy(), float(eng.tracks.held_t_s[0]))
+    assert held is not None and eng.counters["plots_far_held"] == 1 and eng.counters["tracks_ended"] == 1
+    [(address, track_id, xy, _, t_s)] = eng.address_memory.entries()
+    assert (address, track_id) == (0x4B1234, 1)
+    np.testing.assert_array_equal(xy, held[0])
+    assert t_s == held[1] == pytest.approx(T0 + 4.0 * 12 + 1.0)

@@ -879,12 +879,15 @@ class Engine:
         """Track life cycle (track_management.py): confirm, coast, end. Returns ended ids."""
         tr = self.tracks
         if self.rules.reacquire_within_s > 0:
+            # where the address was last seen: a measurement held far from the track
+            # (_hold_far) is newer than its state, and the aircraft's plots resume from there
+            held = np.isfinite(tr.held_t_s)
             snap = (
                 tr.track_id.copy(),
                 tr.mode_s.copy(),
-                position_m(tr.x),
-                cov_pos_m2(tr.P),
-                tr.t_state_s.copy(),
+                np.where(held[:, None], tr.held_z_m, position_m(tr.x)),
+                np.where(held[:, None, None], tr.held_R_m2, cov_pos_m2(tr.P)),
+                np.where(held, tr.held_t_s, tr.t_state_s),
             )
         log_miss = None
         if self.rules.end_miss_probability > 0 and len(tr):
