@@ -101,7 +101,9 @@ def model_fq(params: IMMParams, dt_s: float, x0: np.ndarray | None = None) -> li
 
 
 def hand_markov(params: IMMParams, dt_s: float) -> np.ndarray:
-    """p_ij (eq. 0): stay exp(−dt/τ_i), leave to each other mode equally."""
+    """p_ij (eq. 0): stay exp(−dt/τ_i); leave the quiet mode (0) for the manoeuvre model (1)
+    by the share quiet_exit_manoeuvre_share and for each of the n turn models by the rest
+    over n; leave any other mode to each other mode equally."""
     n_turns = 2 * (len(params.turn_rates_deg_s) + len(params.turn_banks_deg))
     tau = [params.quiet_dwell_s, params.manoeuvre_dwell_s] + [params.turn_dwell_s] * n_turns
     m = len(tau)
@@ -109,7 +111,13 @@ def hand_markov(params: IMMParams, dt_s: float) -> np.ndarray:
     for i in range(m):
         for j in range(m):
             stay = math.exp(-dt_s / tau[i])
-            p[i, j] = stay if i == j else (1.0 - stay) / (m - 1)
+            if i == j:
+                p[i, j] = stay
+            elif i == 0 and n_turns:
+                share = params.quiet_exit_manoeuvre_share
+                p[i, j] = (1.0 - stay) * (share if j == 1 else (1.0 - share) / n_turns)
+            else:
+                p[i, j] = (1.0 - stay) / (m - 1)
     return p
 
 
@@ -250,6 +258,32 @@ def test_matches_filterpy_imm_estimator() -> None:
         np.testing.assert_allclose(P[0], est.P, rtol=1e-8, atol=1e-7)
         mu_max = max(mu_max, 1.0 - float(est.mu[QUIET]))
     assert mu_max > 0.5  # the turn was seen: the other models mattered
+
+
+def test_quiet_exits_go_mostly_to_the_turn_models() -> None:
+    """Eq. 0's exit shares: each row of Π sums to 1 at any dt; the quiet mode leaves for
+    the manoeuvre model by quiet_exit_manoeuvre_share (the mixing kernels read the same
+    shares: a quiet track's c̄ after one step is μ_q p_q· by hand); with the share at
+    1/(M − 1) it is the textbook uniform rule; without turn models all of it goes to the
+    manoeuvre model."""
+    params = IMMParams()
+    imm = IMMFilter(params)
+    m = imm.n_models
+    pi = imm.transition_matrix(np.array([4.0, 60.0]))
+    np.testing.assert_allclose(pi.sum(axis=2), 1.0, rtol=1e-14)
+    leave = 1.0 - math.exp(-4.0 / params.quiet_dwell_s)
+    assert pi[0, 0, 1] == pytest.approx(leave * params.quiet_exit_manoeuvre_share, rel=1e-12)
+    np.testing.assert_allclose(pi[0, 0, 2:], leave * (1 - params.quiet_exit_manoeuvre_share) / (m - 2), rtol=1e-12)
+    mu = np.zeros((1, m))
+    mu[0, 0] = 1.0
+    st = IMMState(np.repeat(X0[None, None], m, axis=1), np.repeat(P0[None, None], m, axis=1), mu)
+    np.testing.assert_allclose(imm.predict(st, 4.0).mu[0], pi[0, 0], rtol=1e-12, atol=1e-300)
+    uniform = IMMFilter(IMMParams(quiet_exit_manoeuvre_share=1.0 / (m - 1))).transition_matrix(np.array([4.0]))[0]
+    off = ~np.eye(m, dtype=bool)
+    stay = np.exp(-4.0 / params.dwell_s())
+    np.testing.assert_allclose(uniform[off], np.repeat((1.0 - stay) / (m - 1), m - 1), rtol=1e-12)
+    singer_only = IMMFilter(IMMParams(turn_banks_deg=())).transition_matrix(np.array([4.0]))[0]
+    assert singer_only.shape == (2, 2) and singer_only[0, 1] == pytest.approx(leave, rel=1e-12)
 
 
 def test_transition_matrix_and_likelihood() -> None:

@@ -54,7 +54,11 @@ the period dt (tracks are predicted over different dt: radars of different rotat
 periods, missed scans).  Mode i lasts an exponentially distributed time of mean τ_i
 (``*_dwell_s``); the probability of staying in it over dt is
 
-    p_ii(dt) = exp(−dt/τ_i),   p_ij(dt) = (1 − p_ii(dt)) / (M − 1)   (j ≠ i)      (0)
+    p_ii(dt) = exp(−dt/τ_i),   p_ij(dt) = (1 − p_ii(dt)) E_ij   (j ≠ i)      (0)
+
+where E_ij is the share of mode i's exits that go to mode j (``IMMParams.exit_shares``):
+1/(M − 1) for every j in the textbook IMM and here for every mode but the quiet one, whose
+exits go mostly to the turn models (``quiet_exit_manoeuvre_share``),
 
 so the expected sojourn, 1/(1 − p_ii) periods, is ≈ τ_i/dt periods for dt ≪ τ_i (the
 usual IMM design rule τ_i = T/(1 − p_ii) of Bar-Shalom, Li & Kirubarajan 2001), and
@@ -197,6 +201,16 @@ class IMMParams(BaseModel):
         description="mean time τ in the manoeuvre mode. Default 30 s: a rate-one 90° turn (the usual "
         "vectoring or route turn) lasts 30 s; at a 4 s scan p_ii ≈ 0.875",
     )
+    quiet_exit_manoeuvre_share: float = Field(
+        0.05,
+        ge=0,
+        le=1,
+        description="share of the quiet mode's exits (eq. 0) that go to the manoeuvre model; the rest go to the "
+        "turn models, equally. Default 0.05: straight flight ends in a turn far more often than in anything "
+        "else, and the manoeuvre model (the noisiest) stays reachable. With the exits shared equally (1/5 each, "
+        "as before): turning position RMS on the 600 s real-flight ADS-B case (turns above 0.5°/s) 69.2 → 67.5 m "
+        "(66.9 at 0), on eight simulated cases 84.7 → 83.6 m, straight flight and velocity unchanged",
+    )
     prior_manoeuvre_prob: float = Field(
         0.1,
         ge=0,
@@ -252,6 +266,20 @@ class IMMParams(BaseModel):
         turns = [self.turn_dwell_s] * (2 * (len(self.turn_rates_deg_s) + len(self.turn_banks_deg)))
         return np.array([self.quiet_dwell_s, self.manoeuvre_dwell_s, *turns])
 
+    def exit_shares(self) -> Float:
+        """E (M, M) of eq. 0: the share of mode i's exits that go to mode j, rows summing to 1,
+        zero on the diagonal. The quiet mode's go to the manoeuvre model by
+        ``quiet_exit_manoeuvre_share`` and to the turn models equally by the rest (all to the
+        manoeuvre model without turn models); every other mode's go equally to the others,
+        1/(M − 1) each (the textbook IMM's rule for every mode)."""
+        m = self.dwell_s().size
+        e = np.full((m, m), 1.0 / (m - 1))
+        if m > 2:
+            e[0, 1] = self.quiet_exit_manoeuvre_share
+            e[0, 2:] = (1.0 - self.quiet_exit_manoeuvre_share) / (m - 2)
+        np.fill_diagonal(e, 0.0)
+        return e
+
     def prior_mu(self) -> Float:
         """Mode probabilities of a new track, (M,): ``prior_manoeuvre_prob`` shared by the
         models other than the quiet one."""
@@ -293,6 +321,9 @@ class IMMFilter:
         #: the M models, in mode order
         self.models: tuple[Model, ...] = self.params.models()
         self._dwell_s = self.params.dwell_s()
+        self._exit = self.params.exit_shares()
+        # the kernels' one array of eq. 0: row 0 the dwell times τ_i, rows 1.. E (imm_kernels._mix)
+        self._tau_exit = np.ascontiguousarray(np.vstack([self._dwell_s, self._exit]))
         # step 2 runs each family as one array axis: the Singer models first, then the turns
         singer = [m for m in self.models if isinstance(m, SingerFilter)]
         turns = [m for m in self.models if not isinstance(m, SingerFilter)]
@@ -346,7 +377,7 @@ class IMMFilter:
         tau = self._dwell_s
         m = tau.size
         stay = np.exp(-dt[:, None] / tau[None, :])  # (N, M): p_ii
-        pi = np.broadcast_to(((1.0 - stay) / (m - 1))[:, :, None], (dt.size, m, m)).copy()
+        pi: Float = (1.0 - stay)[:, :, None] * self._exit[None, :, :]
         diag = np.arange(m)
         pi[:, diag, diag] = stay
         return pi
@@ -369,11 +400,11 @@ class IMMFilter:
         initial conditions x⁰ (N, M, 6), P⁰ (N, M, 6, 6) of each model."""
         n, m = len(state), self.n_models
         # Π(dt) of eq. 0 (as transition_matrix) laid out as (N, M_j, M_i), so the μ_{i|j}
-        # come out contiguous for the products below: p_ij μ_i with p_ij = (1 − p_ii)/(M − 1)
+        # come out contiguous for the products below: p_ij μ_i with p_ij = (1 − p_ii) E_ij
         # off the diagonal
         dt = np.maximum(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)), 0.0)
         stay = np.exp(-dt[:, None] / self._dwell_s[None, :])  # (N, M): p_ii
-        joint_t = np.broadcast_to((((1.0 - stay) / (m - 1)) * state.mu)[:, None, :], (n, m, m)).copy()
+        joint_t = ((1.0 - stay) * state.mu)[:, None, :] * self._exit.T[None, :, :]
         diag = np.arange(m)
         joint_t[:, diag, diag] = stay * state.mu  # joint_t[n, j, i] = p_ij μ_i
         c_bar = joint_t.sum(axis=2)  # eq. 1
@@ -434,8 +465,9 @@ class IMMFilter:
         return np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (n,)))
 
     def _model_args(self, dt: Float) -> _ModelArgs:
-        """dt, the dwell times and the models' Φ and Q (imm_kernels.predict_kernel)."""
-        return (dt, self._dwell_s, self.model_terms(dt), self._family, self._omega_all, self._q_keys)
+        """dt, the dwell times and exit shares of eq. 0, the models' Φ and Q
+        (imm_kernels.predict_kernel)."""
+        return (dt, self._tau_exit, self.model_terms(dt), self._family, self._omega_all, self._q_keys)
 
     def predict(self, state: IMMState, dt_s: ArrayLike) -> IMMState:
         """Steps 1-2: mixing (eq. 1-4) and each model's prediction (step 2 above) over dt_s

@@ -299,11 +299,12 @@ def _mix(
 
         x⁰_j = x_0 + Σ_i μ_{i|j} e_i,   P⁰_j = Σ_i μ_{i|j} (P_i + e_i e_iᵀ) − e⁰_j e⁰_jᵀ
 
-    (imm.IMMFilter.mix), i.e. the μ_{i|j} times the rows S_i = [e_i, packed(P_i + e_i e_iᵀ)]."""
+    (imm.IMMFilter.mix), i.e. the μ_{i|j} times the rows S_i = [e_i, packed(P_i + e_i e_iᵀ)].
+    tau (1 + M, M): row 0 the dwell times τ_i, rows 1.. the exit shares E_ij of eq. 0."""
     m = MU.shape[0]
     for i in range(m):
         for lane in range(_L):
-            stay[i, lane] = math.exp(-max(DT[lane], 0.0) / tau[i])  # eq. 0: p_ii
+            stay[i, lane] = math.exp(-max(DT[lane], 0.0) / tau[0, i])  # eq. 0: p_ii
     for j in range(m):
         for lane in range(_L):
             cbar[j, lane] = 0.0
@@ -313,7 +314,7 @@ def _mix(
                     wt[j, i, lane] = stay[i, lane] * MU[i, lane]
             else:
                 for lane in range(_L):
-                    wt[j, i, lane] = (1.0 - stay[i, lane]) / (m - 1) * MU[i, lane]
+                    wt[j, i, lane] = (1.0 - stay[i, lane]) * tau[1 + i, j] * MU[i, lane]
             for lane in range(_L):
                 cbar[j, lane] += wt[j, i, lane]  # eq. 1
     for j in range(m):
@@ -582,8 +583,9 @@ def predict_kernel(
     out_cbar: np.ndarray,
 ) -> None:
     """Steps 1-2 (eq. 0-4, each model's prediction) for N tracks into out_xm, out_Pm and
-    out_cbar (c̄ of eq. 1). xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (M,) dwell
-    times, terms (N,M,TERMS), family and omega (M,) (a banked turn's omega is its signed
+    out_cbar (c̄ of eq. 1). xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (1 + M, M) the
+    dwell times and the exit shares of eq. 0 (imm.IMMFilter._tau_exit), terms (N,M,TERMS),
+    family and omega (M,) (a banked turn's omega is its signed
     g tan φ), q_keys (6,2) the Singer q_ij order."""
     n, m = mu.shape
     rows = np.arange(n)
