@@ -832,3 +832,83 @@ def test_a_track_that_ends_on_a_held_measurement_is_remembered_where_that_was():
     assert (address, track_id) == (0x4B1234, 1)
     np.testing.assert_array_equal(xy, held[0])
     assert t_s == held[1] == pytest.approx(T0 + 4.0 * 12 + 1.0)
+
+
+def _heartbeats(engine, t_s):
+    for radar in ("a", "b"):
+        engine.ingest_status(RadarStatus(radar_id=radar, t=t_s, kind="heartbeat"))
+    return engine.poll()
+
+
+def _plot_at(engine, radar, seq, t_s, xy_m):
+    """Radar ``radar``'s noise-free plot of an aircraft at plane position xy_m (FL300)."""
+    lat, lon = engine.plane.to_geodetic(np.array([xy_m[0]]), np.array([xy_m[1]]))
+    r_m, az_deg, _ = geodetic_to_polar(engine.sites, radar, lat, lon, np.array([FL * M_PER_FL]))
+    p = plot_of(engine, radar, seq, t_s)
+    p.range_m, p.azimuth_deg = r_m, az_deg
+    return p
+
+
+def test_a_second_plot_too_far_for_any_aircraft_waits_for_a_longer_baseline():
+    """The track's first measurement (period 0, both radars fused at T0 + 2 s) and, 3 s later,
+    radar a's plot 1,150 m from it along the track (a wild plot): within the one-plot
+    track's reach (max_speed_mps dt plus 3 σ of noise), but a two-point velocity of 383 m/s,
+    faster than any aircraft (max_speed_mps 350). It is held, not paired
+    (engine._too_fast, _hold_far). Period 2's plots are 1,360 m from the first measurement
+    in 8 s: the held one is dropped, and the two-point velocity (Shu §4) is the difference of
+    the two measurements over their 8 s, the aircraft's velocity."""
+    eng = Engine(settings())
+    eng.ingest_plots(plot_of(eng, 0, 1, T0 + 1.0))
+    eng.ingest_plots(plot_of(eng, 1, 1, T0 + 3.0))
+    _heartbeats(eng, T0 + 5.0)  # period 0 closes (its end plus the 1 s lateness)
+    z1, t1 = eng.tracks.z1_m[0].copy(), float(eng.tracks.t_state_s[0])
+    assert t1 == pytest.approx(T0 + 2.0)
+    u = V_MPS / np.hypot(*V_MPS)
+    eng.ingest_plots(_plot_at(eng, 0, 2, t1 + 3.0, z1 + 1_150.0 * u))
+    _heartbeats(eng, T0 + 9.5)
+    assert eng.counters["plots_too_fast"] == 1 and eng.counters["plots_far_held"] == 1
+    assert eng.tracks.updates[0] == 1 and not eng.tracks.initiated[0]
+    eng.ingest_plots(plot_of(eng, 0, 3, T0 + 9.6))
+    eng.ingest_plots(plot_of(eng, 1, 3, T0 + 10.4))
+    _heartbeats(eng, T0 + 13.5)
+    assert eng.counters["plots_far_dropped"] == 1 and len(eng.tracks) == 1
+    assert eng.tracks.updates[0] == 2 and eng.tracks.initiated[0]
+    z2, t2 = eng.tracks.x[0, [0, 3]], eng.tracks.t_state_s[0]
+    assert t2 - t1 == pytest.approx(8.0, abs=0.1)  # the plots weighted as the fusion weighs them
+    np.testing.assert_allclose(eng.tracks.x[0, [1, 4]], (z2 - z1) / (t2 - t1), rtol=1e-9)
+    np.testing.assert_allclose(eng.tracks.x[0, [1, 4]], V_MPS, atol=3.0)
+
+
+@pytest.mark.parametrize("check", [True, False])
+def test_a_young_track_does_not_take_a_plot_that_would_make_it_faster_than_any_aircraft(check):
+    """A track initiated (two-point) from two plots 0.7 s apart, one of them 60 m off across
+    its radar's beam: a velocity of σ ~90 m/s (as from two radars' plots 2-3 s apart at long
+    range; here 251 m/s against the aircraft's 170) and gates kilometres wide. A wild plot
+    1.6 km ahead of the aircraft along the track's velocity then lies inside them: fused,
+    it makes the track fly faster than max_speed_mps (437 m/s); with the check
+    (clustering.too_fast_young_updates) it is held and the track keeps its velocity."""
+    s = settings()
+    young = 4 if check else 0
+    s = s.model_copy(update={"clustering": s.clustering.model_copy(update={"too_fast_young_updates": young})})
+    eng = Engine(s)
+    eng.ingest_plots(plot_of(eng, 0, 1, T0 + 3.4))
+    _heartbeats(eng, T0 + 3.9)
+    p = plot_of(eng, 1, 1, T0 + 4.1)
+    p.azimuth_deg = p.azimuth_deg + np.degrees(60.0 / p.range_m)
+    eng.ingest_plots(p)
+    _heartbeats(eng, T0 + 5.5)
+    _heartbeats(eng, T0 + 9.5)
+    assert eng.tracks.updates[0] == 2 and eng.tracks.initiated[0]
+    v = eng.tracks.x[0, [1, 4]].copy()
+    speed_before = float(np.hypot(*v))
+    assert 200.0 < speed_before < 350.0
+    eng.ingest_plots(_plot_at(eng, 0, 2, T0 + 9.6, truth_xy(T0 + 9.6) + 1_600.0 * v / speed_before))
+    _heartbeats(eng, T0 + 13.5)
+    speed_after = float(np.hypot(*eng.tracks.x[0, [1, 4]]))
+    assert eng.counters["plots_far_held"] == int(check)  # inside the gates: held only by the check
+    if check:
+        assert eng.counters["plots_too_fast"] == 1
+        assert eng.tracks.updates[0] == 2 and speed_after == speed_before
+    else:
+        assert eng.counters["plots_too_fast"] == 0 and eng.tracks.updates[0] == 3
+        assert speed_after > 400.0

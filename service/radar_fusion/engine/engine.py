@@ -659,7 +659,8 @@ class Engine:
         One scan cannot tell a wild plot from a wrong track (a two-point velocity from a wild
         plot, a manoeuvre no model foresaw); fused at the gate's edge, one wild plot of a
         precise radar had a young track fly at 700-1,000 m/s for half a minute (issue 15
-        item 7: 3 % wild plots at 1,000×10, settled velocity +82 %). Held instead:
+        item 7: 3 % wild plots at 1,000×10, settled velocity +82 %). So is a cluster that
+        would make a young track faster than any aircraft (:meth:`_too_fast`). Held instead:
 
         * the track coasts; the measurement is kept (``held_*``) for ``far_hold_scans`` of
           the track's revisit time;
@@ -679,7 +680,7 @@ class Engine:
         held = np.isfinite(tr.held_t_s[rows]) & (
             cl.t_s[k] - tr.held_t_s[rows] <= self.clustering.far_hold_scans * tr.revisit_s[rows]
         )
-        far = cl.far[k] & tr.initiated[rows]
+        far = (cl.far[k] & tr.initiated[rows]) | self._too_fast(cl, k, rows)
         near_after_held = held & ~far
         if near_after_held.any():
             self.counters["plots_far_dropped"] += int(near_after_held.sum())
@@ -705,6 +706,44 @@ class Engine:
             tr.held_z_m[rh], tr.held_R_m2[rh], tr.held_t_s[rh] = cl.z_m[kh], cl.R_m2[kh], cl.t_s[kh]
             cl.valid[kh] = False
             self.counters["plots_far_held"] += int(kh.size)
+
+    def _too_fast(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Of the track clusters ``k`` (their tracks' rows ``rows``) that carry their track's
+        Mode S address, those that would make a young track fly faster than any aircraft
+        (``max_speed_mps``): held like far ones (:meth:`_hold_far`).
+
+        * A track of one update: its two-point velocity (Shu §4) would be the distance from
+          its first measurement over the time between them. Two plots 2-3 s apart from two
+          radars give a velocity of σ ~150 m/s, and with a wild one among them the track flew
+          at 350-750 m/s (1,000x10, 3 % wild plots). A good pair that seems too fast only
+          because it is short waits a scan and pairs over a longer baseline.
+        * A track of fewer than ``too_fast_young_updates`` updates: its velocity still rests on
+          those few measurements, and its gates are so wide that a wild plot 3 km off lies
+          inside them (d² 9.8 on one traced track); the update is tried on a copy of the
+          track and refused when the speed after it is too high."""
+        out = np.zeros(k.size, bool)
+        tr = self.tracks
+        # the track's own address: the plot is this aircraft's or a wild one (without it, a
+        # plot too far is another object's, and _refuse_impossible_pairs gives it a track)
+        own = (cl.mode_s[k] >= 0) & (cl.mode_s[k] == tr.mode_s[rows])
+        one = np.flatnonzero(own & ~tr.initiated[rows] & (tr.updates[rows] >= 1))
+        if one.size:
+            dt_s = cl.t_s[k[one]] - tr.t_state_s[rows[one]]
+            dist_m = np.hypot(*(cl.z_m[k[one]] - tr.z1_m[rows[one]]).T)
+            out[one] = (dt_s > 0) & (dist_m > self.clustering.max_speed_mps * dt_s)
+        young = np.flatnonzero(own & tr.initiated[rows] & (tr.updates[rows] < self.clustering.too_fast_young_updates))
+        if young.size:
+            r, kk = rows[young], k[young]
+            dt_s = cl.t_s[kk] - tr.t_state_s[r]
+            if self.imm is not None:
+                trial = IMMState(tr.x_models[r].copy(), tr.P_models[r].copy(), tr.mu[r].copy())
+                x = self.imm.predict_update(trial, dt_s, cl.z_m[kk], cl.R_m2[kk])[1]
+            else:
+                xp, Pp = self.manoeuvres.predict(self.filter, tr.x[r], tr.P[r], dt_s, tr.manoeuvre[r])
+                x = self.filter.update(xp, Pp, cl.z_m[kk], cl.R_m2[kk])[0]
+            out[young] = np.hypot(*velocity_mps(x).T) > self.clustering.max_speed_mps
+        self.counters["plots_too_fast"] += int(out.sum())
+        return out
 
     # ---------------------------------------------------------------- update
     def _update(self, cl: ClusterMeasurements, t_ref_s: float) -> np.ndarray:
