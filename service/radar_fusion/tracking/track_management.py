@@ -427,6 +427,9 @@ _STATE_COLUMNS = (
     "x_models",
     "P_models",
     "mu",
+    "held_z_m",  # a measurement held against that state (engine._hold_far)
+    "held_R_m2",
+    "held_t_s",
 )
 
 
