@@ -755,6 +755,9 @@ def test_an_aircraft_far_from_its_track_twice_re_initiates_it_from_the_two():
                 t_s = eng.tracks.t_state_s[0]
                 np.testing.assert_allclose(eng.tracks.x[0, [1, 4]], V_MPS, atol=1.0)
                 assert np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(t_s) + back_m)) < 5.0
+                # from the two fused measurements' own noise (tens of metres), not widened by
+                # their distance to the old track (the edge-of-gate weighting of near plots)
+                assert np.sqrt(eng.tracks.P[0, 0, 0] + eng.tracks.P[0, 3, 3]) < 60.0
     assert eng.counters["plots_far_held"] == 1 and eng.counters["tracks_far_reinitiated"] == 1
     assert eng.counters["plots_far_dropped"] == 0
     assert eng.counters["tracks_initiated"] == 1 and eng.counters.get("tracks_merged", 0) == 0

@@ -212,6 +212,7 @@ class Engine:
         self.tracks.sources = np.zeros(len(self.tracks), np.uint64)
         if len(plots):
             clusters = self._fuse(plots, self._associate(plots, pred, t_ref_s), pred, t_ref_s)
+            self._refuse_impossible_pairs(clusters)
             self._hold_far(clusters)
             changed = np.concatenate([self._update(clusters, t_ref_s), self._initiate(clusters, t_ref_s)])
         self.track_t_s = t_ref_s
@@ -524,13 +525,14 @@ class Engine:
         # plot moves the track no more than a plot at the gate's edge would, while a genuine
         # manoeuvre pulls it scan after scan, and its NIS switches manoeuvre noise on.
         self._register(plots, res, used, lab, row_of_plot, z_plot, R_plot, v, t_ref_s)
-        beyond = np.fmax(res.plot_d2[used] / self.clustering.gate_chi2, 1.0)
+        # every plot of the cluster far beyond every model's gate (_hold_far): such a cluster is
+        # held, not fused, and keeps its plots' own noise (a two-point start may come of it)
+        near = res.plot_d2_gate[used] <= self.clustering.far_gate_factor * self.clustering.gate_chi2
+        far = (np.bincount(lab, weights=near, minlength=n_clusters) == 0) & (n_in > 0) & has_track
+        beyond = np.where(far[lab], 1.0, np.fmax(res.plot_d2[used] / self.clustering.gate_chi2, 1.0))
         R_plot = R_plot * beyond[:, None, None]
         cluster_h_cov = self._height_spread(plots, res, used, lab, n_in, R_plot, pred)
         z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
-        # every plot of the cluster far beyond every model's gate (_hold_far)
-        near = res.plot_d2_gate[used] <= self.clustering.far_gate_factor * self.clustering.gate_chi2
-        far = (np.bincount(lab, weights=near, minlength=n_clusters) == 0) & (n_in > 0) & has_track
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
         mode_s = np.full(n_clusters, -1, np.int64)
@@ -750,7 +752,6 @@ class Engine:
         """Tracks that got a cluster: each is predicted to its cluster's time, then the
         Kalman update (Shu eq. 7, 9, 10), or, at its second measurement, the two-point
         initiation (Shu §4). Returns the rows updated."""
-        self._refuse_impossible_pairs(cl)
         matched = np.flatnonzero(cl.valid & (cl.track_row >= 0))
         rows = cl.track_row[matched]
         if not rows.size:

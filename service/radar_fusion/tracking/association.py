@@ -641,12 +641,22 @@ def gated_pairs(
             plot_xy[add_plot], plot_cov[add_plot], plot_t[add_plot], t_ref, track_v[add_track], track_cv[add_track]
         )
         add_d2 = mahalanobis2_2x2(add_xy - track_xy[add_track], track_cp[add_track] + add_cov)
+        add_d2_gate = add_d2  # outside every gate, or kept out by max_gate_m or Mode 3/A
+        if models is not None and add_track.size:
+            add_d2_gate = _min_model_d2(
+                add_d2,
+                np.ascontiguousarray(add_xy, dtype=np.float64),
+                np.ascontiguousarray(add_cov, dtype=np.float64),
+                np.ascontiguousarray(add_track, dtype=np.int64),
+                np.ascontiguousarray(models[0], dtype=np.float64),
+                np.ascontiguousarray(models[1], dtype=np.float64),
+            )
         pair_plot = np.concatenate([pair_plot[keep], add_plot])
         pair_track = np.concatenate([pair_track[keep], add_track])
         pair_xy = np.concatenate([pair_xy[keep], add_xy])
         pair_cov = np.concatenate([pair_cov[keep], add_cov])
         d2 = np.concatenate([d2[keep], add_d2])
-        d2_gate = np.concatenate([d2_gate[keep], add_d2])
+        d2_gate = np.concatenate([d2_gate[keep], add_d2_gate])
     own = (plot_ms[pair_plot] >= 0) & (plot_ms[pair_plot] == track_ms[pair_track])
     cost = np.where(own, d2_gate * IDENTITY_COST_FACTOR, d2_gate)
     return pair_plot, pair_track, pair_xy, pair_cov, d2, d2_gate, cost
