@@ -690,10 +690,9 @@ class Engine:
         if not far.any():
             return
         kf, rf, hf = k[far], rows[far], held[far]
-        reach_m = self.clustering.max_speed_mps * np.abs(cl.t_s[kf] - tr.held_t_s[rf]) + math.sqrt(
-            self.clustering.gate_chi2
-        ) * np.sqrt(np.linalg.eigvalsh(np.nan_to_num(tr.held_R_m2[rf]) + cl.R_m2[kf])[:, -1])
-        pair = hf & (np.hypot(*(cl.z_m[kf] - tr.held_z_m[rf]).T) <= reach_m)
+        pair = hf & ~self._beyond_reach(
+            tr.held_z_m[rf], np.nan_to_num(tr.held_R_m2[rf]), tr.held_t_s[rf], cl.z_m[kf], cl.R_m2[kf], cl.t_s[kf]
+        )
         if pair.any():
             kp, rp = kf[pair], rf[pair]
             n = cl.track_row.shape[0]
@@ -738,7 +737,7 @@ class Engine:
             r, kk = rows[young], k[young]
             dt_s = cl.t_s[kk] - tr.t_state_s[r]
             if self.imm is not None:
-                trial = IMMState(tr.x_models[r].copy(), tr.P_models[r].copy(), tr.mu[r].copy())
+                trial = IMMState(tr.x_models[r], tr.P_models[r], tr.mu[r])  # copies (indexed by rows)
                 x = self.imm.predict_update(trial, dt_s, cl.z_m[kk], cl.R_m2[kk])[1]
             else:
                 xp, Pp = self.manoeuvres.predict(self.filter, tr.x[r], tr.P[r], dt_s, tr.manoeuvre[r])
@@ -833,13 +832,27 @@ class Engine:
         if not pair.any():
             return
         k, rows = k[pair], rows[pair]
-        dt_s = np.abs(cl.t_s[k] - tr.t_state_s[rows])
-        noise_m = np.sqrt(np.linalg.eigvalsh(tr.R1_m2[rows] + cl.R_m2[k])[:, -1])
-        reach_m = self.clustering.max_speed_mps * dt_s + math.sqrt(self.clustering.gate_chi2) * noise_m
-        far = np.hypot(*(cl.z_m[k] - tr.z1_m[rows]).T) > reach_m
+        far = self._beyond_reach(tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows], cl.z_m[k], cl.R_m2[k], cl.t_s[k])
         if far.any():
             cl.track_row[k[far]] = -1
             self.counters["primary_pairs_refused"] += int(far.sum())
+
+    def _beyond_reach(
+        self,
+        z_a_m: np.ndarray,
+        R_a_m2: np.ndarray,
+        t_a_s: np.ndarray,
+        z_b_m: np.ndarray,
+        R_b_m2: np.ndarray,
+        t_b_s: np.ndarray,
+    ) -> np.ndarray:
+        """Pairs of measurements (n, 2) with covariances (n, 2, 2) further apart than an
+        aircraft flies between their times at ``max_speed_mps``, plus sqrt(gate_chi2)
+        standard deviations of their noise along its largest direction (the largest
+        eigenvalue of R_a + R_b): no one aircraft's."""
+        noise_m = np.sqrt(np.linalg.eigvalsh(R_a_m2 + R_b_m2)[:, -1])
+        reach_m = self.clustering.max_speed_mps * np.abs(t_b_s - t_a_s) + math.sqrt(self.clustering.gate_chi2) * noise_m
+        return np.asarray(np.hypot(*(z_b_m - z_a_m).T) > reach_m)
 
     def _floor_no_height(self, rows: np.ndarray, height_cov_m2: np.ndarray | None, clusters: np.ndarray) -> None:
         """A track that has no altitude after its update, from a cluster of plots without

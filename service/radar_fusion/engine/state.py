@@ -186,16 +186,15 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise StateMismatch(f"a damaged state: {exc}") from exc
     # every check before anything is changed: a refused state leaves the engine as it was
-    n_rows = {c.shape[0] for c in columns.values()}
-    if len(n_rows) == 1:  # a state from before a column was added: that column's fill
+    n = {c.shape[0] for c in columns.values()}
+    if len(n) == 1:  # a state from before a column was added: that column's fill
         for name in OPTIONAL_FIELDS:
             if name not in columns and name in tr._fields:
                 shape, dtype, fill = tr._fields[name]
-                columns[name] = np.full((next(iter(n_rows)),) + shape, fill, dtype=dtype)
+                columns[name] = np.full((next(iter(n)),) + shape, fill, dtype=dtype)
     if set(columns) != set(tr._fields):
         raise StateMismatch(f"state columns {sorted(columns)} differ from the track table's")
-    n = {c.shape[0] for c in columns.values()}
-    if len(n) != 1:
+    if len(n) != 1:  # (the columns filled in above have the others' length)
         raise StateMismatch("state columns of different lengths")
     for name, (shape, _, _) in tr._fields.items():
         if columns[name].shape[1:] != shape:

@@ -519,6 +519,27 @@ def transfer_track_clusters(
 IDENTITY_COST_FACTOR = 1.0e-6
 
 
+def _gate_d2(
+    d2: np.ndarray,
+    xy: np.ndarray,
+    cov: np.ndarray,
+    track: np.ndarray,
+    models: tuple[np.ndarray, np.ndarray] | None,
+) -> np.ndarray:
+    """The gate's d² of (plot, track) pairs: the smallest over the combined prediction's
+    ``d2`` and each IMM model's (:func:`_min_model_d2`), or ``d2`` itself without models."""
+    if models is None or not track.size:
+        return d2
+    return _min_model_d2(
+        d2,
+        np.ascontiguousarray(xy, dtype=np.float64),
+        np.ascontiguousarray(cov, dtype=np.float64),
+        np.ascontiguousarray(track, dtype=np.int64),
+        np.ascontiguousarray(models[0], dtype=np.float64),
+        np.ascontiguousarray(models[1], dtype=np.float64),
+    )
+
+
 def gated_pairs(
     plot_xy: np.ndarray,
     plot_cov: np.ndarray,
@@ -589,16 +610,7 @@ def gated_pairs(
     )
     resid = pair_xy - track_xy[pair_track]
     d2 = mahalanobis2_2x2(resid, track_cp[pair_track] + pair_cov)
-    d2_gate = d2  # the smallest d² over the combined prediction and each model's
-    if models is not None:
-        d2_gate = _min_model_d2(
-            d2,
-            np.ascontiguousarray(pair_xy, dtype=np.float64),
-            np.ascontiguousarray(pair_cov, dtype=np.float64),
-            np.ascontiguousarray(pair_track, dtype=np.int64),
-            np.ascontiguousarray(models[0], dtype=np.float64),
-            np.ascontiguousarray(models[1], dtype=np.float64),
-        )
+    d2_gate = _gate_d2(d2, pair_xy, pair_cov, pair_track, models)
     gated = d2_gate <= params.gate_chi2
     if params.max_gate_m is not None:
         gated &= np.hypot(resid[:, 0], resid[:, 1]) <= params.max_gate_m
@@ -641,16 +653,8 @@ def gated_pairs(
             plot_xy[add_plot], plot_cov[add_plot], plot_t[add_plot], t_ref, track_v[add_track], track_cv[add_track]
         )
         add_d2 = mahalanobis2_2x2(add_xy - track_xy[add_track], track_cp[add_track] + add_cov)
-        add_d2_gate = add_d2  # outside every gate, or kept out by max_gate_m or Mode 3/A
-        if models is not None and add_track.size:
-            add_d2_gate = _min_model_d2(
-                add_d2,
-                np.ascontiguousarray(add_xy, dtype=np.float64),
-                np.ascontiguousarray(add_cov, dtype=np.float64),
-                np.ascontiguousarray(add_track, dtype=np.int64),
-                np.ascontiguousarray(models[0], dtype=np.float64),
-                np.ascontiguousarray(models[1], dtype=np.float64),
-            )
+        # outside every gate, or kept out by max_gate_m or Mode 3/A
+        add_d2_gate = _gate_d2(add_d2, add_xy, add_cov, add_track, models)
         pair_plot = np.concatenate([pair_plot[keep], add_plot])
         pair_track = np.concatenate([pair_track[keep], add_track])
         pair_xy = np.concatenate([pair_xy[keep], add_xy])
