@@ -54,7 +54,7 @@ from ..geo.unknown_height import unknown_height_plots
 from ..safety_nets import SafetyNets
 from ..tracking import association, live_gate
 from ..tracking.clustering import ClusterResult, cluster_plots
-from ..tracking.fusion import consensus_outliers, fuse_clusters, leave_one_out_outliers
+from ..tracking.fusion import consensus_outliers, fuse_clusters, fuse_common_velocity, leave_one_out_outliers
 from ..tracking.imm import QUIET, IMMFilter, IMMState
 from ..tracking.initiation import (
     floor_covariance,
@@ -450,7 +450,9 @@ class Engine:
         """One measurement per cluster, at the mean time of its plots (Shu eq. 5-6).
 
         Plots are aligned to that time (a one-plot cluster needs no alignment at all) with
-        the velocity of the cluster's track, or none for a new target (Shu §2, 时空对准).
+        the velocity of the cluster's track (Shu §2, 时空对准). A cluster without a velocity
+        (a new target, a track of one update) is fused with the velocity its plots share
+        estimated beside the position (fusion.fuse_common_velocity).
         """
         n_clusters = len(res.cluster_track)
         used = res.labels >= 0
@@ -533,6 +535,23 @@ class Engine:
         R_plot = R_plot * beyond[:, None, None]
         cluster_h_cov = self._height_spread(plots, res, used, lab, n_in, R_plot, pred)
         z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
+        # Without a velocity, the plots of a cluster taken at different times share one
+        # unknown velocity, not one each: position and velocity are estimated together and
+        # the velocity marginalised out (fusion.fuse_common_velocity; the matrix form only).
+        joint = no_v & (n_in > 1)
+        if joint.any() and self.settings.tracking.fusion_method == "matrix":
+            sel = joint[lab]
+            idx = np.flatnonzero(used)[sel]
+            z_j, R_j = fuse_common_velocity(
+                lab[sel],
+                plots.xy_m[idx],
+                plots.cov_m2[idx] * beyond[sel, None, None],
+                plots.t_s[idx] - t_c[lab[sel]],
+                v_pad[res.cluster_track],
+                pvv_pad[res.cluster_track],
+                n_clusters,
+            )
+            z_m[joint], R_m2[joint] = z_j[joint], R_j[joint]
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
         mode_s = np.full(n_clusters, -1, np.int64)

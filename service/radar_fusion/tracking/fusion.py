@@ -27,6 +27,12 @@ Two methods are offered:
 Plot-to-radar polar errors make R_i elongated along the beam, so "matrix" is the
 better estimator for radar data; "scalar" reproduces the paper.
 
+Eq. 5-6 fuse positions of one time. The plots of a period are not: the engine aligns each
+to the cluster's time with its track's velocity. A cluster without a velocity (a new
+target) has only the prior of any aircraft's, and its plots share that one unknown
+velocity: :func:`fuse_common_velocity` estimates position and velocity together from the
+plots at their own times and marginalises the velocity out (with the matrix method).
+
 Everything is vectorised with ``np.bincount`` sums over the label array: there is no
 Python loop over clusters or plots.
 """
@@ -40,7 +46,7 @@ from numpy.typing import NDArray
 from .association import first_per_group
 from .singer_filter import inv_2x2
 
-__all__ = ["FUSION_METHODS", "consensus_outliers", "fuse_clusters", "leave_one_out_outliers"]
+__all__ = ["FUSION_METHODS", "consensus_outliers", "fuse_clusters", "fuse_common_velocity", "leave_one_out_outliers"]
 
 FUSION_METHODS = ("scalar", "matrix")
 
@@ -204,3 +210,59 @@ def leave_one_out_outliers(
     worst = first_per_group(c, -d2)  # each cluster's largest d², one even on a tie
     out[cand[worst[d2[worst] > gate_chi2]]] = True
     return out
+
+
+def fuse_common_velocity(
+    labels: npt.ArrayLike,
+    z_m: npt.ArrayLike,
+    R: npt.ArrayLike,
+    dt_s: npt.ArrayLike,
+    v0_mps: npt.ArrayLike,
+    P_vv: npt.ArrayLike,
+    n_clusters: int,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Fuse plots taken at different times when the target's velocity is barely known.
+
+    Each plot i of cluster c measures z_i = p_c + v_c dt_i + e_i, e_i ~ N(0, R_i), with
+    dt_i = t_i − t_c, the position p_c at the cluster's time t_c and one velocity v_c for
+    all of the cluster's plots, whose prior is N(v0_c, P_vv,c). Eq. 5-6 applied to plots
+    aligned to t_c with that velocity treat its error as independent from plot to plot;
+    it is common to them, and at a new target's velocity prior (σ ≈ 200 m/s) the plots'
+    time differences of 1-3 s make it the largest error of all. Here (p_c, v_c) are
+    estimated jointly, by least squares in information form (the matrix form of eq. 5-6
+    on the stacked state):
+
+        J_pp = Σ R_i⁻¹,  J_pv = Σ dt_i R_i⁻¹,  J_vv = Σ dt_i² R_i⁻¹ + P_vv⁻¹,
+        b_p = Σ R_i⁻¹ z_i,  b_v = Σ dt_i R_i⁻¹ z_i + P_vv⁻¹ v0,
+
+    and the velocity is marginalised out (Schur complement):
+
+        R_f = (J_pp − J_pv J_vv⁻¹ J_pvᵀ)⁻¹,   z_f = R_f (b_p − J_pv J_vv⁻¹ b_v).
+
+    With every dt_i = 0 this is the matrix fusion of :func:`fuse_clusters`.
+
+    Shapes: labels (M,) in [0, n_clusters); z_m (M,2); R (M,2,2); dt_s (M,);
+    v0_mps (K,2); P_vv (K,2,2). Returns z_f (K,2), R_f (K,2,2); NaN for clusters
+    without plots.
+    """
+    lab = np.asarray(labels).astype(np.intp, copy=False).reshape(-1)
+    z = np.asarray(z_m, dtype=float).reshape(-1, 2)
+    A = inv_2x2(np.asarray(R, dtype=float).reshape(-1, 2, 2))
+    dt = np.asarray(dt_s, dtype=float).reshape(-1)[:, None, None]
+    Pvv_inv = inv_2x2(np.asarray(P_vv, dtype=float).reshape(-1, 2, 2))
+    v0 = np.asarray(v0_mps, dtype=float).reshape(-1, 2)
+    Az = np.einsum("mij,mj->mi", A, z)
+    J_pp = _cluster_sum(lab, A, n_clusters)
+    J_pv = _cluster_sum(lab, dt * A, n_clusters)
+    J_vv = _cluster_sum(lab, dt**2 * A, n_clusters) + Pvv_inv
+    b_p = _cluster_sum(lab, Az, n_clusters)
+    b_v = _cluster_sum(lab, dt[:, :, 0] * Az, n_clusters) + np.einsum("kij,kj->ki", Pvv_inv, v0)
+    K = np.einsum("kij,kjl->kil", J_pv, inv_2x2(J_vv))  # J_pv J_vv⁻¹
+    with np.errstate(divide="ignore", invalid="ignore"):
+        R_f = inv_2x2(J_pp - np.einsum("kij,klj->kil", K, J_pv))
+        z_f = np.einsum("kij,kj->ki", R_f, b_p - np.einsum("kij,kj->ki", K, b_v))
+    R_f = 0.5 * (R_f + np.swapaxes(R_f, 1, 2))
+    empty = np.bincount(lab, minlength=n_clusters) == 0
+    z_f[empty] = np.nan
+    R_f[empty] = np.nan
+    return z_f, R_f
