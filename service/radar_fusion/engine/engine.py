@@ -536,13 +536,17 @@ class Engine:
         cluster_h_cov = self._height_spread(plots, res, used, lab, n_in, R_plot, pred)
         z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
         # Without a velocity, the plots of a cluster taken at different times share one
-        # unknown velocity, not one each: position and velocity are estimated together and
-        # the velocity marginalised out (fusion.fuse_common_velocity; the matrix form only).
+        # unknown velocity, not one each: the position is estimated together with it and the
+        # velocity marginalised out (fusion.fuse_common_velocity; the matrix form only). Its
+        # covariance stays the one above, as if each plot had a velocity of its own: some
+        # ten times the joint one, and what lets the track's next scans mend a first
+        # position that a wild plot pulled, which two plots cannot tell from noise
+        # (3 % wild plots, 50x3: velocity +20 % against +32 % with the joint covariance).
         joint = no_v & (n_in > 1)
         if joint.any() and self.settings.tracking.fusion_method == "matrix":
             sel = joint[lab]
             idx = np.flatnonzero(used)[sel]
-            z_j, R_j = fuse_common_velocity(
+            z_j, _ = fuse_common_velocity(
                 lab[sel],
                 plots.xy_m[idx],
                 plots.cov_m2[idx] * beyond[sel, None, None],
@@ -551,7 +555,7 @@ class Engine:
                 pvv_pad[res.cluster_track],
                 n_clusters,
             )
-            z_m[joint], R_m2[joint] = z_j[joint], R_j[joint]
+            z_m[joint] = z_j[joint]
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
         mode_s = np.full(n_clusters, -1, np.int64)
