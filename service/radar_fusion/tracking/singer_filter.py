@@ -569,14 +569,17 @@ class AltitudeFilter:
         fresh = have_z & ~np.isfinite(x[:, 0])
         ok = have_z & ~fresh
 
-        s = P[:, 0, 0] + r
-        k = P[:, :, 0] / np.where(ok, s, 1.0)[:, None]  # (N,2)
+        p00, p01, p11 = P[:, 0, 0], 0.5 * (P[:, 0, 1] + P[:, 1, 0]), P[:, 1, 1]
+        s = p00 + r
+        k = np.stack([p00, p01], axis=1) / np.where(ok, s, 1.0)[:, None]  # (N,2)
         nu = np.where(ok, z - x[:, 0], 0.0)
         x_new = x + k * nu[:, None]
-        a = np.broadcast_to(np.eye(2), P.shape).copy()
-        a[:, :, 0] -= k
-        P_new = a @ P @ np.swapaxes(a, 1, 2) + r[:, None, None] * k[:, :, None] * k[:, None, :]
-        P_new = _sym(P_new)
+        # Joseph form with A = I − K H = [[1 − k0, 0], [−k1, 1]], written out per entry
+        k0, k1 = k[:, 0], k[:, 1]
+        P_new = np.empty_like(P)
+        P_new[:, 0, 0] = (1.0 - k0) ** 2 * p00 + r * k0 * k0
+        P_new[:, 0, 1] = P_new[:, 1, 0] = (1.0 - k0) * (p01 - k1 * p00) + r * k0 * k1
+        P_new[:, 1, 1] = k1 * k1 * p00 - 2.0 * k1 * p01 + p11 + r * k1 * k1
 
         x0, P0 = self.initiate(np.where(fresh, z, np.nan), r)
         x_out = np.where(ok[:, None], x_new, np.where(fresh[:, None], x0, x))
