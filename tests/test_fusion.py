@@ -299,3 +299,21 @@ def test_common_velocity_fusion_is_honest_and_beats_aligning_each_plot_on_its_ow
     mse_joint = np.mean(np.sum(e**2, axis=1))
     mse_ind = np.mean(np.sum((z_ind - p) ** 2, axis=1))
     assert mse_joint < 0.5 * mse_ind, (mse_joint, mse_ind)  # 0.17 with this seed
+
+
+def test_common_velocity_fusion_reads_covariances_as_symmetric():
+    """A covariance given with unequal off-diagonal entries (rounding, a caller's slip) is
+    taken as its symmetric part: the result does not depend on which triangle is used."""
+    R3 = three_radar_plots()
+    z = np.array([[100.0, 50.0], [-30.0, 80.0], [60.0, -40.0]])
+    labels, dt = np.zeros(3, int), np.array([-1.5, 0.2, 1.4])
+    P_vv = np.array([[[4e4, 9e3], [-1e3, 3e4]]])
+    skew = R3.copy()
+    skew[:, 0, 1] += 50.0
+    skew[:, 1, 0] -= 50.0
+    a = fuse_common_velocity(labels, z, skew, dt, np.zeros((1, 2)), P_vv, 1)
+    b = fuse_common_velocity(labels, z, np.swapaxes(skew, 1, 2), dt, np.zeros((1, 2)), np.swapaxes(P_vv, 1, 2), 1)
+    c = fuse_common_velocity(labels, z, R3, dt, np.zeros((1, 2)), 0.5 * (P_vv + np.swapaxes(P_vv, 1, 2)), 1)
+    for x, y in ((a, b), (a, c)):
+        np.testing.assert_allclose(x[0], y[0], atol=1e-9)
+        np.testing.assert_allclose(x[1], y[1], rtol=1e-9)

@@ -450,9 +450,9 @@ class Engine:
         """One measurement per cluster, at the mean time of its plots (Shu eq. 5-6).
 
         Plots are aligned to that time (a one-plot cluster needs no alignment at all) with
-        the velocity of the cluster's track (Shu §2, 时空对准). A cluster without a velocity
-        (a new target, a track of one update) is fused with the velocity its plots share
-        estimated beside the position (fusion.fuse_common_velocity).
+        the velocity of the cluster's track (Shu §2, 时空对准). With the matrix fusion, a
+        cluster without a velocity (a new target, a track of one update) is fused with the
+        velocity its plots share estimated beside the position (fusion.fuse_common_velocity).
         """
         n_clusters = len(res.cluster_track)
         used = res.labels >= 0
@@ -533,7 +533,8 @@ class Engine:
         far = (np.bincount(lab, weights=near, minlength=n_clusters) == 0) & (n_in > 0) & has_track
         beyond = np.where(far[lab], 1.0, np.fmax(res.plot_d2[used] / self.clustering.gate_chi2, 1.0))
         R_plot = R_plot * beyond[:, None, None]
-        cluster_h_cov = self._height_spread(plots, res, used, lab, n_in, R_plot, pred)
+        R_own = plots.cov_m2[used] * beyond[:, None, None]  # the same, not aligned in time
+        cluster_h_cov = self._height_spread(plots, res, used, lab, n_in, (R_plot, R_own), pred)
         z_m, R_m2, _ = fuse_clusters(lab, z_plot, R_plot, n_clusters, self.settings.tracking.fusion_method)
         # Without a velocity, the plots of a cluster taken at different times share one
         # unknown velocity, not one each: the position is estimated together with it and the
@@ -549,7 +550,7 @@ class Engine:
             z_j, _ = fuse_common_velocity(
                 lab[sel],
                 plots.xy_m[idx],
-                plots.cov_m2[idx] * beyond[sel, None, None],
+                R_own[sel],
                 plots.t_s[idx] - t_c[lab[sel]],
                 v_pad[res.cluster_track],
                 pvv_pad[res.cluster_track],
@@ -589,12 +590,13 @@ class Engine:
         used: np.ndarray,
         lab: np.ndarray,
         n_in: np.ndarray,
-        R_plot: np.ndarray,
+        R_plots: tuple[np.ndarray, ...],
         pred: Prediction,
     ) -> np.ndarray | None:
         """Where the spread over every height of a primary plot without any height goes
-        (``plots.height_cov_m2``, geo.unknown_height): into its covariance ``R_plot`` (in
-        place), into the floor of its track's covariance (returned per cluster), or nowhere.
+        (``plots.height_cov_m2``, geo.unknown_height): into its covariance, each of
+        ``R_plots`` (in place), into the floor of its track's covariance (returned per
+        cluster), or nowhere.
 
         * A cluster with a plot with a height (Mode C, an SSR's): that plot fixes the ground
           range; the spread joins the primary plot's covariance, so that it hardly weighs
@@ -625,7 +627,8 @@ class Engine:
         n_clusters = len(res.cluster_track)
         c = lab[hp]
         with_h = np.bincount(lab[~spread], minlength=n_clusters) > 0
-        R_plot[hp[with_h[c]]] += h_cov[hp[with_h[c]]]
+        for R_plot in R_plots:
+            R_plot[hp[with_h[c]]] += h_cov[hp[with_h[c]]]
         row = res.cluster_track[c]
         own = (n_in[c] == 1) & ~np.isfinite(np.concatenate([pred.alt_x[:, 0], [np.nan]])[row])
         tracked = own & (row >= 0)

@@ -247,10 +247,13 @@ def fuse_common_velocity(
     """
     lab = np.asarray(labels).astype(np.intp, copy=False).reshape(-1)
     z = np.asarray(z_m, dtype=float).reshape(-1, 2)
-    A = inv_2x2(np.asarray(R, dtype=float).reshape(-1, 2, 2))
+    R = np.asarray(R, dtype=float).reshape(-1, 2, 2)
+    P_vv = np.asarray(P_vv, dtype=float).reshape(-1, 2, 2)
     dt = np.asarray(dt_s, dtype=float).reshape(-1)[:, None, None]
-    Pvv_inv = inv_2x2(np.asarray(P_vv, dtype=float).reshape(-1, 2, 2))
     v0 = np.asarray(v0_mps, dtype=float).reshape(-1, 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        A = inv_2x2(0.5 * (R + np.swapaxes(R, 1, 2)))
+        Pvv_inv = inv_2x2(0.5 * (P_vv + np.swapaxes(P_vv, 1, 2)))
     Az = np.einsum("mij,mj->mi", A, z)
     J_pp = _cluster_sum(lab, A, n_clusters)
     J_pv = _cluster_sum(lab, dt * A, n_clusters)
