@@ -858,9 +858,12 @@ def test_a_second_plot_too_far_for_any_aircraft_waits_for_a_longer_baseline():
     track's reach (max_speed_mps dt plus 3 σ of noise), but a two-point velocity of 383 m/s,
     faster than any aircraft (max_speed_mps 350). It is held, not paired
     (engine._too_fast, _hold_far). Period 2's plots are 1,360 m from the first measurement
-    in 8 s: the held one is dropped, and the two-point velocity (Shu §4) is the difference of
-    the two measurements over their 8 s, the aircraft's velocity."""
-    eng = Engine(settings())
+    in 8 s: the held one is dropped, and the two-point velocity (Shu §4's P0, without the
+    one-point state's velocity prior: ``two_point_prior`` false) is the difference of the
+    two measurements over their 8 s, the aircraft's velocity."""
+    raw = settings().model_dump()
+    raw["tracking"]["two_point_prior"] = False
+    eng = Engine(settings_from_dict(raw))
     eng.ingest_plots(plot_of(eng, 0, 1, T0 + 1.0))
     eng.ingest_plots(plot_of(eng, 1, 1, T0 + 3.0))
     _heartbeats(eng, T0 + 5.0)  # period 0 closes (its end plus the 1 s lateness)

@@ -821,7 +821,13 @@ class Engine:
                 z1, R1, t1 = z1.copy(), R1.copy(), t1.copy()
                 z1[a], R1[a], t1[a] = cl.z0_m[ma[a]], cl.R0_m2[ma[a]], cl.t0_s[ma[a]]
             x, P = two_point_initiation(
-                z1, R1, z_m[two], R_m2[two], cl.t_s[matched[two]] - t1, self.filter.sigma_m_mps2
+                z1,
+                R1,
+                z_m[two],
+                R_m2[two],
+                cl.t_s[matched[two]] - t1,
+                self.filter.sigma_m_mps2,
+                self.one_plot_vel_var_m2ps2 if self.settings.tracking.two_point_prior else None,
             )
             x_c[two], P_c[two] = x, P
             tr.initiated[rows[two]] = True

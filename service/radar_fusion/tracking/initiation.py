@@ -3,7 +3,9 @@
 Stone Soup calls this role the *initiator*. A cluster that no track claims (Shu §2 cases
 1 and 3) starts a tentative track from one fused measurement, :func:`one_point_initiation`;
 its second update replaces that state by Shu's two-point differencing with the P0 of §4,
-:func:`two_point_initiation`; from the third on, the Kalman update runs (Shu eq. 7-11).
+:func:`two_point_initiation` (by default keeping the one-point state's velocity prior:
+the Kalman update of that state, ``[tracking] two_point_prior``); from the third on, the
+Kalman update runs (Shu eq. 7-11).
 
 One-point state. A single position says nothing about the velocity, so the state holds
 zero velocity with the variance :func:`unknown_velocity_var_m2ps2` per axis: wide enough
@@ -61,7 +63,13 @@ def one_point_initiation(
 
 
 def two_point_initiation(
-    z1_m: ArrayLike, R1: ArrayLike, z2_m: ArrayLike, R2: ArrayLike, dt_s: ArrayLike, sigma_m_mps2: ArrayLike
+    z1_m: ArrayLike,
+    R1: ArrayLike,
+    z2_m: ArrayLike,
+    R2: ArrayLike,
+    dt_s: ArrayLike,
+    sigma_m_mps2: ArrayLike,
+    velocity_var_m2ps2: float | None = None,
 ) -> tuple[Float, Float]:
     """Two-point differencing initiation with Shu's P0 (§4).
 
@@ -84,6 +92,18 @@ def two_point_initiation(
     is initialised at 0 with the Singer prior variance σ_m².  (A real acceleration a
     would add the bias −a·T/2 to the velocity estimate, which P0 ignores.)
 
+    With ``velocity_var_m2ps2`` (σ_v², the one-point state's prior, one_point_initiation),
+    the velocity is not taken as unknown beyond any bound but as N(0, σ_v² I), the prior the
+    one-point track holds: the result is the Kalman update (Shu eq. 7-11, CV between the two)
+    of the one-point state by the second measurement,
+
+        prior at t2:  p = z1, v = 0,  P_pp = R1 + T² σ_v² I,  P_pv = T σ_v² I,  P_vv = σ_v² I,
+        K = [P_pp; P_pv] (P_pp + R2)⁻¹,  [p; v] += K (z2 − z1),  P −= K [P_pp, P_pv],
+
+    which tends to the above as σ_v → ∞ and differs from it only where the pair's own
+    velocity is no better than the prior: two coarse positions a few seconds apart (a
+    long-range radar's cross-range of 300-500 m gave two-point velocities 100-400 m/s off).
+
     Shapes: z1_m, z2_m (N,2); R1, R2 (N,2,2); dt_s (N,) or scalar (> 0);
     sigma_m_mps2 scalar or (N,).  Returns x (N,6), P (N,6,6).
     """
@@ -99,15 +119,30 @@ def two_point_initiation(
         raise ValueError("two-point initiation needs dt_s > 0")
 
     x = np.zeros((n, STATE_DIM))
-    x[:, POS_IDX] = z2_m
-    x[:, POS_IDX + 1] = (z2_m - z1_m) / dt_s[:, None]
-
-    # position/velocity covariance: cov(p, p) = R2, cov(p, v) = R2/T,
-    # cov(v, v) = (R1 + R2)/T², for each pair of axes (a, b) ∈ {x, y}²
-    inv_t = (1.0 / dt_s)[:, None, None]
-    pp = R2
-    pv = R2 * inv_t
-    vv = (R1 + R2) * inv_t**2
+    if velocity_var_m2ps2 is None:
+        x[:, POS_IDX] = z2_m
+        x[:, POS_IDX + 1] = (z2_m - z1_m) / dt_s[:, None]
+        # position/velocity covariance: cov(p, p) = R2, cov(p, v) = R2/T,
+        # cov(v, v) = (R1 + R2)/T², for each pair of axes (a, b) ∈ {x, y}²
+        inv_t = (1.0 / dt_s)[:, None, None]
+        pp = R2
+        pv = R2 * inv_t
+        vv = (R1 + R2) * inv_t**2
+    else:
+        t = dt_s[:, None, None]
+        eye_v = float(velocity_var_m2ps2) * np.eye(2)
+        prior_pp = R1 + t**2 * eye_v
+        prior_pv = t * eye_v  # symmetric 2x2 blocks
+        S_inv = np.linalg.inv(prior_pp + R2)
+        K_p = prior_pp @ S_inv
+        K_v = prior_pv @ S_inv
+        nu = z2_m - z1_m
+        x[:, POS_IDX] = z1_m + np.einsum("nij,nj->ni", K_p, nu)
+        x[:, POS_IDX + 1] = np.einsum("nij,nj->ni", K_v, nu)
+        pp = prior_pp - K_p @ prior_pp
+        pv = prior_pv - K_p @ prior_pv
+        vv = eye_v - K_v @ prior_pv
+        pp, vv = 0.5 * (pp + np.swapaxes(pp, 1, 2)), 0.5 * (vv + np.swapaxes(vv, 1, 2))
     P = np.zeros((n, STATE_DIM, STATE_DIM))
     pos, vel = POS_IDX, POS_IDX + 1
     P[:, pos[:, None], pos[None, :]] = pp
