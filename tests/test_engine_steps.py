@@ -852,22 +852,14 @@ def _plot_at(engine, radar, seq, t_s, xy_m):
     return p
 
 
-def test_a_second_plot_too_far_for_any_aircraft_waits_for_a_longer_baseline():
-    """The track's first measurement (period 0, both radars fused at T0 + 2 s) and, 3 s later,
-    radar a's plot 1,150 m from it along the track (a wild plot): within the one-plot
-    track's reach (max_speed_mps dt plus 3 σ of noise), but a two-point velocity of 383 m/s,
-    faster than any aircraft (max_speed_mps 350). It is held, not paired
-    (engine._too_fast, _hold_far). Period 2's plots are 1,360 m from the first measurement
-    in 8 s: the held one is dropped, and the two-point velocity (Shu §4's P0, without the
-    one-point state's velocity prior: ``two_point_prior`` false) is the difference of the
-    two measurements over their 8 s, the aircraft's velocity."""
+def _second_plot_too_far(two_point_prior):
     raw = settings().model_dump()
-    raw["tracking"]["two_point_prior"] = False
+    raw["tracking"]["two_point_prior"] = two_point_prior
     eng = Engine(settings_from_dict(raw))
     eng.ingest_plots(plot_of(eng, 0, 1, T0 + 1.0))
     eng.ingest_plots(plot_of(eng, 1, 1, T0 + 3.0))
     _heartbeats(eng, T0 + 5.0)  # period 0 closes (its end plus the 1 s lateness)
-    z1, t1 = eng.tracks.z1_m[0].copy(), float(eng.tracks.t_state_s[0])
+    z1, R1, t1 = eng.tracks.z1_m[0].copy(), eng.tracks.R1_m2[0].copy(), float(eng.tracks.t_state_s[0])
     assert t1 == pytest.approx(T0 + 2.0)
     u = V_MPS / np.hypot(*V_MPS)
     eng.ingest_plots(_plot_at(eng, 0, 2, t1 + 3.0, z1 + 1_150.0 * u))
@@ -879,10 +871,38 @@ def test_a_second_plot_too_far_for_any_aircraft_waits_for_a_longer_baseline():
     _heartbeats(eng, T0 + 13.5)
     assert eng.counters["plots_far_dropped"] == 1 and len(eng.tracks) == 1
     assert eng.tracks.updates[0] == 2 and eng.tracks.initiated[0]
-    z2, t2 = eng.tracks.x[0, [0, 3]], eng.tracks.t_state_s[0]
-    assert t2 - t1 == pytest.approx(8.0, abs=0.1)  # the plots weighted as the fusion weighs them
+    assert eng.tracks.t_state_s[0] - t1 == pytest.approx(8.0, abs=0.1)  # weighted as the fusion weighs
+    return eng, z1, R1, t1
+
+
+def test_a_second_plot_too_far_for_any_aircraft_waits_for_a_longer_baseline():
+    """The track's first measurement (period 0, both radars fused at T0 + 2 s) and, 3 s later,
+    radar a's plot 1,150 m from it along the track (a wild plot): within the one-plot
+    track's reach (max_speed_mps dt plus 3 σ of noise), but a two-point velocity of 383 m/s,
+    faster than any aircraft (max_speed_mps 350). It is held, not paired
+    (engine._too_fast, _hold_far). Period 2's plots are 1,360 m from the first measurement
+    in 8 s: the held one is dropped, and the track starts from the two.
+
+    * ``two_point_prior`` false: Shu §4's P0, the velocity the difference of the two
+      measurements over their 8 s (the state's position is the second, its covariance R2);
+    * by default: the Kalman update of the one-point state (velocity prior N(0, 350²/3)) by
+      that second measurement, against a 4-state filter written out here."""
+    eng, z1, R1, t1 = _second_plot_too_far(False)
+    z2, t2 = eng.tracks.x[0, [0, 3]].copy(), float(eng.tracks.t_state_s[0])
+    R2 = eng.tracks.P[0][np.ix_([0, 3], [0, 3])].copy()  # Shu's P0: cov(p, p) = R2
     np.testing.assert_allclose(eng.tracks.x[0, [1, 4]], (z2 - z1) / (t2 - t1), rtol=1e-9)
     np.testing.assert_allclose(eng.tracks.x[0, [1, 4]], V_MPS, atol=3.0)
+
+    eng, *_ = _second_plot_too_far(True)
+    T, var_v = t2 - t1, 350.0**2 / 3.0
+    F = np.block([[np.eye(2), T * np.eye(2)], [np.zeros((2, 2)), np.eye(2)]])
+    H = np.hstack([np.eye(2), np.zeros((2, 2))])
+    m = F @ np.concatenate([z1, [0.0, 0.0]])
+    C = F @ np.block([[R1, np.zeros((2, 2))], [np.zeros((2, 2)), var_v * np.eye(2)]]) @ F.T
+    K = C @ H.T @ np.linalg.inv(H @ C @ H.T + R2)
+    np.testing.assert_allclose(eng.tracks.x[0, [0, 3, 1, 4]], m + K @ (z2 - H @ m), rtol=1e-9)
+    np.testing.assert_allclose(eng.tracks.x[0, [1, 4]], V_MPS, atol=3.0)
+    assert np.hypot(*eng.tracks.x[0, [1, 4]]) < np.hypot(*(z2 - z1)) / T  # drawn towards the prior's 0
 
 
 @pytest.mark.parametrize("check", [True, False])

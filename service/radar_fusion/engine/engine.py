@@ -739,7 +739,8 @@ class Engine:
         Mode S address, those that would make a young track fly faster than any aircraft
         (``max_speed_mps``): held like far ones (:meth:`_hold_far`).
 
-        * A track of one update: its two-point velocity (Shu §4) would be the distance from
+        * A track of one update: its two-point velocity (Shu §4, before the prior of
+          ``[tracking] two_point_prior`` draws it towards zero) would be the distance from
           its first measurement over the time between them. Two plots 2-3 s apart from two
           radars give a velocity of σ ~150 m/s, and with a wild one among them the track flew
           at 350-750 m/s (1,000x10, 3 % wild plots). A good pair that seems too fast only

@@ -103,6 +103,9 @@ def two_point_initiation(
     which tends to the above as σ_v → ∞ and differs from it only where the pair's own
     velocity is no better than the prior: two coarse positions a few seconds apart (a
     long-range radar's cross-range of 300-500 m gave two-point velocities 100-400 m/s off).
+    There it draws the velocity towards the prior's zero (250 m/s across a 400 m axis 4 s
+    apart comes out at ~170 m/s, by about 0.7 of its σ), which the next updates mend; the
+    error it saves is larger.
 
     Shapes: z1_m, z2_m (N,2); R1, R2 (N,2,2); dt_s (N,) or scalar (> 0);
     sigma_m_mps2 scalar or (N,).  Returns x (N,6), P (N,6,6).
@@ -135,7 +138,7 @@ def two_point_initiation(
         prior_pv = t * eye_v  # symmetric 2x2 blocks
         S_inv = np.linalg.inv(prior_pp + R2)
         K_p = prior_pp @ S_inv
-        K_v = prior_pv @ S_inv
+        K_v = np.swapaxes(prior_pv, 1, 2) @ S_inv
         nu = z2_m - z1_m
         x[:, POS_IDX] = z1_m + np.einsum("nij,nj->ni", K_p, nu)
         x[:, POS_IDX + 1] = np.einsum("nij,nj->ni", K_v, nu)

@@ -10,7 +10,8 @@ Life cycle
   track holding that one fused measurement (position, no velocity yet). Its predicted
   covariance carries a wide velocity prior so that its gate covers any aircraft speed.
 * Second update: the two-point initiation of Shu §4 (x from the two fused measurements,
-  P0 exactly as printed) replaces the one-point state; later updates are Kalman updates
+  P0 as printed, or by default with the one-point state's velocity prior kept: ``[tracking]
+  two_point_prior``) replaces the one-point state; later updates are Kalman updates
   (Shu eq. 7-11).
 * Confirmation (M of N): a tentative track with ``confirm_updates`` updates within
   ``confirm_window_s`` of its first plot becomes *confirmed*; one that fails to do so
