@@ -543,20 +543,21 @@ class Engine:
         # ten times the joint one, and what lets the track's next scans mend a first
         # position that a wild plot pulled, which two plots cannot tell from noise
         # (3 % wild plots, 50x3: velocity +20 % against +32 % with the joint covariance).
-        joint = no_v & (n_in > 1)
-        if joint.any() and self.settings.tracking.fusion_method == "matrix":
-            sel = joint[lab]
+        joint = np.flatnonzero(no_v & (n_in > 1))
+        if joint.size and self.settings.tracking.fusion_method == "matrix":
+            compact = np.full(n_clusters, -1, np.intp)  # those clusters only, numbered 0..
+            compact[joint] = np.arange(joint.size)
+            sel = compact[lab] >= 0
             idx = np.flatnonzero(used)[sel]
-            z_j, _ = fuse_common_velocity(
-                lab[sel],
+            z_m[joint], _ = fuse_common_velocity(
+                compact[lab[sel]],
                 plots.xy_m[idx],
                 R_own[sel],
                 plots.t_s[idx] - t_c[lab[sel]],
-                v_pad[res.cluster_track],
-                pvv_pad[res.cluster_track],
-                n_clusters,
+                v_pad[res.cluster_track[joint]],
+                pvv_pad[res.cluster_track[joint]],
+                joint.size,
             )
-            z_m[joint] = z_j[joint]
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
         mode_s = np.full(n_clusters, -1, np.int64)
