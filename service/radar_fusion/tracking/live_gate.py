@@ -105,10 +105,14 @@ class LiveOutlierGate:
     * the plot is rejected when that ratio exceeds `threshold`.
 
     Rejected plots never enter the window, so a run of wild plots cannot drag it along.
-    They are kept aside; after `relock_after` consecutive rejections the track is taken
-    to have genuinely jumped, the window is replaced by the rejected plots and the plot is
-    accepted (so a run of up to relock_after - 1 wild plots is rejected, and a persistent
-    change is accepted from its relock_after-th plot on). Keys with fewer than
+    They are kept aside; a rejected plot after a rejected one is tried again against a
+    turn's arc through the window's newest plots and those kept aside (a turn, or a turn's
+    end, bends the window; `max_accel_mps2`, :func:`_decide_in_order`), and if it fits, it
+    and the plots kept aside enter the window. After `relock_after` consecutive rejections
+    the track is taken to have genuinely jumped, the window is replaced by the rejected
+    plots and the plot is accepted (so a run of up to relock_after - 1 wild plots that no
+    aircraft's turn could fly is rejected, and a persistent change is accepted from its
+    relock_after-th plot on). Keys with fewer than
     `min_history` accepted plots, or whose last plot is older than `max_gap_s`, are
     accepted unconditionally (the window restarts).
 
