@@ -455,7 +455,7 @@ def _kmd_one(
     * a least-squares constant-velocity line through the window (time about its mean);
     * with ``quadratic``, a constant acceleration besides: a quadratic in time (a turn's
       arc), inf if its acceleration is beyond ``max_accel_mps2`` (no aircraft turns so
-      hard: the window is not a turn);
+      hard: the window is not a turn) or the plots are fewer than four;
     * the residual scale about the fit, robust to a wild plot that got in: for 2-D Gaussian
       residuals E[r²] = median(r²)/ln 2, times m/(m − p) for the p fitted parameters;
     * the window's plots carried forward along the fit to the new time (the line: p_j +
@@ -518,8 +518,10 @@ def _kmd_one(
         sqb += q * ((win_y[row, j] * ux - win_x[row, j] * uy) * ac - bbar - vb * c)
     qa = sqa / sqq if sqq > 0.0 else 0.0
     qb = sqb / sqq if sqq > 0.0 else 0.0
-    quad = quadratic and m >= 4 and sqq > 0.0
+    quad = quadratic
     if quad:
+        if m < 4 or sqq <= 0.0:
+            return math.inf, math.inf  # too few plots (or times) to tell an arc from noise
         if 2.0 * math.hypot(qa * scale_r_m, qb * scale_c_m) > max_accel_mps2:
             return math.inf, math.inf  # no aircraft turns so hard: not a turn
     else:
