@@ -485,7 +485,6 @@ def _kmd_one(
     abar = 0.0
     bbar = 0.0
     stt = 0.0
-    c2bar = 0.0
     for j in range(m):
         abar += (win_x[row, j] * ux + win_y[row, j] * uy) * ar
         bbar += (win_y[row, j] * ux - win_x[row, j] * uy) * ac
@@ -496,37 +495,41 @@ def _kmd_one(
     c2bar = stt / m
     sat = 0.0
     sbt = 0.0
-    sqc = 0.0
     for j in range(m):
         c = dt[j] - tbar
         sat += c * ((win_x[row, j] * ux + win_y[row, j] * uy) * ar - abar)
         sbt += c * ((win_y[row, j] * ux - win_x[row, j] * uy) * ac - bbar)
-        sqc += (c * c - c2bar) * c
     va = sat / stt if stt > 0.0 else 0.0
     vb = sbt / stt if stt > 0.0 else 0.0
-    # the quadratic term, made orthogonal to the constant and the line: q_j = c_j² − mean(c²)
-    # − β c_j; its coefficients A (half the acceleration) follow from the line's residuals
-    beta = sqc / stt if stt > 0.0 else 0.0
-    sqq = 0.0
-    sqa = 0.0
-    sqb = 0.0
-    for j in range(m):
-        c = dt[j] - tbar
-        q = c * c - c2bar - beta * c
-        sqq += q * q
-        sqa += q * ((win_x[row, j] * ux + win_y[row, j] * uy) * ar - abar - va * c)
-        sqb += q * ((win_y[row, j] * ux - win_x[row, j] * uy) * ac - bbar - vb * c)
-    qa = sqa / sqq if sqq > 0.0 else 0.0
-    qb = sqb / sqq if sqq > 0.0 else 0.0
-    quad = quadratic
-    if quad:
-        if m < 4 or sqq <= 0.0:
+    # the quadratic term (the arc only), made orthogonal to the constant and the line:
+    # q_j = c_j² − mean(c²) − β c_j; its coefficients A (half the acceleration) follow from
+    # the line's residuals. The line alone: q's coefficients are 0.
+    beta = 0.0
+    qa = 0.0
+    qb = 0.0
+    if quadratic:
+        if m < 4 or stt <= 0.0:
             return math.inf, math.inf  # too few plots (or times) to tell an arc from noise
+        sqc = 0.0
+        for j in range(m):
+            c = dt[j] - tbar
+            sqc += (c * c - c2bar) * c
+        beta = sqc / stt
+        sqq = 0.0
+        sqa = 0.0
+        sqb = 0.0
+        for j in range(m):
+            c = dt[j] - tbar
+            q = c * c - c2bar - beta * c
+            sqq += q * q
+            sqa += q * ((win_x[row, j] * ux + win_y[row, j] * uy) * ar - abar - va * c)
+            sqb += q * ((win_y[row, j] * ux - win_x[row, j] * uy) * ac - bbar - vb * c)
+        if sqq <= 0.0:
+            return math.inf, math.inf
+        qa = sqa / sqq
+        qb = sqb / sqq
         if 2.0 * math.hypot(qa * scale_r_m, qb * scale_c_m) > max_accel_mps2:
             return math.inf, math.inf  # no aircraft turns so hard: not a turn
-    else:
-        qa = 0.0
-        qb = 0.0
     c0 = -tbar  # the new plot's time about the window's mean
     q0 = c0 * c0 - c2bar - beta * c0
     a0 = rho * ar  # the new plot: on its own beam, so b0 = 0
@@ -547,7 +550,7 @@ def _kmd_one(
             return math.inf, math.inf
     _sort_head(r2, m)
     median = 0.5 * (r2[(m - 1) // 2] + r2[m // 2])
-    n_par = 3.0 if quad else 2.0
+    n_par = 3.0 if quadratic else 2.0
     var_fit = min(median / ln2 * m / max(m - n_par, 1.0), var_cap)
     if n_near < k:
         return math.inf, var_fit
