@@ -563,6 +563,25 @@ def _kmd_one(
 
 
 @compiled
+def _push(
+    row: int,
+    t: float,
+    x: float,
+    y: float,
+    win_t: np.ndarray,
+    win_x: np.ndarray,
+    win_y: np.ndarray,
+    count: np.ndarray,
+    head: np.ndarray,
+) -> None:
+    """Put one plot at the head of row ``row``'s window (a ring of its last plots)."""
+    h = head[row]
+    win_t[row, h], win_x[row, h], win_y[row, h] = t, x, y
+    head[row] = (h + 1) % win_t.shape[1]
+    count[row] = min(count[row] + 1, win_t.shape[1])
+
+
+@compiled
 def _decide_in_order(
     order: np.ndarray,
     rows: np.ndarray,
@@ -653,20 +672,14 @@ def _decide_in_order(
                 if ratio <= threshold:
                     ok = True
                     for j in range(held):  # the turn's plots kept aside enter the window first
-                        h = head[row]
-                        win_x[row, h], win_y[row, h], win_t[row, h] = pend_x[row, j], pend_y[row, j], pend_t[row, j]
-                        head[row] = (h + 1) % w
-                        count[row] = min(count[row] + 1, w)
+                        _push(row, pend_t[row, j], pend_x[row, j], pend_y[row, j], win_t, win_x, win_y, count, head)
         if not ok:
             held = npend[row]
             if held >= relock_after - 1:
-                p = min(held, w - 1)
-                for j in range(p):
-                    win_x[row, j] = pend_x[row, held - p + j]
-                    win_y[row, j] = pend_y[row, held - p + j]
-                    win_t[row, j] = pend_t[row, held - p + j]
-                count[row] = p
-                head[row] = p
+                count[row] = 0  # the window restarts from the newest w - 1 plots kept aside
+                head[row] = 0
+                for j in range(held - min(held, w - 1), held):
+                    _push(row, pend_t[row, j], pend_x[row, j], pend_y[row, j], win_t, win_x, win_y, count, head)
                 ok = True
                 relocked += 1
             else:
@@ -675,12 +688,7 @@ def _decide_in_order(
                 pend_t[row, held] = t[i]
                 npend[row] = held + 1
         if ok:
-            h = head[row]
-            win_x[row, h] = x[i]
-            win_y[row, h] = y[i]
-            win_t[row, h] = t[i]
-            head[row] = (h + 1) % w
-            count[row] = min(count[row] + 1, w)
+            _push(row, t[i], x[i], y[i], win_t, win_x, win_y, count, head)
             npend[row] = 0
         last_t[row] = max(last_t[row], t[i])
         accept[i] = ok
