@@ -93,3 +93,32 @@ def test_issue15_verdicts_are_the_ratios_of_the_run():
     assert "first 24 s of a turn 80 m (12 pairs), after 45 m (18)" in detail
     assert "21 m outside the turn" in detail and "PCRB at the turning times 40 m (1.45× it)" in detail
     assert "151,000" in engine and engine.endswith("-> MET")
+
+
+def test_wild_twin_verdict_is_each_score_within_ten_percent_of_the_twin():
+    """bench --wild-twin's lines: the ratio wild / clean twin of each score, and issue 15 item
+    7's verdict over position, velocity, GOSPA, ids per aircraft and false tracks."""
+    from radar_fusion.tools.bench.report import wild_twin_lines
+
+    twin = {
+        "pos_rms_m": 80.0,
+        "vel_rms_mps": 10.0,
+        "pos_rms_settled_m": 60.0,
+        "vel_rms_settled_mps": 6.0,
+        "gospa_mean_m": 3000.0,
+        "track_ids_per_target_mean": 1.0,
+        "false_tracks": 2,
+        "duplicate_tracks": 0,
+        "completeness_mean": 0.99,
+    }
+    near = {**twin, "pos_rms_m": 87.9, "vel_rms_mps": 10.9, "gospa_mean_m": 3290.0, "false_tracks": 2}
+    far = {**near, "gospa_mean_m": 3310.0}  # 1.103× the twin's
+    more_false = {**near, "false_tracks": 3}  # 3 > 1.1 × 2
+    rows = [{"label": name, "twin": twin, "wild": w} for name, w in (("a", near), ("b", far), ("c", more_false))]
+    lines = wild_twin_lines(rows)
+    ga, gb, gc = (next(x for x in lines if x.startswith(f"goal (issue 15 item 7) {n}:")) for n in "abc")
+    assert "position 1.099×" in ga and "velocity 1.090×" in ga and "GOSPA 1.097×" in ga and ga.endswith("-> MET")
+    assert "GOSPA 1.103×" in gb and gb.endswith("NOT MET")
+    assert "false tracks 3 against 2" in gc and gc.endswith("NOT MET")
+    row = next(x for x in lines if x.startswith("a") and "completeness" in x)
+    assert row.split()[-3:] == ["99.00", "99.00", "1.000"]

@@ -255,6 +255,36 @@ def test_wild_plots_where_injected_with_runs_and_identity_kept():
     assert longest >= 3
 
 
+def test_clean_twin_is_the_same_simulation_without_the_gross_errors():
+    """Rates.wild_errors false (bench --wild-twin): the same draws, so every plot that is not
+    wild is the same plot (time, range, azimuth, identity, kind) in both runs, false plots
+    included, and each wild plot differs from its twin by one gross error, in range or in
+    azimuth, of a magnitude within the configured bounds."""
+    import dataclasses
+
+    rates = sim.Rates(pd=0.9, false_plots_per_scan=2.0, wild_plot_prob=0.05, wild_run_prob=0.01)
+    sc = straight_scenario(rates, n_targets=30, duration_s=200.0)
+    twin_sc = dataclasses.replace(sc, rates=dataclasses.replace(rates, wild_errors=False))
+    wild, twin = plots_of(sim.simulate(sc, encode=False), "r1"), plots_of(sim.simulate(twin_sc, encode=False), "r1")
+    assert wild.wild.sum() > 100 and not twin.wild.any()
+    key = lambda p: {(round(float(t), 9), int(i)): j for j, (t, i) in enumerate(zip(p.t_s, p.target_index)) if i >= 0}
+    kw, kt = key(wild), key(twin)
+    assert set(kw) <= set(kt)  # the twin also has the plots a wild range error put out of coverage
+    iw = np.array([kw[k] for k in kw])
+    it = np.array([kt[k] for k in kw])
+    good = ~wild.wild[iw]
+    for col in ("range_m", "azimuth_deg", "mode_s", "mode3a", "kind", "track_no"):
+        assert np.array_equal(getattr(wild, col)[iw[good]], getattr(twin, col)[it[good]]), col
+    assert np.array_equal(wild.fl[iw], twin.fl[it], equal_nan=True)
+    dr = wild.range_m[iw[~good]] - twin.range_m[it[~good]]
+    da = wrap180(wild.azimuth_deg[iw[~good]] - twin.azimuth_deg[it[~good]])
+    in_range = (np.abs(dr) >= rates.wild_range_m[0] - 1e-6) & (np.abs(dr) <= rates.wild_range_m[1] + 1e-6)
+    in_az = (np.abs(da) >= rates.wild_azimuth_deg[0] - 1e-9) & (np.abs(da) <= rates.wild_azimuth_deg[1] + 1e-9)
+    assert np.all((in_range & (np.abs(da) < 1e-9)) | (in_az & (dr == 0.0)))
+    fw, ft = wild.target_index < 0, twin.target_index < 0  # false plots: the same ones
+    assert np.array_equal(wild.range_m[fw], twin.range_m[ft]) and np.array_equal(wild.t_s[fw], twin.t_s[ft])
+
+
 def test_identity_mode_c_and_report_kinds(demo):
     sc = demo.scenario
     checked = set()

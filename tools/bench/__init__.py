@@ -75,7 +75,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from .compare import COMPARE_SIZES, run_compare
+from .compare import COMPARE_SIZES, run_compare, run_wild_twin
 from .engine_run import in_fresh_process, run_engine, simulate_inputs
 from .report import format_md_table, format_text_table, goal_lines, machine_lines, scaling_lines
 
@@ -196,6 +196,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="Stone Soup CV spectral density q, m²/s³ (default 100, tuned: see baseline_stonesoup)",
     )
     g.add_argument(
+        "--wild-twin",
+        type=float,
+        default=None,
+        metavar="PROB",
+        help="instead: each size with this wild-plot probability against its clean twin (the same simulation "
+        "without the gross errors), accuracy side by side (issue 15 item 7; default sizes 1000x10)",
+    )
+    g.add_argument(
         "--settle-s",
         type=float,
         default=30.0,
@@ -212,6 +220,8 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="radar-fusion-bench-") as tmp:
         if args.profile:
             return _run_profile(args, args.profile[0], duration_s, tmp)
+        if getattr(args, "wild_twin", None) is not None:
+            return run_wild_twin(args, args.sizes or [(1000, 10)], duration_s, tmp)
         if getattr(args, "report", None) or getattr(args, "compare", False):
             return run_compare(args, COMPARE_SIZES if args.sizes is None else args.sizes, duration_s, tmp)
         return _run_table(args, sizes, duration_s, tmp)

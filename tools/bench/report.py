@@ -37,6 +37,7 @@ GOAL15_FALSE_SHARE = 0.02
 GOAL15_STRAIGHT_PCRB = 1.2
 GOAL15_TURNING_STRAIGHT = 1.5
 GOAL15_PLOTS_PER_S = 150_000.0
+GOAL15_WILD_RATIO = 1.1  # item 7: with 3 % wild plots, within 10 % of the clean run
 ESASSP_3NM_M = 300.0
 
 
@@ -365,6 +366,47 @@ def truth_lines(rows: list[dict[str, Any]]) -> list[str]:
 
 def _verdict(ok: bool) -> str:
     return "MET" if ok else "NOT MET"
+
+
+def wild_twin_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """``bench --wild-twin``: per size, the scores of the run with wild plots against its clean
+    twin's (compare.run_wild_twin), their ratios, and issue 15 item 7's verdict: accuracy
+    (position, velocity, GOSPA), track ids per aircraft and false tracks within 10 % of the
+    clean twin's."""
+    fields = (  # label, score, format, scale
+        ("position RMS, m", "pos_rms_m", "{:.1f}", 1.0),
+        ("velocity RMS, m/s", "vel_rms_mps", "{:.2f}", 1.0),
+        ("position RMS settled, m", "pos_rms_settled_m", "{:.1f}", 1.0),
+        ("velocity RMS settled, m/s", "vel_rms_settled_mps", "{:.2f}", 1.0),
+        ("GOSPA, m", "gospa_mean_m", "{:.0f}", 1.0),
+        ("track ids per aircraft", "track_ids_per_target_mean", "{:.3f}", 1.0),
+        ("false tracks", "false_tracks", "{:.0f}", 1.0),
+        ("duplicate tracks", "duplicate_tracks", "{:.0f}", 1.0),
+        ("completeness, %", "completeness_mean", "{:.2f}", 100.0),
+    )
+    out = [f"{'size':<10} {'score':<26} {'clean twin':>11} {'wild':>11} {'wild/twin':>9}"]
+    goals = []
+    for row in rows:
+        twin, wild = row["twin"], row["wild"]
+        for label, key, fmt, scale in fields:
+            a, b = twin[key], wild[key]
+            ratio = f"{b / a:.3f}" if a else "-"
+            out.append(
+                f"{row['label']:<10} {label:<26} {fmt.format(scale * a):>11} {fmt.format(scale * b):>11} {ratio:>9}"
+            )
+        parts, ok = [], True
+        for name, key in (("position", "pos_rms_m"), ("velocity", "vel_rms_mps"), ("GOSPA", "gospa_mean_m"),
+                          ("ids per aircraft", "track_ids_per_target_mean")):  # fmt: skip
+            r = wild[key] / twin[key]
+            parts.append(f"{name} {r:.3f}×")
+            ok = ok and r <= GOAL15_WILD_RATIO
+        parts.append(f"false tracks {wild['false_tracks']} against {twin['false_tracks']}")
+        ok = ok and wild["false_tracks"] <= GOAL15_WILD_RATIO * twin["false_tracks"]
+        goals.append(
+            f"goal (issue 15 item 7) {row['label']}: within {GOAL15_WILD_RATIO:g}× of the clean twin: "
+            f"{', '.join(parts)} -> {_verdict(ok)}"
+        )
+    return out + [""] + goals
 
 
 def goal_lines_compare(rows: list[dict[str, Any]]) -> list[str]:

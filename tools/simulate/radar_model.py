@@ -34,6 +34,8 @@ Wild plots: isolated (probability ``wild_plot_prob`` per plot) and in runs (prob
 ``wild_run_prob`` per target per scan of a run of ``wild_run_scans`` consecutive scans
 with one constant error): a gross error of ``wild_range_m`` (uniform, random sign) in
 range or of ``wild_azimuth_deg`` in azimuth, keeping the aircraft's identity and track
+number. With ``wild_errors`` false the same draws are made and no error is applied: the
+clean twin of the run, plot for plot.
 """
 
 from __future__ import annotations
@@ -204,6 +206,8 @@ def radar_plots(
     # ---- measurement noise, bias and wild plots
     n_scans = int(math.ceil(sim_ctx["duration_s"] / period)) + 4
     d_range, d_az, wild_tab = _wild_offsets(rng, rates, n_scans, n)
+    if not rates.wild_errors:  # the clean twin: the same draws, no gross error
+        d_range[:], d_az[:], wild_tab[:] = 0.0, 0.0, False
     step = np.minimum(c["step"].astype(np.intp), n_scans - 1)
     wild = wild_tab[step, tgt] if m else np.zeros(0, bool)
     range_m = c["rho"] + spec.range_bias_m + rng.normal(0.0, spec.sigma_range_m, m) + (d_range[step, tgt] if m else 0.0)

@@ -42,6 +42,10 @@ class Rates:
     """magnitude of a wild range error, uniform between the two, random sign"""
     wild_azimuth_deg: tuple[float, float] = (1.0, 4.0)
     """magnitude of a wild azimuth error, uniform between the two, random sign"""
+    wild_errors: bool = True
+    """False: the wild plots are drawn as usual but their gross errors are not applied, so the
+    simulation is the clean twin of the one with them (the same noise, detections and false
+    plots, plot for plot): what the wild plots cost is then measured on the same draws"""
 
 
 @dataclass(frozen=True)
