@@ -692,11 +692,12 @@ def test_a_new_target_is_reported_at_the_time_its_fused_position_belongs_to():
 
 
 # ------------------------------------------------------------------ far plots held a scan
-def _far_run(offset_m_by_period, skip_b=(), periods=16):
+def _far_run(offset_m_by_period, skip_b=(), periods=16, eng=None):
     """The two-radar aircraft for ``periods`` periods; in period k radar a's plot (and b's,
     unless k is in ``skip_b``) lies ``offset_m_by_period[k]`` metres off across a's beam
-    (a's azimuth) or, for b, along the same plane direction; None: a's plot is missing."""
-    eng = Engine(settings())
+    (a's azimuth) or, for b, along the same plane direction; None: a's plot is missing.
+    ``eng``: an engine of other settings (default: settings())."""
+    eng = eng or Engine(settings())
     outs = {}
     for k in range(periods):
         t = T0 + 4.0 * k
@@ -711,6 +712,47 @@ def _far_run(offset_m_by_period, skip_b=(), periods=16):
         for out in eng.poll():
             outs[round((out.t_s - T0) / 4.0)] = out
     return eng, outs
+
+
+def _first_outputs(outs):
+    """(position error m, velocity error m/s or NaN) of the track in each output, by period."""
+    out = {}
+    for k, o in sorted(outs.items()):
+        cols = o.track_columns
+        if len(cols):
+            t = float(cols.t_track_s[0]) if cols.t_track_s is not None else o.t_s
+            out[k] = (
+                float(np.hypot(*(cols.x[0, [0, 3]] - truth_xy(t)))),
+                float(np.hypot(*(cols.x[0, [1, 4]] - V_MPS))),
+            )
+    return out
+
+
+@pytest.mark.parametrize("first_alone", [False, True])
+def test_two_contradicting_plots_without_a_velocity_are_left_out_not_fused(first_alone):
+    """A cluster without a velocity holds radar a's plot 1.5 km off across its beam (a wild
+    plot) and radar b's where the aircraft is, both with its address: a new target
+    (period 0), or the second period of a track that radar a started alone. Both plots are
+    left out (fusion.contradicting_pairs): no track in period 0, or the one-plot track
+    coasts, and the next period's plots give a track within noise of the aircraft. Fused
+    ([clustering] drop_contradicting_pairs = false) the track starts ~0.7-1 km off and its
+    two-point velocity ~150 m/s off."""
+    k_wild = 1 if first_alone else 0
+    kw = {"offset_m_by_period": {k_wild: 1500.0}, "skip_b": (0,) if first_alone else (), "periods": 4}
+    eng, outs = _far_run(**kw)
+    assert eng.counters["plots_contradicting_pairs"] == 2 and eng.counters["tracks_initiated"] == 1
+    got = _first_outputs(outs)
+    if first_alone:
+        assert got[1][0] < 1.0 and got[2][0] < 1.0 and np.isnan(got[2][1])  # coasted: still its first plot
+    else:
+        assert 1 not in got  # period 0 closes with no track
+    assert got[3][0] < 50.0 and got[3][1] < 15.0
+    raw = settings().model_dump()
+    raw["clustering"]["drop_contradicting_pairs"] = False
+    fused_eng, fused_outs = _far_run(**kw, eng=Engine(settings_from_dict(raw)))
+    assert fused_eng.counters["plots_contradicting_pairs"] == 0
+    fused = _first_outputs(fused_outs)
+    assert fused[k_wild + 1][0] > 500.0 and np.nanmax([fused[k][1] for k in (k_wild + 1, k_wild + 2)]) > 100.0
 
 
 def test_a_far_plot_of_the_address_is_held_a_scan_and_dropped_when_the_next_is_in_the_gate():

@@ -3,7 +3,12 @@
 import numpy as np
 import pytest
 
-from radar_fusion.tracking.fusion import fuse_clusters, fuse_common_velocity, leave_one_out_outliers
+from radar_fusion.tracking.fusion import (
+    contradicting_pairs,
+    fuse_clusters,
+    fuse_common_velocity,
+    leave_one_out_outliers,
+)
 
 
 def polar_cov(range_m, az_rad, sigma_r_m, sigma_az_rad):
@@ -219,6 +224,36 @@ def test_leave_one_out_flags_the_wild_plot_of_a_new_target_as_a_loop_by_hand():
     labels = np.array([0, 0, 0, 1, 1, 2, 2, 2])
     got = leave_one_out_outliers(labels, z, R, np.array([True, True, False]), 3, gate)
     assert got.tolist() == [False, False, True, False, False, False, False, False]
+
+
+def test_contradicting_pairs_against_a_loop_by_hand():
+    """Both plots of a checked cluster of exactly two plots of one Mode S address whose
+    distance, in the metric of their summed covariance (np.linalg.solve), is beyond the
+    gate; clusters of one or three plots, of two addresses or none, and unchecked ones never."""
+    rng = np.random.default_rng(5)
+    gate = 13.8155
+    n_cl = 60
+    sizes = rng.integers(1, 4, n_cl)
+    labels = np.repeat(np.arange(n_cl), sizes)
+    m = labels.size
+    z = rng.normal(0.0, 100.0, (m, 2)) + 1e4 * labels[:, None]
+    wild = rng.random(m) < 0.3
+    z[wild] += rng.uniform(300.0, 3_000.0, (int(wild.sum()), 1)) * np.array([[0.6, 0.8]])
+    a = rng.normal(size=(m, 2, 2)) * 80.0
+    R = a @ np.swapaxes(a, 1, 2) + 40.0**2 * np.eye(2)
+    mode_s = np.where(rng.random(m) < 0.8, 0x3C0000 + labels, -1)
+    mode_s[rng.random(m) < 0.1] = 0x400000  # another address
+    check = rng.random(n_cl) < 0.8
+    got = contradicting_pairs(labels, z, R, mode_s, check, n_cl, gate)
+    want = np.zeros(m, bool)
+    for c in range(n_cl):
+        i = np.flatnonzero(labels == c)
+        if not check[c] or i.size != 2 or mode_s[i[0]] < 0 or mode_s[i[0]] != mode_s[i[1]]:
+            continue
+        y = z[i[0]] - z[i[1]]
+        want[i] = y @ np.linalg.solve(R[i[0]] + R[i[1]], y) > gate
+    assert want.sum() >= 4 and (~want & (np.bincount(labels)[labels] == 2)).sum() >= 4
+    np.testing.assert_array_equal(got, want)
 
 
 # ------------------------------------------------------------------ plots of one period at different times

@@ -54,7 +54,13 @@ from ..geo.unknown_height import unknown_height_plots
 from ..safety_nets import SafetyNets
 from ..tracking import association, live_gate
 from ..tracking.clustering import ClusterResult, cluster_plots
-from ..tracking.fusion import consensus_outliers, fuse_clusters, fuse_common_velocity, leave_one_out_outliers
+from ..tracking.fusion import (
+    consensus_outliers,
+    contradicting_pairs,
+    fuse_clusters,
+    fuse_common_velocity,
+    leave_one_out_outliers,
+)
 from ..tracking.imm import QUIET, IMMFilter, IMMState
 from ..tracking.initiation import (
     floor_covariance,
@@ -501,10 +507,22 @@ class Engine:
         # A cluster without a velocity has no prediction to gate its plots: of three plots or
         # more, the one the others contradict beyond the gate is a wild plot, dropped and
         # counted (fusion.leave_one_out_outliers); the rest are aligned again without it.
-        wild = leave_one_out_outliers(lab, z_plot, R_plot, no_v, n_clusters, self.clustering.gate_chi2)
+        gate_chi2 = self.clustering.gate_chi2
+        wild = leave_one_out_outliers(lab, z_plot, R_plot, no_v, n_clusters, gate_chi2)
         if wild.any():
             self.counters["plots_new_target_outliers"] += int(wild.sum())
             used[np.flatnonzero(used)[wild]] = False
+            lab, n_in, t_c, row_of_plot, v, z_plot, R_plot = align(used)
+        # Two plots of one address in such a cluster that contradict each other: one is wild,
+        # and two cannot tell which (fusion.contradicting_pairs); fused, the track starts
+        # half the wild error off and its two-point velocity with it. Both are left out this
+        # period, counted: the next period's plots start or continue the track. (A plot that
+        # a track of one update could not reach from its first measurement is not in its
+        # cluster: association's identity gate keeps it out.)
+        pair = contradicting_pairs(lab, z_plot, R_plot, plots.mode_s[used], no_v, n_clusters, gate_chi2)
+        if self.clustering.drop_contradicting_pairs and pair.any():
+            self.counters["plots_contradicting_pairs"] += int(pair.sum())
+            used[np.flatnonzero(used)[pair]] = False
             lab, n_in, t_c, row_of_plot, v, z_plot, R_plot = align(used)
         # A plot that joined from outside the gate of the track's combined prediction (by
         # its Mode S address, or inside an IMM turn model's gate) and that the cluster's

@@ -46,7 +46,14 @@ from numpy.typing import NDArray
 from .association import first_per_group
 from .singer_filter import inv_2x2
 
-__all__ = ["FUSION_METHODS", "consensus_outliers", "fuse_clusters", "fuse_common_velocity", "leave_one_out_outliers"]
+__all__ = [
+    "FUSION_METHODS",
+    "consensus_outliers",
+    "contradicting_pairs",
+    "fuse_clusters",
+    "fuse_common_velocity",
+    "leave_one_out_outliers",
+]
 
 FUSION_METHODS = ("scalar", "matrix")
 
@@ -209,6 +216,43 @@ def leave_one_out_outliers(
     d2 = _d2_against(z_m[cand], R_m2[cand], info[c] - W[cand], info_z[c] - Wz[cand])  # the others' fusion
     worst = first_per_group(c, -d2)  # each cluster's largest d², one even on a tie
     out[cand[worst[d2[worst] > gate_chi2]]] = True
+    return out
+
+
+def contradicting_pairs(
+    labels: NDArray[np.intp],
+    z_m: NDArray[np.float64],
+    R_m2: NDArray[np.float64],
+    mode_s: NDArray[np.int64],
+    check: NDArray[np.bool_],
+    n_clusters: int,
+    gate_chi2: float,
+) -> NDArray[np.bool_]:
+    """The plots of each cluster of ``check`` that holds exactly two plots, both with one
+    Mode S address, which contradict each other beyond the gate (issue 15 item 7):
+
+        (z_a − z_b)ᵀ (R_a + R_b)⁻¹ (z_a − z_b) > gate_chi2.
+
+    One aircraft's two plots of one period, aligned to one time, differ by their noise
+    alone; beyond the gate one of them is wild, and two plots cannot tell which
+    (:func:`leave_one_out_outliers` needs three). Fused, both are lost in a position
+    between them, half the wild error off. ``labels`` (P,), ``z_m`` (P, 2), ``R_m2``
+    (P, 2, 2), ``mode_s`` (P,) with −1 for none. Returns (P,) bool: both plots of each
+    such cluster."""
+    out = np.zeros(labels.shape[0], dtype=bool)
+    n = np.bincount(labels, minlength=n_clusters)
+    cand = np.flatnonzero(check[labels] & (n[labels] == 2) & (mode_s >= 0))
+    if cand.size < 2:
+        return out
+    order = cand[np.argsort(labels[cand], kind="stable")]
+    first = np.flatnonzero(labels[order][1:] == labels[order][:-1])  # the pairs (a, b) of one cluster
+    a, b = order[first], order[first + 1]
+    same = mode_s[a] == mode_s[b]
+    a, b = a[same], b[same]
+    y = z_m[a] - z_m[b]
+    d2 = np.einsum("ki,kij,kj->k", y, inv_2x2(R_m2[a] + R_m2[b]), y)
+    far = d2 > gate_chi2
+    out[a[far]] = out[b[far]] = True
     return out
 
 
