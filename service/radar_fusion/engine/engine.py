@@ -861,7 +861,7 @@ class Engine:
         tr.last_update_t_s[rows] = t_ref_s
         tr.mode_s[rows] = np.where(cl.mode_s[matched] >= 0, cl.mode_s[matched], tr.mode_s[rows])
         tr.mode3a[rows] = np.where(cl.mode3a[matched] >= 0, cl.mode3a[matched], tr.mode3a[rows])
-        tr.sources[rows] = cl.sources[matched]
+        tr.sources[rows] = tr.update_sources[rows] = cl.sources[matched]
         tr.seen_by[rows] |= cl.sources[matched]
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
@@ -949,7 +949,7 @@ class Engine:
         tr.mode_s[new] = cl.mode_s[new_cl]
         tr.mode3a[new] = cl.mode3a[new_cl]
         tr.revisit_s[new] = cl.revisit_s[new_cl]
-        tr.sources[new] = tr.seen_by[new] = cl.sources[new_cl]
+        tr.sources[new] = tr.seen_by[new] = tr.update_sources[new] = cl.sources[new_cl]
         if len(self.address_memory):  # an address seen again soon after its track ended: its id back
             old_id = self.address_memory.recall(
                 cl.mode_s[new_cl],

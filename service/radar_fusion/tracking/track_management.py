@@ -158,6 +158,7 @@ _FIELDS = {
     "mode_s": ((), np.int64, -1),
     "mode3a": ((), np.int64, -1),
     "sources": ((), np.uint64, 0),  # radars that contributed in the latest period (bit mask)
+    "update_sources": ((), np.uint64, 0),  # radars of the latest update (bit mask), kept between updates
     "seen_by": ((), np.uint64, 0),  # radars that ever contributed (bit mask): the ones that should see it
     "revisit_s": ((), float, np.nan),  # shortest rotation among the radars of the latest update
     "nis_avg": ((), float, 2.0),  # fading average of the normalised innovation squared (2 dof)
@@ -170,7 +171,7 @@ _FIELDS = {
 
 #: columns added after the state format's first release: a state without them is read
 #: with their fill (engine/state.py)
-OPTIONAL_FIELDS = ("held_z_m", "held_R_m2", "held_t_s")
+OPTIONAL_FIELDS = ("held_z_m", "held_R_m2", "held_t_s", "update_sources")
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
 # track axis: (N, M, 6), (N, M, 6, 6), (N, M). A table for the single-model Singer filter
@@ -206,6 +207,7 @@ class TrackTable:
     mode_s: NDArray[np.int64]  # 24-bit address, -1 unknown
     mode3a: NDArray[np.int64]  # -1 unknown
     sources: NDArray[np.uint64]  # radars that contributed in the latest period (bit mask)
+    update_sources: NDArray[np.uint64]  # radars of the latest update (bit mask)
     seen_by: NDArray[np.uint64]  # radars that ever contributed (bit mask)
     revisit_s: NDArray[np.float64]  # shortest rotation among the radars of the latest update
     nis_avg: NDArray[np.float64]  # fading average of the normalised innovation squared (2 dof)
@@ -422,6 +424,7 @@ _STATE_COLUMNS = (
     "R1_m2",
     "mode3a",
     "sources",
+    "update_sources",
     "revisit_s",
     "nis_avg",
     "manoeuvre",
@@ -476,7 +479,7 @@ def merge_same_address(
             # that is the wild one (50x3 with 3 % wild plots: kept, it put a track 7 km off).
             with_v = members[velocity_known[members]]
             pool = with_v if with_v.size else members
-            votes = radar_count(table.sources[pool])
+            votes = radar_count(table.update_sources[pool])  # not this period's: an older member has none
             best = pool[votes == votes.max()]
             newest = best[np.argmax(table.t_state_s[best])]
         if newest != oldest:
