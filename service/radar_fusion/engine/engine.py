@@ -519,11 +519,12 @@ class Engine:
         # period, counted: the next period's plots start or continue the track. (A plot that
         # a track of one update could not reach from its first measurement is not in its
         # cluster: association's identity gate keeps it out.)
-        pair = contradicting_pairs(lab, z_plot, R_plot, plots.mode_s[used], no_v, n_clusters, gate_chi2)
-        if self.clustering.drop_contradicting_pairs and pair.any():
-            self.counters["plots_contradicting_pairs"] += int(pair.sum())
-            used[np.flatnonzero(used)[pair]] = False
-            lab, n_in, t_c, row_of_plot, v, z_plot, R_plot = align(used)
+        if self.clustering.drop_contradicting_pairs:
+            pair = contradicting_pairs(lab, z_plot, R_plot, plots.mode_s[used], no_v, n_clusters, gate_chi2)
+            if pair.any():
+                self.counters["plots_contradicting_pairs"] += int(pair.sum())
+                used[np.flatnonzero(used)[pair]] = False
+                lab, n_in, t_c, row_of_plot, v, z_plot, R_plot = align(used)
         # A plot that joined from outside the gate of the track's combined prediction (by
         # its Mode S address, or inside an IMM turn model's gate) and that the cluster's
         # in-gate radars contradict is a wild plot, not a manoeuvre: dropped and counted
