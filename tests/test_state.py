@@ -86,3 +86,30 @@ def test_a_state_of_another_configuration_or_no_state_is_refused(demo_case, tmp_
     aside = set_state_aside(tmp_path)
     assert aside is not None and aside.name.startswith("engine-state.msgpack.rejected-")
     assert load_state(Engine(settings), tmp_path) is None and aside.exists()
+
+
+def test_a_state_from_before_a_column_was_added_is_read_with_its_fill(demo_case):
+    """The track table's columns added after the state format's first release
+    (track_management.OPTIONAL_FIELDS: the far-hold's held measurement, the radars of each
+    track's latest update) are not in older snapshots: such a state is restored with their
+    fill, every other column as saved."""
+    import msgpack
+    import numpy as np
+
+    from radar_fusion.tracking.track_management import OPTIONAL_FIELDS
+
+    settings, simulation = demo_case
+    engine = Engine(settings)
+    replay_into_engine(engine, simulation.messages[:400], flush=False)
+    state = msgpack.unpackb(snapshot(engine), raw=False)
+    for name in OPTIONAL_FIELDS:
+        del state["tracks"][name]
+    fresh = Engine(settings)
+    restore(fresh, msgpack.packb(state, use_bin_type=True))
+    old, new = engine.tracks, fresh.tracks
+    assert len(new) == len(old) > 20 and (old.update_sources != 0).any()
+    for name in OPTIONAL_FIELDS:
+        shape, dtype, fill = new._fields[name]
+        np.testing.assert_array_equal(getattr(new, name), np.full((len(new),) + shape, fill, dtype=dtype))
+    for name in ("track_id", "x", "P", "sources", "seen_by", "mode_s", "mu"):
+        np.testing.assert_array_equal(getattr(new, name), getattr(old, name))
