@@ -106,6 +106,7 @@ def test_wild_twin_verdict_is_each_score_within_ten_percent_of_the_twin():
         "pos_rms_settled_m": 60.0,
         "vel_rms_settled_mps": 6.0,
         "gospa_mean_m": 3000.0,
+        "gospa_settled_mean_m": 2000.0,
         "track_ids_per_target_mean": 1.0,
         "false_tracks": 2,
         "duplicate_tracks": 0,
