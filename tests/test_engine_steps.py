@@ -692,23 +692,30 @@ def test_a_new_target_is_reported_at_the_time_its_fused_position_belongs_to():
 
 
 # ------------------------------------------------------------------ far plots held a scan
-def _far_run(offset_m_by_period, skip_b=(), periods=16, eng=None):
+def _far_run(offset_m_by_period, skip_b=(), periods=16, eng=None, mode3a=None):
     """The two-radar aircraft for ``periods`` periods; in period k radar a's plot (and b's,
     unless k is in ``skip_b``) lies ``offset_m_by_period[k]`` metres off across a's beam
     (a's azimuth) or, for b, along the same plane direction; None: a's plot is missing.
-    ``eng``: an engine of other settings (default: settings())."""
+    ``eng``: an engine of other settings (default: settings()). ``mode3a``: the plots carry
+    this code and no Mode S address (an SSR-only aircraft)."""
     eng = eng or Engine(settings())
+
+    def ssr(p):
+        if mode3a is not None:
+            p.mode3a, p.mode_s = np.array([mode3a]), np.array([-1])
+        return p
+
     outs = {}
     for k in range(periods):
         t = T0 + 4.0 * k
         off = offset_m_by_period.get(k, 0.0)
         if off is not None:
-            p = plot_of(eng, 0, k + 1, t + 1.0)
+            p = ssr(plot_of(eng, 0, k + 1, t + 1.0))
             if off:
                 p.azimuth_deg = p.azimuth_deg + np.degrees(off / p.range_m)
             eng.ingest_plots(p)
         if k not in skip_b:
-            eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0))
+            eng.ingest_plots(ssr(plot_of(eng, 1, k + 1, t + 3.0)))
         for out in eng.poll():
             outs[round((out.t_s - T0) / 4.0)] = out
     return eng, outs
@@ -753,6 +760,43 @@ def test_two_contradicting_plots_without_a_velocity_are_left_out_not_fused(first
     assert fused_eng.counters["plots_contradicting_pairs"] == 0
     fused = _first_outputs(fused_outs)
     assert fused[k_wild + 1][0] > 500.0 and np.nanmax([fused[k][1] for k in (k_wild + 1, k_wild + 2)]) > 100.0
+
+
+@pytest.mark.parametrize("one_update_track", [False, True])
+def test_two_contradicting_plots_without_an_address_are_split_not_fused(one_update_track):
+    """The same for an SSR-only aircraft (Mode 3/A 4321, no address), radar a's plot 3 km off:
+    as far as the two plots can tell they are two targets, so each is an update of one radar
+    (fusion.contradicting_pairs, [clustering] split_contradicting_factor): a new target's
+    pair gives two tentative tracks; for a track of one update (radar a alone, then a scan
+    missed) it keeps one plot and the other starts a tentative track. Later periods confirm
+    one track within noise of the aircraft, and the wild one ends unconfirmed. Fused
+    (factor 0), the two radars confirm at once a track 1.4-1.7 km off, shown for several
+    periods beside the aircraft's next track."""
+    k_wild = 2 if one_update_track else 0
+    offsets = {1: None, 2: 3000.0} if one_update_track else {0: 3000.0}
+    kw = {"offset_m_by_period": offsets, "skip_b": (0, 1) if one_update_track else (), "mode3a": 0o4321}
+    eng, outs = _far_run(**kw, periods=14)
+    assert eng.counters["plots_contradicting_split"] == 2 and eng.counters["tracks_initiated"] == 2
+    cols = outs[k_wild + 1].track_columns
+    assert len(cols) == 2 and not (cols.status == CONFIRMED).any()
+    truth = truth_xy(outs[k_wild + 1].t_s)
+    err_m = np.sort(np.hypot(cols.x[:, 0] - truth[0], cols.x[:, 3] - truth[1]))
+    assert err_m[0] < 300.0 and err_m[1] > 2500.0, err_m
+    for o in outs.values():  # nothing 1 km off the aircraft is ever shown
+        c = o.track_columns
+        off_m = np.hypot(c.x[:, 0] - truth_xy(o.t_s)[0], c.x[:, 3] - truth_xy(o.t_s)[1])
+        assert (c.status[off_m > 1000.0] == TENTATIVE).all()
+    last = outs[13].track_columns
+    assert len(last) == 1 and last.status[0] == CONFIRMED and _first_outputs({13: outs[13]})[13][0] < 50.0
+    raw = settings().model_dump()
+    raw["clustering"]["split_contradicting_factor"] = 0.0
+    fused_eng, fused_outs = _far_run(**kw, periods=14, eng=Engine(settings_from_dict(raw)))
+    assert fused_eng.counters["plots_contradicting_split"] == 0
+    fused = fused_outs[k_wild + 1].track_columns
+    assert (
+        len(fused) == 1 and fused.status[0] == CONFIRMED and _first_outputs({0: fused_outs[k_wild + 1]})[0][0] > 1000.0
+    )
+    assert (fused_outs[k_wild + 3].track_columns.status != TENTATIVE).sum() == 2
 
 
 def test_a_far_plot_of_the_address_is_held_a_scan_and_dropped_when_the_next_is_in_the_gate():
