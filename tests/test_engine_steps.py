@@ -799,6 +799,29 @@ def test_two_contradicting_plots_without_an_address_are_split_not_fused(one_upda
     assert (fused_outs[k_wild + 3].track_columns.status != TENTATIVE).sum() == 2
 
 
+@pytest.mark.parametrize(("code", "radius_m"), [(0o4321, 20_000.0), (0o4321, 0.0), (0o7000, 20_000.0)])
+def test_one_radars_wild_run_beside_the_track_of_its_code_is_not_confirmed(code, radius_m):
+    """An SSR-only aircraft seen by radars a and b; for five scans radar a's plots lie 5 km
+    across its beam (one constant error: a reflection). They form a consistent track of their
+    own, seen by a alone. While the aircraft's confirmed track carries the same discrete code
+    within [life_cycle] duplicate_code_radius_m, it is not confirmed and ends tentative; with
+    the rule off, or for the conspicuity code 7000 (not an identity), it is confirmed after
+    three updates and shown as a second track 5 km beside the aircraft."""
+    raw = settings().model_dump()
+    raw["life_cycle"]["duplicate_code_radius_m"] = radius_m
+    eng, outs = _far_run({k: 5000.0 for k in range(4, 9)}, periods=14, eng=Engine(settings_from_dict(raw)), mode3a=code)
+    assert eng.counters["tracks_initiated"] == 2
+    shown = set()
+    for o in outs.values():
+        c = o.track_columns
+        off_m = np.hypot(c.x[:, 0] - truth_xy(o.t_s)[0], c.x[:, 3] - truth_xy(o.t_s)[1])
+        shown.update(int(i) for i in c.track_id[(off_m > 4000.0) & (c.status != TENTATIVE)])
+        assert (c.status[off_m < 100.0] == CONFIRMED).all()
+    withheld = radius_m > 0 and code != 0o7000
+    assert shown == (set() if withheld else {2})
+    assert [int(i) for i in outs[13].track_columns.track_id] == [1]
+
+
 def test_a_far_plot_of_the_address_is_held_a_scan_and_dropped_when_the_next_is_in_the_gate():
     """Period 12 has only radar a's plot, 1 km off across its beam: it joins by the Mode S
     address, far beyond every IMM model's gate (engine._hold_far). It is held, not fused,

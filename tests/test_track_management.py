@@ -138,6 +138,28 @@ def test_first_update_confirms_at_once_on_an_address_or_two_radars_with_a_reply(
     assert table.status.tolist() == [C, T, C, T, T, C]
 
 
+def test_a_one_radar_track_beside_a_shown_track_of_its_code_is_not_confirmed():
+    """Issue 15 item 7: a tentative track that M-of-N would confirm, without an address and
+    seen by one radar, stays tentative while a confirmed track within
+    duplicate_code_radius_m (here 20 km) carries its identity code."""
+    t = 100.0
+    table = table_of([row(C, 0.0, t_s=t), row(C, 0.0, t_s=t)] + [row(T, 0.0, t_s=t, updates=3) for _ in range(6)])
+    table.mode3a[:] = [0o2341, 0o7000, 0o2341, 0o2341, 0o2341, 0o2341, 0o7000, 0o2342]
+    table.seen_by[:] = [0b011, 0b011, 0b100, 0b100, 0b100, 0b110, 0b100, 0b100]
+    table.mode_s[:] = -1
+    table.mode_s[4] = 0x4B1234
+    # the two shown tracks at (0, 0); the others 15 km off (the second 25 km, the last 5 km)
+    east_m = [0.0, 0.0, 15_000.0, 25_000.0, 15_000.0, 15_000.0, 15_000.0, 3_000.0]
+    north_m = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 4_000.0]
+    table.x[:, 0], table.x[:, 3] = east_m, north_m
+    apply_life_cycle(table, t, rules(duplicate_code_radius_m=20_000.0))
+    # within 20 km: withheld; 25 km; an address; two radars; conspicuity 7000; another code
+    assert table.status.tolist() == [C, C, T, C, C, C, C, C]
+    table.status[2] = T
+    apply_life_cycle(table, t, rules(duplicate_code_radius_m=0.0))
+    assert table.status[2] == C
+
+
 # ------------------------------------------------------------------ coasting
 
 
