@@ -822,6 +822,43 @@ def test_one_radars_wild_run_beside_the_track_of_its_code_is_not_confirmed(code,
     assert [int(i) for i in outs[13].track_columns.track_id] == [1]
 
 
+def test_a_plot_the_other_radar_contradicts_is_dropped_inside_the_gate_too():
+    """Both radars miss three scans; then radar a's plot lies 400 m across its beam and b's
+    where the aircraft is. a's plot is inside the coasted track's 99.9 % gate but beyond its
+    95 % (clustering.suspect_chi2), and b's plot contradicts it beyond the gate: dropped as a
+    consensus outlier (fusion.consensus_outliers), the track stays on the aircraft. Checked
+    only beyond the gate (suspect_chi2 = gate_chi2), it is fused: the track ~140 m off."""
+    kw = {"offset_m_by_period": {10: None, 11: None, 12: None, 13: 400.0}, "skip_b": (10, 11, 12), "periods": 16}
+    eng, outs = _far_run(**kw)
+    assert eng.counters["plots_identity_outliers"] == 1
+    assert _first_outputs(outs)[14][0] < 10.0
+    raw = settings().model_dump()
+    raw["clustering"]["suspect_chi2"] = raw["clustering"]["gate_chi2"]
+    gate_eng, gate_outs = _far_run(**kw, eng=Engine(settings_from_dict(raw)))
+    assert gate_eng.counters["plots_identity_outliers"] == 0
+    assert _first_outputs(gate_outs)[14][0] > 100.0
+
+
+def test_a_plot_no_bounded_manoeuvre_reaches_is_held_whatever_a_model_gate_says():
+    """Both radars miss two scans, b a third; then radar a's plot alone lies 1.2 km across
+    its beam. The IMM's manoeuvre model, 13 s after the update, reaches it; no turn of at
+    most 10 m/s² does (clustering.far_accel_mps2: ½·10·13² = 845 m plus the innovation's
+    3.7 σ). It is held as far (engine._hold_far) and dropped when the next period's plots
+    are in the gate: the track stays on the aircraft. With the bound off (0) the manoeuvre
+    model takes it: the track ~1.4 km off and ~200 m/s off in velocity."""
+    kw = {"offset_m_by_period": {10: None, 11: None, 12: 1200.0}, "skip_b": (10, 11, 12), "periods": 16}
+    eng, outs = _far_run(**kw)
+    assert eng.counters["plots_far_held"] == 1 and eng.counters["plots_far_dropped"] == 1
+    got = _first_outputs(outs)
+    assert got[13][0] < 10.0 and got[14][0] < 10.0
+    raw = settings().model_dump()
+    raw["clustering"]["far_accel_mps2"] = 0.0
+    off_eng, off_outs = _far_run(**kw, eng=Engine(settings_from_dict(raw)))
+    assert off_eng.counters["plots_far_held"] == 0
+    off = _first_outputs(off_outs)
+    assert off[13][0] > 1000.0 and off[13][1] > 150.0
+
+
 def test_a_far_plot_of_the_address_is_held_a_scan_and_dropped_when_the_next_is_in_the_gate():
     """Period 12 has only radar a's plot, 1 km off across its beam: it joins by the Mode S
     address, far beyond every IMM model's gate (engine._hold_far). It is held, not fused,

@@ -560,7 +560,7 @@ class Engine:
         # in-gate radars contradict is a wild plot, not a manoeuvre: dropped and counted
         # (fusion.consensus_outliers), by address or by model gate.
         outlier = consensus_outliers(
-            lab, z_plot, R_plot, res.plot_d2[used] > self.clustering.gate_chi2, n_clusters, self.clustering.gate_chi2
+            lab, z_plot, R_plot, res.plot_d2[used] > self.clustering.suspect_chi2, n_clusters, self.clustering.gate_chi2
         )
         if outlier.any():
             by_address = int((plots.mode_s[used][outlier] >= 0).sum())
@@ -579,6 +579,8 @@ class Engine:
         # every plot of the cluster far beyond every model's gate (_hold_far): such a cluster is
         # held, not fused, and keeps its plots' own noise (a two-point start may come of it)
         near = res.plot_d2_gate[used] <= self.clustering.far_gate_factor * self.clustering.gate_chi2
+        if self.clustering.far_accel_mps2 > 0:
+            near &= ~self._beyond_any_manoeuvre(res, used, row_of_plot, pred, plots.t_s[used])
         far = (np.bincount(lab, weights=near, minlength=n_clusters) == 0) & (n_in > 0) & has_track
         beyond = np.where(far[lab], 1.0, np.fmax(res.plot_d2[used] / self.clustering.gate_chi2, 1.0))
         R_plot = R_plot * beyond[:, None, None]
@@ -632,6 +634,42 @@ class Engine:
             height_cov_m2=cluster_h_cov,
             far=far,
         )
+
+    def _beyond_any_manoeuvre(
+        self, res: ClusterResult, used: np.ndarray, row_of_plot: np.ndarray, pred: Prediction, t_plot_s: np.ndarray
+    ) -> np.ndarray:
+        """The used plots, of tracks with a velocity, that no manoeuvre of at most
+        ``far_accel_mps2`` since the track's update could have put where they are:
+
+            |y| > ½ a_max Δt² + sqrt(gate_chi2) σ_y,
+
+        y the plot (aligned to t_ref) less the combined prediction, σ_y² = yᵀ S y / |y|² the
+        innovation variance along y (S = the prediction's position covariance plus the
+        plot's), Δt = the plot's time − the track's update time (from the plot's time to
+        t_ref both move with the track's velocity). A high-noise manoeuvre model's gate
+        after a scan or two of a far radar holds plots a kilometre off; a turn no aircraft
+        flies is no reason to take one (issue 15 item 7: one such plot flipped a straight
+        track to the manoeuvre model and took it 1.1-1.8 km off for 20 s). Such a plot
+        counts as far (_hold_far)."""
+        row = row_of_plot
+        out = np.zeros(row.shape[0], bool)
+        trk = np.flatnonzero(row >= 0)
+        if not trk.size:
+            return out
+        r = row[trk]
+        known = self.tracks.velocity_known[r]
+        trk, r = trk[known], r[known]
+        if not trk.size:
+            return out
+        idx = np.flatnonzero(used)[trk]
+        y = res.aligned_xy_m[idx] - position_m(pred.x[r])
+        S = res.aligned_cov_m2[idx] + cov_pos_m2(pred.P[r])
+        dist2 = np.einsum("ki,ki->k", y, y)
+        var_y = np.einsum("ki,kij,kj->k", y, S, y) / np.maximum(dist2, 1e-9)
+        dt_s = np.maximum(t_plot_s[trk] - self.tracks.t_state_s[r], 0.0)
+        reach = 0.5 * self.clustering.far_accel_mps2 * dt_s**2 + np.sqrt(self.clustering.gate_chi2 * var_y)
+        out[trk] = np.sqrt(dist2) > reach
+        return out
 
     def _height_spread(
         self,

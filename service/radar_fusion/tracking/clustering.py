@@ -87,6 +87,7 @@ __all__ = ["CHI2_2DOF_P999", "ClusterResult", "ClusteringParams", "cluster_plots
 #: 99.9 % quantile of the chi-square distribution with 2 degrees of freedom,
 #: -2·ln(0.001) (= scipy.stats.chi2.ppf(0.999, 2)).
 CHI2_2DOF_P999 = 13.815510557964274
+CHI2_2DOF_P95 = 5.991464547107982  # −2 ln(0.05), the 95 % quantile of χ² with 2 dof
 
 # Cost of a dummy "too expensive" entry in the small dense assignment problems of the
 # new-target components; far above any squared distance inside a gate (< (20 km)²).
@@ -192,6 +193,24 @@ class ClusteringParams(BaseModel):
         "noise, not to the track's: a coasted track (wide covariance) took a plot 5.5 km off almost whole "
         "(4,000x10, 3 % wild plots: settled velocity +27 % against the clean run; held beyond 4x the gate +14 %, "
         "beyond 1x +6 %)",
+    )
+    suspect_chi2: float = Field(
+        CHI2_2DOF_P95,
+        gt=0,
+        description="a plot of a track's cluster beyond this d² of the combined prediction is checked against the "
+        "cluster's plots within it, and dropped when they contradict it beyond gate_chi2 "
+        "(fusion.consensus_outliers). Default 5.99, the 95 % quantile: a wild plot of a far radar 870 m off, at "
+        "d² 13.4, just inside the 99.9 % gate, beside another radar's plot at d² 0.6, was fused and flipped a "
+        "straight track to its manoeuvre model (issue 15 item 7). Two good plots contradict each other beyond "
+        "the gate once in a thousand pairs. Set gate_chi2 to check only plots beyond the gate",
+    )
+    far_accel_mps2: float = Field(
+        10.0,
+        ge=0,
+        description="a plot of a track with a velocity is far, whatever a model's gate says, when no manoeuvre of "
+        "at most this acceleration since the track's update (plus sqrt(gate_chi2) σ of the innovation) reaches it "
+        "(engine._beyond_any_manoeuvre). Default 10 m/s², the live gate's max_accel_mps2: above a rate-one turn "
+        "at 150 m/s (8 m/s²). 0: off (the models' gates alone)",
     )
     too_fast_young_updates: int = Field(
         4,
