@@ -238,8 +238,8 @@ def contradicting_pairs(
     (:func:`leave_one_out_outliers` needs three). Fused, both are lost in a position
     between them, half the wild error off. ``labels`` (P,), ``z_m`` (P, 2), ``R_m2``
     (P, 2, 2), ``mode_s`` (P,) with −1 for none (or any other key: the engine also passes
-    0 for every SSR plot without an address, to split such pairs). Returns (P,) bool:
-    both plots of each such cluster."""
+    0 for every plot without an address and −1 for the rest, to split such pairs).
+    Returns (P,) bool: both plots of each such cluster."""
     out = np.zeros(labels.shape[0], dtype=bool)
     n = np.bincount(labels, minlength=n_clusters)
     cand = np.flatnonzero(check[labels] & (n[labels] == 2) & (mode_s >= 0))
