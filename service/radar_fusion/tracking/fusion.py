@@ -223,13 +223,13 @@ def contradicting_pairs(
     labels: NDArray[np.intp],
     z_m: NDArray[np.float64],
     R_m2: NDArray[np.float64],
-    mode_s: NDArray[np.int64],
+    key: NDArray[np.int64],
     check: NDArray[np.bool_],
     n_clusters: int,
     gate_chi2: float,
 ) -> NDArray[np.bool_]:
     """The plots of each cluster of ``check`` that holds exactly two plots, both with one
-    Mode S address, which contradict each other beyond the gate (issue 15 item 7):
+    ``key`` (a Mode S address), which contradict each other beyond the gate (issue 15 item 7):
 
         (z_a − z_b)ᵀ (R_a + R_b)⁻¹ (z_a − z_b) > gate_chi2.
 
@@ -237,18 +237,19 @@ def contradicting_pairs(
     alone; beyond the gate one of them is wild, and two plots cannot tell which
     (:func:`leave_one_out_outliers` needs three). Fused, both are lost in a position
     between them, half the wild error off. ``labels`` (P,), ``z_m`` (P, 2), ``R_m2``
-    (P, 2, 2), ``mode_s`` (P,) with −1 for none (or any other key: the engine also passes
-    0 for every plot without an address and −1 for the rest, to split such pairs).
+    (P, 2, 2), ``key`` (P,) with −1 for none: the engine passes the plots' Mode S addresses
+    (to leave such pairs out), and 0 for every plot without an address and −1 for the rest
+    (to split such pairs).
     Returns (P,) bool: both plots of each such cluster."""
     out = np.zeros(labels.shape[0], dtype=bool)
     n = np.bincount(labels, minlength=n_clusters)
-    cand = np.flatnonzero(check[labels] & (n[labels] == 2) & (mode_s >= 0))
+    cand = np.flatnonzero(check[labels] & (n[labels] == 2) & (key >= 0))
     if cand.size < 2:
         return out
     order = cand[np.argsort(labels[cand], kind="stable")]
     first = np.flatnonzero(labels[order][1:] == labels[order][:-1])  # the pairs (a, b) of one cluster
     a, b = order[first], order[first + 1]
-    same = mode_s[a] == mode_s[b]
+    same = key[a] == key[b]
     a, b = a[same], b[same]
     y = z_m[a] - z_m[b]
     d2 = np.einsum("ki,kij,kj->k", y, inv_2x2(R_m2[a] + R_m2[b]), y)

@@ -35,6 +35,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from .association import NON_IDENTITY_MODE3A
+
 TENTATIVE, CONFIRMED, COASTING = 0, 1, 2
 STATUS_NAMES = ("tentative", "confirmed", "coasting")
 
@@ -387,19 +389,22 @@ def beside_own_code(table: TrackTable, rows: np.ndarray, radius_m: float) -> np.
     """(N,) bool: the tracks of ``rows`` (a bool mask) without a Mode S address, seen by one
     radar only, whose identity code (Mode 3/A, not in association.NON_IDENTITY_MODE3A) a
     confirmed or coasting track within ``radius_m`` carries (its position at its own time)."""
-    from .association import NON_IDENTITY_MODE3A
-
     out = np.zeros(len(table), bool)
     code = table.mode3a
-    cand = rows & (table.mode_s < 0) & (code >= 0) & (radar_count(table.seen_by) == 1)
-    cand &= ~np.isin(code, NON_IDENTITY_MODE3A)
-    shown = (table.status != TENTATIVE) & (code >= 0)
-    cand &= np.isin(code, code[shown])
-    xy = position_m(table.x)
-    for i in np.flatnonzero(cand):
-        other = shown & (code == code[i])
-        other[i] = False
-        d_m = np.hypot(xy[other, 0] - xy[i, 0], xy[other, 1] - xy[i, 1])
+    cand = np.flatnonzero(rows & (table.mode_s < 0) & (code >= 0))
+    if not cand.size:
+        return out
+    cand = cand[~np.isin(code[cand], NON_IDENTITY_MODE3A)]
+    shown = np.flatnonzero((table.status != TENTATIVE) & (code >= 0))
+    cand = cand[np.isin(code[cand], code[shown])]
+    if not cand.size:
+        return out
+    cand = cand[radar_count(table.seen_by[cand]) == 1]
+    shown = shown[np.isin(code[shown], code[cand])]
+    xy_cand, xy_shown = position_m(table.x[cand]), position_m(table.x[shown])
+    for j, i in enumerate(cand):
+        other = (code[shown] == code[i]) & (shown != i)
+        d_m = np.hypot(xy_shown[other, 0] - xy_cand[j, 0], xy_shown[other, 1] - xy_cand[j, 1])
         out[i] = bool((d_m <= radius_m).any())
     return out
 
