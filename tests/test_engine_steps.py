@@ -443,6 +443,42 @@ def test_a_wild_first_plot_does_not_hold_its_address_hostage():
     assert max(errors[2:]) < 50.0, errors
 
 
+@pytest.mark.parametrize(("quiet_periods", "far_hold_scans"), [(1, None), (2, 4.0)])
+def test_two_first_plots_of_one_address_the_next_plots_choose_the_first_position(quiet_periods, far_hold_scans):
+    """Period 0: radar a's plot where the aircraft is and radar b's 4 km ahead of it (a wild
+    plot), one address, too far apart for one cluster: two one-plot tracks, merged keeping
+    the later (b's, the wild one) and holding a's beside it (track_management
+    .merge_same_address). One or two periods without plots (with two, a held point is kept
+    four scans), then both radars' plots: they lie nearer a's point than the wild one
+    (engine._choose_first), and the track starts from a's point and them. Without the held
+    point (the code before it), the two-point initiation took the wild point: 500 or 360 m/s
+    off, and 2.5 or 2.1 km off a period later."""
+    raw = settings().model_dump()
+    if far_hold_scans is not None:
+        raw["clustering"]["far_hold_scans"] = far_hold_scans
+    eng = Engine(settings_from_dict(raw))
+    direction = V_MPS / np.hypot(*V_MPS)
+    eng.ingest_plots(plot_of(eng, 0, 1, T0 + 1.0))
+    eng.ingest_plots(_plot_at(eng, 1, 1, T0 + 3.0, truth_xy(T0 + 3.0) + 4_000.0 * direction))
+    outs = eng.poll()
+    for k in range(1, quiet_periods + 1):
+        outs += _heartbeats(eng, T0 + 4.0 * k + 3.9)
+    assert eng.counters["tracks_merged"] == 1 and len(eng.tracks) == 1
+    assert np.hypot(*(eng.tracks.held_z_m[0] - truth_xy(T0 + 1.0))) < 100.0  # a's plot, held
+    first = quiet_periods + 1
+    for k in (first, first + 1):
+        t = T0 + 4.0 * k
+        eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0))
+        eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0))
+        outs += eng.poll()
+    outs += _heartbeats(eng, T0 + 4.0 * (first + 2) + 3.9)
+    assert eng.counters["tracks_first_replaced"] == 1
+    got = _first_outputs({round((o.t_s - T0) / 4.0) - 1: o for o in outs})  # by period (its end's time)
+    assert got[0][0] > 3_500.0  # period 0 shows the kept plot: one plot cannot tell
+    assert got[first][0] < 50.0 and got[first][1] < 15.0, got
+    assert got[first + 1][0] < 50.0 and got[first + 1][1] < 15.0, got
+
+
 # ------------------------------------------------------------------ re-acquisition
 def _ids_by_period(gap_periods, offset_m=0.0, reacquire_s=None):
     """The aircraft is seen for 6 periods, unseen for ``gap_periods`` (heartbeats only),
@@ -944,7 +980,7 @@ def test_a_held_measurement_survives_a_restart_and_a_state_from_before_it_loads(
     assert again.counters["plots_far_dropped"] == eng.counters["plots_far_dropped"] == 1
     assert np.isnan(again.tracks.held_t_s).all() and np.isnan(eng.tracks.held_t_s).all()
     state = msgpack.unpackb(data, raw=False)
-    for name in ("held_z_m", "held_R_m2", "held_t_s"):
+    for name in ("held_z_m", "held_R_m2", "held_t_s", "held_sources"):
         del state["tracks"][name]
     old = Engine(settings())
     restore(old, msgpack.packb(state, use_bin_type=True))

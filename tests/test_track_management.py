@@ -390,6 +390,40 @@ def test_merging_young_tracks_keeps_the_one_with_a_velocity():
     assert tab.x[0, 0] == -113_329.0 and tab.x[0, 1] == -32.0 and tab.t_state_s[0] == 8.0 and tab.updates[0] == 2
 
 
+@pytest.mark.parametrize(
+    ("first_t_s", "t_state_s", "held"),
+    [
+        ([0.0, 0.0], [1.0, 3.0], 0),  # one period: the earlier plot is held beside the later
+        ([0.0, 4.0], [1.0, 7.0], None),  # an earlier period's: the later plots could not reach it
+        ([0.0, 0.0, 0.0], [1.0, 2.0, 3.0], 1),  # the latest of the others
+    ],
+)
+def test_merging_one_plot_tracks_of_one_period_holds_the_other_first_plot(first_t_s, t_state_s, held):
+    """One-plot tracks of one address started in one period (each its own cluster: their
+    plots contradict each other): the kept one (the latest) holds the latest other's first
+    measurement, its covariance, time and radars (held_*), for the next measurement to choose
+    from (engine._choose_first). A member of an earlier period is not held."""
+    from radar_fusion.tracking.track_management import merge_same_address
+
+    tab = TrackTable()
+    rows = tab.append(len(t_state_s))
+    tab.mode_s[rows] = 0x4B1234
+    tab.updates[rows] = 1
+    tab.first_t_s[rows] = first_t_s
+    tab.t_state_s[rows] = t_state_s
+    tab.update_sources[rows] = np.uint64(1) << np.arange(len(t_state_s), dtype=np.uint64)
+    tab.z1_m[rows] = np.stack([np.arange(len(t_state_s)) * 1_000.0, np.zeros(len(t_state_s))], axis=1)
+    tab.R1_m2[rows] = np.eye(2) * (100.0 + np.arange(len(t_state_s)))[:, None, None]
+    tab.x[rows, 0] = tab.z1_m[rows, 0]
+    merge_same_address(tab, confirm_updates=3)
+    assert len(tab) == 1 and tab.track_id[0] == 1 and tab.x[0, 0] == 1_000.0 * (len(t_state_s) - 1)
+    if held is None:
+        assert np.isnan(tab.held_t_s[0])
+    else:
+        assert tab.held_t_s[0] == t_state_s[held] and tab.held_z_m[0, 0] == 1_000.0 * held
+        assert tab.held_R_m2[0, 0, 0] == 100.0 + held and tab.held_sources[0] == 1 << held
+
+
 def test_track_table_grows_without_copying_and_keeps_what_callers_hold() -> None:
     """Appending writes into spare capacity (the columns are views of larger buffers, so the
     model covariances are not copied every period); keep() compacts them in place; a column

@@ -72,7 +72,7 @@ from ..tracking.live_gate import LiveOutlierGate, radar_track_keys
 from ..tracking.manoeuvre import ManoeuvreDetector
 from ..tracking.primary_height import primary_plot_altitude
 from ..tracking.registration import RadarRegistration
-from ..tracking.singer_filter import AltitudeFilter, SingerFilter
+from ..tracking.singer_filter import AltitudeFilter, SingerFilter, inv_2x2
 from ..tracking.track_management import (
     CONFIRMED,
     TENTATIVE,
@@ -797,7 +797,13 @@ class Engine:
             cl.t_s[k] - tr.held_t_s[rows] <= self.clustering.far_hold_scans * tr.revisit_s[rows]
         )
         far = (cl.far[k] & tr.initiated[rows]) | self._too_fast(cl, k, rows)
-        near_after_held = held & ~far
+        # a track of one measurement with another of its time held beside it (not a far one,
+        # which is later than the state): the new one chooses
+        choose = held & ~far & ~tr.initiated[rows] & (tr.updates[rows] == 1)
+        choose &= tr.held_t_s[rows] <= tr.t_state_s[rows]
+        if choose.any():
+            self._choose_first(cl, k[choose], rows[choose])
+        near_after_held = held & ~far & ~choose
         if near_after_held.any():
             self.counters["plots_far_dropped"] += int(near_after_held.sum())
         tr.held_t_s[rows[~far]] = np.nan
@@ -807,6 +813,11 @@ class Engine:
         pair = hf & ~self._beyond_reach(
             tr.held_z_m[rf], np.nan_to_num(tr.held_R_m2[rf]), tr.held_t_s[rf], cl.z_m[kf], cl.R_m2[kf], cl.t_s[kf]
         )
+        # A first measurement's alternative (held at or before the state's time) and a far
+        # cluster of its own radars only agree as one radar's run of wild plots would (one
+        # constant error for several scans): that is no other radar's word against the first.
+        alternative = tr.held_t_s[rf] <= tr.t_state_s[rf]
+        pair &= ~alternative | ((cl.sources[kf] & ~tr.held_sources[rf]) != 0)
         if pair.any():
             kp, rp = kf[pair], rf[pair]
             n = cl.track_row.shape[0]
@@ -819,8 +830,47 @@ class Engine:
         kh, rh = kf[~pair], rf[~pair]
         if kh.size:
             tr.held_z_m[rh], tr.held_R_m2[rh], tr.held_t_s[rh] = cl.z_m[kh], cl.R_m2[kh], cl.t_s[kh]
+            tr.held_sources[rh] = cl.sources[kh]
             cl.valid[kh] = False
             self.counters["plots_far_held"] += int(kh.size)
+
+    def _choose_first(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> None:
+        """Tracks of one measurement (rows ``rows``) that hold another of its time beside it
+        (``held_*``: two one-plot tracks of one address merged,
+        track_management.merge_same_address), and their next clusters ``k``: the first
+        measurement of the two-point initiation (Shu §4) is the one of the two nearer the new
+        cluster in the metric of a target without a track, each velocity component of
+        variance v_max²/3 (initiation.unknown_velocity_var_m2ps2):
+
+            d₀² = yᵀ S₀⁻¹ y,   y = z − z₀,   S₀ = R₀ + R + (v_max²/3) Δt₀² I,   Δt₀ = t − t₀,
+
+        the smaller d₀² (the nearest neighbour; the Gaussian likelihood's ln det S₀ would
+        favour the later of the two by its shorter Δt alone, and that prior is a gate's, not
+        a model of speeds). Two plots of one address 5 km apart in one period, one of them
+        wild, were a coin toss: the wild one kept, its two-point velocity with the
+        aircraft's next plot was 250 m/s off and the track 0.6-2.7 km off for 20 s (issue 15
+        item 7, 3 % wild plots). The held one chosen: the track is initiated from it (as
+        :meth:`_hold_far` re-initiates), counted ``tracks_first_replaced``."""
+        tr = self.tracks
+        z, R, t = cl.z_m[k], cl.R_m2[k], cl.t_s[k]
+
+        def d2(z0: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
+            S = R0 + R + (self.one_plot_vel_var_m2ps2 * (t - t0) ** 2)[:, None, None] * np.eye(2)
+            y = z - z0
+            return np.asarray(np.einsum("ki,kij,kj->k", y, inv_2x2(S), y))
+
+        better = d2(tr.held_z_m[rows], tr.held_R_m2[rows], tr.held_t_s[rows]) < d2(
+            tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows]
+        )
+        if not better.any():
+            return
+        kb, rb = k[better], rows[better]
+        n = cl.track_row.shape[0]
+        if cl.t0_s is None:
+            cl.t0_s, cl.z0_m, cl.R0_m2 = np.full(n, np.nan), np.full((n, 2), np.nan), np.full((n, 2, 2), np.nan)
+        assert cl.z0_m is not None and cl.R0_m2 is not None
+        cl.t0_s[kb], cl.z0_m[kb], cl.R0_m2[kb] = tr.held_t_s[rb], tr.held_z_m[rb], tr.held_R_m2[rb]
+        self.counters["tracks_first_replaced"] += int(better.sum())
 
     def _too_fast(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Of the track clusters ``k`` (their tracks' rows ``rows``) that carry their track's
@@ -1055,7 +1105,7 @@ class Engine:
         if self.rules.reacquire_within_s > 0:
             # where the address was last seen: a measurement held far from the track
             # (_hold_far) is newer than its state, and the aircraft's plots resume from there
-            held = np.isfinite(tr.held_t_s)
+            held = np.isfinite(tr.held_t_s) & (tr.held_t_s > tr.t_state_s)  # a far one, not an alternative first
             snap = (
                 tr.track_id.copy(),
                 tr.mode_s.copy(),

@@ -181,11 +181,12 @@ _FIELDS = {
     "held_z_m": ((2,), float, np.nan),
     "held_R_m2": ((2, 2), float, np.nan),
     "held_t_s": ((), float, np.nan),
+    "held_sources": ((), np.uint64, 0),  # its radars (bit mask)
 }
 
 #: columns added after the state format's first release: a state without them is read
 #: with their fill (engine/state.py)
-OPTIONAL_FIELDS = ("held_z_m", "held_R_m2", "held_t_s", "update_sources")
+OPTIONAL_FIELDS = ("held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources")
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
 # track axis: (N, M, 6), (N, M, 6, 6), (N, M). A table for the single-model Singer filter
@@ -229,6 +230,7 @@ class TrackTable:
     held_z_m: NDArray[np.float64]  # (N, 2) a fused measurement held for one scan (engine._hold_far)
     held_R_m2: NDArray[np.float64]  # (N, 2, 2) its covariance
     held_t_s: NDArray[np.float64]  # its time, NaN: none held
+    held_sources: NDArray[np.uint64]  # its radars (bit mask)
     x_models: NDArray[np.float64]  # (N, M, 6) each IMM model's state at t_state_s
     P_models: NDArray[np.float64]  # (N, M, 6, 6)
     mu: NDArray[np.float64]  # (N, M) IMM mode probabilities
@@ -474,6 +476,7 @@ _STATE_COLUMNS = (
     "held_z_m",  # a measurement held against that state (engine._hold_far)
     "held_R_m2",
     "held_t_s",
+    "held_sources",
 )
 
 
@@ -489,7 +492,10 @@ def merge_same_address(
     established, among those with a velocity (two updates) if any, the one whose latest
     update most radars agreed on, and among those the most recently updated (a wild plot
     is one radar's; a first plot far from the address's later plots, e.g. a wild one, is
-    not kept: those plots could not reach it and started the younger tracks). It is
+    not kept: those plots could not reach it and started the younger tracks). When the
+    state kept is a single measurement, the latest other member's of the same period and no
+    later than it is held beside it (``held_*``, at or before the state's time) for the next
+    measurement to choose from. It is
     confirmed when any member was. The other rows are removed. Rows of ``outputs``
     (arrays row-aligned with the table) are copied the same way but not removed: the
     caller drops them with the returned mask. Returns (keep mask over the table's former
@@ -522,11 +528,31 @@ def merge_same_address(
             votes = radar_count(table.update_sources[pool])  # not this period's: an older member has none
             best = pool[votes == votes.max()]
             newest = best[np.argmax(table.t_state_s[best])]
+        alt = None
+        if not velocity_known[newest]:
+            # One-plot tracks of one address started in one period, each of one cluster:
+            # their first measurements contradict each other (else they had been one
+            # cluster), and one plot cannot tell which is wild. The latest of the others is
+            # held beside the kept one; the aircraft's next measurement chooses between them
+            # (engine._choose_first). Not one of an earlier period: the plots that started
+            # the kept one could not reach it (above). Not one later than the kept one: it
+            # had fewer radars (the vote above), and a held measurement later than its
+            # track's state is a far one (engine._hold_far).
+            others = members[
+                (members != newest)
+                & (table.first_t_s[members] == table.first_t_s[newest])
+                & (table.t_state_s[members] <= table.t_state_s[newest])
+            ]
+            if others.size:
+                i = others[np.argmax(table.t_state_s[others])]
+                alt = (table.z1_m[i].copy(), table.R1_m2[i].copy(), table.t_state_s[i], table.update_sources[i])
         if newest != oldest:
             for name in _STATE_COLUMNS:
                 getattr(table, name)[oldest] = getattr(table, name)[newest]
             for column in outputs:
                 column[oldest] = column[newest]
+        if alt is not None:
+            table.held_z_m[oldest], table.held_R_m2[oldest], table.held_t_s[oldest], table.held_sources[oldest] = alt
         table.updates[oldest] = table.updates[members].max()
         table.seen_by[oldest] = np.bitwise_or.reduce(table.seen_by[members])
         table.status[oldest] = CONFIRMED if (table.status[members] != TENTATIVE).any() else TENTATIVE
