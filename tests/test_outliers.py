@@ -205,20 +205,21 @@ def test_innovation_gate_flags_spike_not_ramp():
 SCAN_S = 4.0
 
 
-def _track(n, turn_deg_s=0.0, turn=(0.0, 0.0), seed=0):
-    """Range/azimuth plots of a 200 m/s aircraft, 4 s scans, optional coordinated turn."""
+def _track(n, turn_deg_s=0.0, turn=(0.0, 0.0), seed=0, scan_s=SCAN_S, speed_mps=200.0):
+    """Range/azimuth plots of a 200 m/s aircraft (``speed_mps``), 4 s scans (``scan_s``),
+    optional coordinated turn while turn[0] <= t < turn[1]; 50 m and 0.07° of noise."""
     rng = np.random.default_rng(seed)
     x, y, hd = 20000.0, 40000.0, math.radians(90.0)
-    t = np.arange(n) * SCAN_S
+    t = np.arange(n) * scan_s
     xs, ys = [], []
     for ti in t:
         xs.append(x)
         ys.append(y)
         rate = math.radians(turn_deg_s) if turn[0] <= ti < turn[1] else 0.0
-        for _ in range(40):
+        for _ in range(round(scan_s * 10)):
             hd += rate * 0.1
-            x += 200.0 * math.sin(hd) * 0.1
-            y += 200.0 * math.cos(hd) * 0.1
+            x += speed_mps * math.sin(hd) * 0.1
+            y += speed_mps * math.cos(hd) * 0.1
     xs, ys = np.array(xs), np.array(ys)
     r = np.hypot(xs, ys) + rng.normal(0, 50.0, n)
     az = np.degrees(np.arctan2(xs, ys)) + rng.normal(0, 0.07, n)
@@ -251,24 +252,6 @@ def test_live_gate_accepts_coordinated_turn():
         assert _feed(LiveOutlierGate(), 9, t, r, az).all()
 
 
-def _turning_track(seed, n=14, scan_s=12.0, speed_mps=150.0, rate_deg_s=1.5, turn_from_s=36.0):
-    """Range/azimuth plots of a radar track of 12 s scans: straight, then a turn at 1.5°/s
-    from 36 s (the fourth scan on); 50 m and 0.07° of noise, 40-45 km out."""
-    rng = np.random.default_rng(seed)
-    x, y, hd = 20000.0, 40000.0, math.radians(90.0)
-    t = np.arange(n) * scan_s
-    xs, ys = [], []
-    for ti in t:
-        xs.append(x)
-        ys.append(y)
-        for _ in range(int(scan_s * 10)):
-            hd += (math.radians(rate_deg_s) if ti >= turn_from_s else 0.0) * 0.1
-            x += speed_mps * math.sin(hd) * 0.1
-            y += speed_mps * math.cos(hd) * 0.1
-    xs, ys = np.array(xs), np.array(ys)
-    return t, np.hypot(xs, ys) + rng.normal(0, 50.0, n), np.degrees(np.arctan2(xs, ys)) + rng.normal(0, 0.07, n)
-
-
 def test_live_gate_wild_plots_in_a_turn():
     """A 12 s radar's track turning at 1.5°/s from its fourth scan, 20 noise draws (issue 15
     item 7; seen at 1,000x10 with 3 % wild plots: an aircraft's track coasted out):
@@ -282,7 +265,8 @@ def test_live_gate_wild_plots_in_a_turn():
       it, and no good plot is refused."""
     start = []
     for seed in range(20):
-        t, r, az = _turning_track(seed)
+        # a 12 s radar's track, straight, then turning at 1.5°/s from 36 s (the fourth scan on)
+        t, r, az = _track(14, turn_deg_s=1.5, turn=(36.0, math.inf), seed=seed, scan_s=12.0, speed_mps=150.0)
         wild_early, wild_deep = r.copy(), r.copy()
         wild_early[4] -= 3200.0
         wild_deep[9] -= 2400.0

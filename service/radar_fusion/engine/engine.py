@@ -819,12 +819,8 @@ class Engine:
         alternative = tr.held_t_s[rf] <= tr.t_state_s[rf]
         pair &= ~alternative | ((cl.sources[kf] & ~tr.held_sources[rf]) != 0)
         if pair.any():
-            kp, rp = kf[pair], rf[pair]
-            n = cl.track_row.shape[0]
-            if cl.t0_s is None:
-                cl.t0_s, cl.z0_m, cl.R0_m2 = np.full(n, np.nan), np.full((n, 2), np.nan), np.full((n, 2, 2), np.nan)
-            assert cl.z0_m is not None and cl.R0_m2 is not None
-            cl.t0_s[kp], cl.z0_m[kp], cl.R0_m2[kp] = tr.held_t_s[rp], tr.held_z_m[rp], tr.held_R_m2[rp]
+            rp = rf[pair]
+            self._initiate_from_held(cl, kf[pair], rp)
             tr.held_t_s[rp] = np.nan
             self.counters["tracks_far_reinitiated"] += int(pair.sum())
         kh, rh = kf[~pair], rf[~pair]
@@ -862,15 +858,20 @@ class Engine:
         better = d2(tr.held_z_m[rows], tr.held_R_m2[rows], tr.held_t_s[rows]) < d2(
             tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows]
         )
-        if not better.any():
-            return
-        kb, rb = k[better], rows[better]
+        if better.any():
+            self._initiate_from_held(cl, k[better], rows[better])
+            self.counters["tracks_first_replaced"] += int(better.sum())
+
+    def _initiate_from_held(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> None:
+        """Clusters ``k`` initiate their tracks (rows ``rows``) by the two-point initiation
+        (Shu §4) from the measurement each track holds (``held_*``), not from its first one:
+        ``_update`` takes the first point from ``cl.t0_s``, ``cl.z0_m``, ``cl.R0_m2``."""
+        tr = self.tracks
         n = cl.track_row.shape[0]
         if cl.t0_s is None:
             cl.t0_s, cl.z0_m, cl.R0_m2 = np.full(n, np.nan), np.full((n, 2), np.nan), np.full((n, 2, 2), np.nan)
         assert cl.z0_m is not None and cl.R0_m2 is not None
-        cl.t0_s[kb], cl.z0_m[kb], cl.R0_m2[kb] = tr.held_t_s[rb], tr.held_z_m[rb], tr.held_R_m2[rb]
-        self.counters["tracks_first_replaced"] += int(better.sum())
+        cl.t0_s[k], cl.z0_m[k], cl.R0_m2[k] = tr.held_t_s[rows], tr.held_z_m[rows], tr.held_R_m2[rows]
 
     def _too_fast(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Of the track clusters ``k`` (their tracks' rows ``rows``) that carry their track's
