@@ -800,7 +800,7 @@ class Engine:
         # a track of one measurement with another of its time held beside it (not a far one,
         # which is later than the state): the new one chooses
         choose = held & ~far & ~tr.initiated[rows] & (tr.updates[rows] == 1)
-        choose &= tr.held_t_s[rows] <= tr.t_state_s[rows]
+        choose &= tr.held_alternative[rows]
         if choose.any():
             self._choose_first(cl, k[choose], rows[choose])
         near_after_held = held & ~far & ~choose
@@ -816,7 +816,7 @@ class Engine:
         # A first measurement's alternative (held at or before the state's time) and a far
         # cluster of its own radars only agree as one radar's run of wild plots would (one
         # constant error for several scans): that is no other radar's word against the first.
-        alternative = tr.held_t_s[rf] <= tr.t_state_s[rf]
+        alternative = tr.held_alternative[rf]
         pair &= ~alternative | ((cl.sources[kf] & ~tr.held_sources[rf]) != 0)
         if pair.any():
             rp = rf[pair]
@@ -1106,7 +1106,7 @@ class Engine:
         if self.rules.reacquire_within_s > 0:
             # where the address was last seen: a measurement held far from the track
             # (_hold_far) is newer than its state, and the aircraft's plots resume from there
-            held = np.isfinite(tr.held_t_s) & (tr.held_t_s > tr.t_state_s)  # a far one, not an alternative first
+            held = np.isfinite(tr.held_t_s) & ~tr.held_alternative  # a far one, not an alternative first
             snap = (
                 tr.track_id.copy(),
                 tr.mode_s.copy(),

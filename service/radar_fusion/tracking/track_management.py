@@ -261,6 +261,13 @@ class TrackTable:
         velocity; a track of one update has only the wide prior."""
         return self.updates >= 2
 
+    @property
+    def held_alternative(self) -> NDArray[np.bool_]:
+        """Tracks whose held measurement is at or before their state's time: a first
+        measurement's alternative (merge_same_address), not a far one held after it
+        (engine._hold_far). False where none is held."""
+        return np.asarray(self.held_t_s <= self.t_state_s)
+
     def _set_view(self, name: str) -> None:
         view = self._buffers[name][: self.n]
         self._views[name] = view
