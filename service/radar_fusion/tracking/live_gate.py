@@ -594,6 +594,18 @@ def _push(
 
 
 @compiled
+def _copy_newest(
+    row: int, m: int, head: np.ndarray, w: int, win_t: np.ndarray, win_x: np.ndarray, win_y: np.ndarray,
+    both_t: np.ndarray, both_x: np.ndarray, both_y: np.ndarray,
+) -> None:  # fmt: skip
+    """The newest ``m`` plots of window ``row`` (a ring of ``w`` ending before ``head[row]``),
+    newest first, into row 0 of both_t, both_x, both_y: the plots an arc is fitted to."""
+    for j in range(m):
+        jj = (head[row] - 1 - j) % w
+        both_t[0, j], both_x[0, j], both_y[0, j] = win_t[row, jj], win_x[row, jj], win_y[row, jj]
+
+
+@compiled
 def _decide_in_order(
     order: np.ndarray,
     rows: np.ndarray,
@@ -676,9 +688,7 @@ def _decide_in_order(
                 # it fits them better, judges too (not after a refusal: an arc that missed
                 # the turn's last plot, or a wild one, would refuse the turn's next ones)
                 m = min(count[row], BENT_ARC_PLOTS)
-                for j in range(m):
-                    jj = (head[row] - 1 - j) % w
-                    both_t[0, j], both_x[0, j], both_y[0, j] = win_t[row, jj], win_x[row, jj], win_y[row, jj]
+                _copy_newest(row, m, head, w, win_t, win_x, win_y, both_t, both_x, both_y)
                 ratio_arc, var_arc = _kmd_one(
                     0, t[i], x[i], y[i], m, both_t, both_x, both_y, k, scale_r_m[i], scale_c_m[i], True,
                     max_accel_mps2, var_line, m, math.inf, dt, r2, d,
@@ -688,9 +698,7 @@ def _decide_in_order(
             held = npend[row]
             if not ok and held >= 1 and max_accel_mps2 > 0.0:
                 m = min(count[row], arc_plots)
-                for j in range(m):  # the window's newest m, newest first
-                    jj = (head[row] - 1 - j) % w
-                    both_t[0, j], both_x[0, j], both_y[0, j] = win_t[row, jj], win_x[row, jj], win_y[row, jj]
+                _copy_newest(row, m, head, w, win_t, win_x, win_y, both_t, both_x, both_y)
                 # all the plots kept aside (left = -1), then, with two or more, each left out in
                 # turn: a wild plot among them is off any arc and would keep the turn's good
                 # plots out until the re-lock
