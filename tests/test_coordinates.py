@@ -493,19 +493,23 @@ def test_vectorised_10000_plots_5_radars_equals_per_plot_loop():
     np.testing.assert_allclose(r2[valid], rho[valid], atol=1e-3)
 
 
-def test_meridian_factors_match_proj_get_factors():
-    """The one-step conformal derivative agrees with PROJ's own numerical factors
-    (an independent computation) across a 600 km plane, also near the pole."""
+def test_to_plane_and_factors_match_proj():
+    """The plane position, meridian convergence and scale factor from PROJ's sterea
+    formulas in numpy agree with PROJ itself (an independent computation: its projection
+    and its numerical get_factors) across a 600 km plane, also near the pole and across
+    the antimeridian."""
     rng = np.random.default_rng(3)
-    for lat0, lon0 in [(45.0, 15.0), (-33.9, 151.2), (88.5, 0.0)]:
+    for lat0, lon0 in [(45.0, 15.0), (-33.9, 151.2), (88.5, 0.0), (41.3, 2.1), (-17.0, 179.0)]:
         plane = SystemPlane(lat0, lon0)
         lat = np.clip(lat0 + rng.uniform(-3.0, 3.0, 500), -89.5, 89.95)
         lon = lon0 + rng.uniform(-4.0, 4.0, 500)
         x_m, y_m = plane.to_plane(lat, lon)
-        conv_deg, k = plane.meridian_factors(lat, lon, x_m, y_m)
+        x2_m, y2_m, conv_deg, k = plane.to_plane_and_factors(lat, lon)
+        np.testing.assert_allclose(x2_m, x_m, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(y2_m, y_m, rtol=0, atol=1e-6)
         f = plane.proj.get_factors(lon, lat)
-        np.testing.assert_allclose(k, f.meridional_scale, rtol=2e-6)
-        np.testing.assert_allclose(conv_deg, f.meridian_convergence, atol=2e-4)
+        np.testing.assert_allclose(k, f.meridional_scale, rtol=1e-9)
+        np.testing.assert_allclose(conv_deg, f.meridian_convergence, rtol=0, atol=1e-8)
 
 
 # --------------------------------------------------------------------------- plots without height
