@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from radar_fusion.tracking.association import align_to_reference, assign_per_radar, transfer_rho
+from radar_fusion.tracking.association import align_to_reference, assign_per_radar, transfer_rho, unique_inverse
 from radar_fusion.tracking.clustering import CHI2_2DOF_P999, ClusteringParams, cluster_plots
 
 T_REF = 100.0
@@ -660,3 +660,23 @@ def test_model_gates_take_the_smallest_distance_over_the_models() -> None:
     got = _min_model_d2(d2, xy, cov, track.astype(np.int64), model_xy, model_cov)
     np.testing.assert_allclose(got, want, rtol=1e-9)
     assert (got < d2).any() and (got == d2).any()
+
+
+def test_unique_inverse_is_numpys_unique():
+    """The bincount path gives np.unique's values and inverse; keys outside its range
+    (negative, or sparse) take np.unique's own path with the same result."""
+    rng = np.random.default_rng(11)
+    cases = [
+        rng.integers(0, 10, 8000),
+        rng.integers(0, 4000, 8000),
+        rng.integers(0, 10**9, 500),
+        rng.integers(-5, 5, 300),
+        np.array([7]),
+        np.zeros(0, np.int64),
+    ]
+    for a in cases:
+        u, inv = unique_inverse(a)
+        u_np, inv_np = np.unique(a, return_inverse=True)
+        np.testing.assert_array_equal(u, u_np)
+        np.testing.assert_array_equal(inv, inv_np.reshape(-1))
+        np.testing.assert_array_equal(u[inv], a)

@@ -220,6 +220,22 @@ def sorted_unique(a: np.ndarray) -> np.ndarray:
     return key[np.r_[True, key[1:] != key[:-1]]] if key.size else key
 
 
+def unique_inverse(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(a, return_inverse=True)`` for the engine's non-negative integer keys
+    (plot, track and slot indices): by one bincount when their range is at most a few times
+    their number, ~10× faster at a period's size (numpy's sort of 8,000 keys: 0.26-0.44
+    ms; this 0.03-0.04); other input goes to np.unique."""
+    a = np.asarray(a)
+    if a.size and a.ndim == 1 and np.issubdtype(a.dtype, np.integer):
+        lo, hi = int(a.min()), int(a.max())
+        if lo >= 0 and hi <= 4 * a.size + 1024:
+            present = np.bincount(a, minlength=hi + 1) > 0
+            new = np.cumsum(present) - 1
+            return np.flatnonzero(present).astype(a.dtype, copy=False), new[a]
+    u, inv = np.unique(a, return_inverse=True)
+    return u, inv.reshape(-1)
+
+
 def first_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
     """Index of the element of smallest key in each group (groups given by ``group``)."""
     order = np.lexsort((key, group))
@@ -372,14 +388,14 @@ def assign_per_radar(
         return assign
     if best is None:
         best = first_per_group(pair_plot, pair_cost)
-    slots, slot_id = np.unique(pair_slot, return_inverse=True)
+    slots, slot_id = unique_inverse(pair_slot)
     n_slots = slots.shape[0]
     demand = np.bincount(slot_id[best], minlength=n_slots)
     if not np.any(demand > 1):
         assign[pair_plot[best]] = best
         return assign
 
-    plots_u, plot_id = np.unique(pair_plot, return_inverse=True)
+    plots_u, plot_id = unique_inverse(pair_plot)
     n_pu = plots_u.shape[0]
     graph = coo_matrix(
         (np.ones(pair_plot.shape[0]), (plot_id, n_pu + slot_id)),
@@ -394,8 +410,8 @@ def assign_per_radar(
     assign[pair_plot[easy]] = easy
 
     hard_pairs = np.flatnonzero(plot_bad[plot_id])
-    hard_plots_u, rows = np.unique(plot_id[hard_pairs], return_inverse=True)
-    hard_slots_u, cols = np.unique(slot_id[hard_pairs], return_inverse=True)
+    hard_plots_u, rows = unique_inverse(plot_id[hard_pairs])
+    hard_slots_u, cols = unique_inverse(slot_id[hard_pairs])
     n_rows = hard_plots_u.shape[0]
     n_cols = hard_slots_u.shape[0]
     # Weights are offset by +1 so that no weight is zero (LAPJVsp ignores zeros); every

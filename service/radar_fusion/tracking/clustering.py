@@ -79,6 +79,7 @@ from .association import (
     identity_compatible,
     sorted_unique,
     transfer_track_clusters,
+    unique_inverse,
 )
 from .initiation import unknown_velocity_var_m2ps2
 
@@ -518,7 +519,7 @@ def _labels_from_assignment(
     labels = np.full(n_plots, -1, dtype=np.intp)
     used = np.flatnonzero(assign >= 0)
     tracks_of_used = pair_track[assign[used]]
-    cluster_tracks, inverse = np.unique(tracks_of_used, return_inverse=True)
+    cluster_tracks, inverse = unique_inverse(tracks_of_used)
     labels[used] = inverse
     k_tracks = cluster_tracks.size
     n_new = int(new_labels.max()) + 1 if new_labels.size else 0
@@ -621,7 +622,7 @@ def cluster_plots(
             np.asarray(track_last_t_s, dtype=float).reshape(n_tracks),
         )
 
-    _, radar = np.unique(plot_radar_raw, return_inverse=True)
+    _, radar = unique_inverse(plot_radar_raw)
     radar = radar.reshape(n_plots).astype(np.intp)
     n_radars = int(radar.max()) + 1 if n_plots else 1
     dt_s = t_ref - plot_t
