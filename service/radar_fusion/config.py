@@ -221,7 +221,9 @@ class TrackingConfig(_Section):
         "to spare the engine's period is shorter: 2 threads on the 2-core bench machine, engine alone at 4,000x10, "
         "112k -> 142k plots/s, period p50 66 -> 51 ms; but inside the daemon there, whose Zenoh threads, replay and "
         "safety nets share those cores, neither the full-speed throughput nor the end-to-end p99 gained "
-        "(71k -> 71k plots/s; 103 -> 108 ms and 103 -> 92 ms in two runs)",
+        "(71k -> 71k plots/s; 103 -> 108 ms and 103 -> 92 ms in two runs). Remeasured 2026-12-06 on that VM, "
+        "the engine alone gained nothing either (117-131k against 127-132k plots/s): the pool's thread, asleep "
+        "between a period's kernel calls, wakes too late there (README, 'The IMM on more threads')",
     )
     fusion_method: Literal["scalar", "matrix"] = Field(
         "matrix",
