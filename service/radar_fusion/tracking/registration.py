@@ -88,6 +88,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..geo.coordinates import RadarSites, SystemPlane, gaussian_earth_radius_m, slant_to_ground_range
+from .association import unique_inverse
 
 __all__ = ["BIAS_NAMES", "N_BIAS", "RadarRegistration", "RegistrationGeometry", "RegistrationParams"]
 
@@ -192,16 +193,10 @@ def _group_sum(keys: NDArray[np.intp], values: NDArray[np.float64], n_groups: in
 
 
 def _compact(labels: NDArray[np.intp]) -> tuple[NDArray[np.intp], int]:
-    """Non-negative labels renumbered 0..k-1 in their order; returns (labels, k)."""
-    if labels.size == 0:
-        return labels.astype(np.intp), 0
-    top = int(labels.max())
-    if top <= 4 * labels.size + 1024:  # the engine's compact cluster indices: one bincount
-        present = np.bincount(labels, minlength=top + 1) > 0
-        new = np.cumsum(present) - 1
-        return new[labels].astype(np.intp), int(present.sum())
-    uniq, inv = np.unique(labels, return_inverse=True)
-    return inv.astype(np.intp).reshape(-1), int(uniq.size)
+    """Non-negative labels renumbered 0..k-1 in their order; returns (labels, k)
+    (association.unique_inverse: one bincount for the engine's compact cluster indices)."""
+    present, new = unique_inverse(labels)
+    return new.astype(np.intp), int(present.size)
 
 
 def _inv_2x2(m: NDArray[np.float64]) -> NDArray[np.float64]:
