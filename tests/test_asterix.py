@@ -30,6 +30,7 @@ from radar_fusion.asterix import (
     TargetReport,
     TimeOfDayResolver,
     bds50_reference,
+    bds50_roll_deg,
     decode_bds50,
     decode_bds60,
     decode_cat062_block,
@@ -134,7 +135,26 @@ def test_jahorina_bridge_plots_are_valid_wire_messages():
             assert isinstance(status, RadarStatus) and status.kind == "north"
     assert seqs == list(range(len(seqs)))
     assert len(modes) == 106
+    # the roll angle of each report's BDS 5,0 rides on its plot (the IMM's turn evidence),
+    # the same value the register decodes to, keyed by address and time of day
+    items, _ = decode_file(JAHORINA)
+    want = {
+        (r.mode_s, round(r.tod_s, 3)): bds50_roll_deg(mb)
+        for r in items
+        if isinstance(r, TargetReport)
+        for reg, mb in r.bds
+        if reg == 0x50 and bds50_roll_deg(mb) is not None
+    }
     day0 = datetime(2020, 1, 1, tzinfo=UTC).timestamp()
+    got = {
+        (p.mode_s, round(p.t - day0, 3)): p.roll_deg
+        for m in messages
+        if m.key == "radar/jahorina/plots"
+        for p in m.message.plots
+        if p.roll_deg is not None
+    }
+    assert len(got) > 100 and got.items() <= want.items()
+    assert len(got) == len(want)  # a repeated block's reports are the same reports
     assert day0 + 33_932 <= min(times) and max(times) <= day0 + 34_013  # 80 s, 09:25:32-09:26:53
     assert np.all(np.diff(times) > -2.0)  # time-ordered up to the radar's own jitter
 
@@ -291,6 +311,10 @@ def test_bds50_and_bds60_fields():
     assert v["roll_deg"] == pytest.approx(10.0, abs=0.18)
     assert v["tas_mps"] == pytest.approx(460 * MPS_PER_KT)
     assert decode_bds50(mb_field([(12, 1, 0), (24, 1, 1), (25, 10, 225)])) is None
+    # the roll is read on its own: a register without ground speed or track still gives it
+    left = mb_field([(1, 1, 1), (2, 1, 1), (3, 9, 512 - round(20 / (45 / 256)))])
+    assert decode_bds50(left) is None and bds50_roll_deg(left) == pytest.approx(-20.0, abs=0.18)
+    assert bds50_roll_deg(mb_field([(1, 1, 0), (3, 9, 100)])) is None
     mb60 = mb_field([(1, 1, 1), (3, 10, 256), (13, 1, 1), (14, 10, 280), (35, 1, 1), (36, 1, 1), (37, 9, 512 - 50)])
     w = decode_bds60(mb60)
     assert w["magnetic_heading_deg"] == pytest.approx(45.0)

@@ -77,6 +77,7 @@ def plot_of(engine, radar, seq, t_s, truth, rng, noise):
         np.array([0x4B1234]),
         np.array([-1]),
         np.zeros(1, np.int8),
+        np.array([np.nan]),
     )
 
 

@@ -77,6 +77,7 @@ def plot_of(engine, radar, seq, t_s):
         np.array([0x4B1234]),
         np.array([-1]),
         np.zeros(1, np.int8),
+        np.array([np.nan]),
     )
 
 
@@ -656,7 +657,8 @@ def primary_plot_at(engine, seq, t_s, xy_m):
     lat, lon = engine.plane.to_geodetic(np.array([xy_m[0]]), np.array([xy_m[1]]))
     r_m, az_deg, _ = geodetic_to_polar(engine.sites, 1, lat, lon, np.array([FL * M_PER_FL]))
     one = np.array([-1])
-    return DecodedPlots("b", seq, np.array([t_s]), r_m, az_deg, np.array([np.nan]), one, one, one, np.zeros(1, np.int8))
+    nan = np.array([np.nan])
+    return DecodedPlots("b", seq, np.array([t_s]), r_m, az_deg, nan, one, one, one, np.zeros(1, np.int8), nan)
 
 
 @pytest.mark.parametrize(("step_m", "refused"), [(600.0, False), (3_000.0, True)])

@@ -63,6 +63,7 @@ def plots(radar_id, seq, t_s, range_m=50_000.0, azimuth_deg=90.0):
         np.full(n, -1),
         np.full(n, -1),
         np.zeros(n, np.int8),
+        np.full(n, np.nan),
     )
 
 

@@ -116,6 +116,7 @@ def plots_of(simulation: sim.Simulation, radar_id: str) -> sim.PlotColumns:
             "mode_s",
             "track_no",
             "kind",
+            "roll_deg",
             "target_index",
             "wild",
         )
@@ -325,6 +326,39 @@ def test_identity_mode_c_and_report_kinds(demo):
     assert n_fl[0] / n_fl[1] > 0.97  # p_mode_c = 0.99
 
 
+def test_roll_reports_are_the_bank_of_the_true_turn(demo):
+    """Mode S plots carry the roll angle of BDS 5,0 on ``roll_prob`` of them (0.25), others
+    never; the value is the bank of a coordinated turn at the truth's heading rate, tan φ =
+    v ψ̇ / g, here from the truth's velocity 1 s either side (the simulator takes 0.5 s),
+    within the 1° noise and the register's 45/256° steps, signed right wing down."""
+    n_modes = n_roll = 0
+    err, bank = [], []
+    for radar in demo.scenario.radars:
+        p = plots_of(demo, radar.id)
+        is_modes = p.kind == wire.KIND_CODES["modes"]
+        has = np.isfinite(p.roll_deg)
+        assert not (has & ~is_modes).any()  # only Mode S plots: the register is read by Mode S
+        n_modes += int(is_modes.sum())
+        n_roll += int(has.sum())
+        roll = p.roll_deg[has]
+        assert np.allclose(roll * 256.0 / 45.0, np.round(roll * 256.0 / 45.0))
+        tgt, t = p.target_index[has], p.t_s[has]
+        a, b = demo.truth_at(tgt, t - 1.0), demo.truth_at(tgt, t + 1.0)
+        turn = wrap180(np.degrees(np.arctan2(b["vx_mps"], b["vy_mps"]) - np.arctan2(a["vx_mps"], a["vy_mps"])))
+        speed = 0.5 * (np.hypot(a["vx_mps"], a["vy_mps"]) + np.hypot(b["vx_mps"], b["vy_mps"]))
+        expect = np.degrees(np.arctan(speed * np.radians(turn / 2.0) / 9.80665))
+        steady = a["active"] & b["active"]
+        err.append((roll - expect)[steady])
+        bank.append(expect[steady])
+    e, bk = np.concatenate(err), np.concatenate(bank)
+    assert 0.22 < n_roll / n_modes < 0.28
+    turning = np.abs(bk) > 10.0
+    assert turning.sum() > 20 and (bk > 10).any() and (bk < -10).any()  # turns both ways
+    # 1° noise: within 4° but at a turn's start or end inside the 2 s window
+    assert np.mean(np.abs(e) < 4.0) > 0.98
+    assert abs(float(np.median(e[turning]))) < 0.5 and 0.7 < float(np.std(e[np.abs(e) < 4.0])) < 1.3
+
+
 # --------------------------------------------------------------------------- messages
 
 
@@ -383,6 +417,8 @@ def test_vectorised_encoder_matches_wire_encode(demo):
             if cols.track_no[i] >= 0:
                 p["track_no"] = int(cols.track_no[i])
             p["kind"] = sim.KIND_NAMES[int(cols.kind[i])]
+            if np.isfinite(cols.roll_deg[i]):
+                p["roll_deg"] = float(cols.roll_deg[i])
             plots.append(p)
         ref = wire.encode({"v": 1, "radar_id": cols.radar_id, "seq": cols.seq, "plots": plots})
         assert key == f"radar/{cols.radar_id}/plots"

@@ -61,6 +61,10 @@ def test_good_batch_decodes_to_columns():
         (plot(range_m="120000"), "plot_schema"),
         (plot(mode3a=True), "plot_schema"),
         (plot(kind="laser"), "plot_schema"),
+        (plot(roll_deg=95.0), "plot_out_of_range"),
+        (plot(roll_deg=-90.5), "plot_out_of_range"),
+        (plot(roll_deg=float("nan")), "plot_non_finite"),
+        (plot(roll_deg="12"), "plot_schema"),
         ({"t": 1.7e9}, "plot_schema"),
         ("not a plot", "plot_schema"),
     ],
@@ -99,6 +103,19 @@ def test_oversize_and_huge_arrays_are_refused_without_decoding():
     assert isinstance(r, wire.Rejection) and r.reason == "malformed_msgpack"
 
 
+def test_roll_is_an_optional_last_plot_field_nan_where_absent():
+    """roll_deg (v1 extension: Mode S BDS 5,0, ICAO Doc 9871 table A-2-80, positive right
+    wing down) comes after the fields of v1 as first published; a sender that does not
+    know it omits it (``plot()`` here) and its plots decode with roll NaN."""
+    fields = list(wire.Plot.model_fields)
+    assert fields == ["t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg"]
+    assert not wire.Plot.model_fields["roll_deg"].is_required() and wire.Plot(**plot()).roll_deg is None
+    d = wire.decode_plot_batch(batch([plot(roll_deg=-25.5), plot(), plot(roll_deg=None), plot(roll_deg=90)]))
+    assert isinstance(d, wire.DecodedPlots) and len(d) == 4 and d.rejected == {}
+    assert d.roll_deg[0] == -25.5 and math.isnan(d.roll_deg[1]) and math.isnan(d.roll_deg[2]) and d.roll_deg[3] == 90.0
+    assert d.fl.tolist() == [350.0] * 4
+
+
 def test_unknown_fields_are_ignored_for_forward_compatibility():
     d = wire.decode_plot_batch(batch([plot(snr_db=12.0)], extra_field="x"))
     assert isinstance(d, wire.DecodedPlots) and len(d) == 1 and d.rejected == {}
@@ -123,9 +140,11 @@ def test_schemas_in_repository_match_the_models():
 
 def test_a_plot_batch_validates_against_the_published_schema():
     schema = json.loads((ROOT / "schemas" / "PlotBatch.schema.json").read_text())
-    jsonschema.validate(msgpack.unpackb(batch([plot()])), schema)
+    jsonschema.validate(msgpack.unpackb(batch([plot(), plot(roll_deg=-12.5), plot(roll_deg=None)])), schema)
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(msgpack.unpackb(batch([plot(azimuth_deg=400.0)])), schema)
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(msgpack.unpackb(batch([plot(roll_deg=95.0)])), schema)
 
 
 def test_a_malformed_payload_is_refused_with_what_and_where_for_the_log():

@@ -23,6 +23,7 @@ import struct
 from collections import Counter
 
 import msgpack
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -38,7 +39,7 @@ EXAMPLES = settings(
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
     derandomize=True,
 )
-COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind")
+COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg")
 SEEN: Counter = Counter()  # what the generated plots exercised; printed at the end (-s)
 
 
@@ -171,6 +172,7 @@ VALID = {
     "mode_s": HEX6,
     "track_no": st.integers(0, 2**32 - 1),
     "kind": st.sampled_from(wire.PLOT_KINDS),
+    "roll_deg": valid_number(-90.0, 90.0),
 }
 # values near the edges and of every other type
 HOSTILE = {
@@ -182,6 +184,7 @@ HOSTILE = {
     "mode_s": st.one_of(HEXISH, EXOTIC),
     "track_no": st.one_of(BIG_INTS, EXOTIC),
     "kind": st.one_of(st.sampled_from(["PSR", "ssr ", "", "mode_s", "psr\x00"]), EXOTIC),
+    "roll_deg": st.one_of(edges(-90.0, 90.0), st.integers(-100, 100), EXOTIC),
 }
 REQUIRED = ("t", "range_m", "azimuth_deg")
 
@@ -279,6 +282,7 @@ def full_plot(**kw):
         "mode_s": "4ca1F3",
         "track_no": 17,
         "kind": "cmb",
+        "roll_deg": -12.5,
     }
     p.update(kw)
     return p
@@ -302,10 +306,21 @@ def full_plot(**kw):
         ({"mode_s": "4CA1F٣"}, "plot_out_of_range"),  # a non-ASCII digit
         ({"kind": "PSR"}, "plot_schema"),
         ({"kind": "laser", "mode_s": "nothex"}, "plot_out_of_range"),  # out of range before schema
+        ({"roll_deg": math.nan}, "plot_non_finite"),
+        ({"roll_deg": -math.inf, "fl": 5000.0}, "plot_non_finite"),
+        ({"roll_deg": 95.0}, "plot_out_of_range"),
+        ({"roll_deg": -90.5}, "plot_out_of_range"),
+        ({"roll_deg": math.nextafter(90.0, math.inf)}, "plot_out_of_range"),
+        ({"roll_deg": -91}, "plot_out_of_range"),
+        ({"roll_deg": 91, "kind": "laser"}, "plot_out_of_range"),
     ],
 )
 def test_faults_of_well_typed_plots_are_judged_by_the_columns(bad, reason):
-    plot_list = [full_plot(), full_plot(**bad), full_plot(azimuth_deg=0.0, fl=None, mode_s=None, kind=None)]
+    plot_list = [
+        full_plot(),
+        full_plot(**bad),
+        full_plot(azimuth_deg=0.0, fl=None, mode_s=None, kind=None, roll_deg=None),
+    ]
     c = validate_plot_columns(msgpack.unpackb(pack(plot_list), raw=False))
     assert c.by_model == 0 and c.rejected == {reason: 1}
     assert c.azimuth_deg.tolist() == [45.0, 0.0]
@@ -322,6 +337,9 @@ def test_faults_of_well_typed_plots_are_judged_by_the_columns(bad, reason):
         {"mode_s": b"4CA1F3"},
         {"kind": ["psr"]},
         {"fl": {"value": 350.0}},
+        {"roll_deg": "level"},
+        {"roll_deg": False},
+        {"roll_deg": b"\x00"},
     ],
 )
 def test_other_types_go_to_the_model_and_get_its_reason(bad):
@@ -334,8 +352,16 @@ def test_other_types_go_to_the_model_and_get_its_reason(bad):
 
 def test_accepted_values_are_those_of_the_model():
     plot_list = [
-        full_plot(t=1_700_000_000, range_m=0, azimuth_deg=359.99999999999994, fl=-20, mode3a=0, track_no=2**32 - 1),
-        full_plot(range_m=-0.0, fl=None, mode3a=None, mode_s="00000a", track_no=None, kind="modes"),
+        full_plot(
+            t=1_700_000_000,
+            range_m=0,
+            azimuth_deg=359.99999999999994,
+            fl=-20,
+            mode3a=0,
+            track_no=2**32 - 1,
+            roll_deg=90,
+        ),
+        full_plot(range_m=-0.0, fl=None, mode3a=None, mode_s="00000a", track_no=None, kind="modes", roll_deg=-0.0),
         {"t": 1.5, "range_m": 2_000_000.0, "azimuth_deg": 0, "unknown": [1, {"x": None}]},
     ]
     d = same_result(batch(plot_list))
@@ -343,6 +369,93 @@ def test_accepted_values_are_those_of_the_model():
     assert d.t_s.tolist() == [1.7e9, 1.7e9, 1.5] and math.copysign(1.0, d.range_m[1]) == -1.0
     assert d.mode_s.tolist() == [0x4CA1F3, 0xA, -1] and d.mode3a.tolist() == [0, -1, -1]
     assert d.track_no.tolist() == [2**32 - 1, -1, -1] and d.kind.tolist() == [3, 4, 0]
+    assert d.roll_deg[:2].tolist() == [90.0, 0.0] and math.copysign(1.0, d.roll_deg[1]) == -1.0
+    assert math.isnan(d.roll_deg[2])
+
+
+def every_reader(payload: bytes) -> dict[str, wire.DecodedPlots | None]:
+    """The batch as each reader gives it: the bytes parser (None: handed back), the
+    columns (validate_plot_columns on msgpack's plots), decode_plot_batch as the daemon
+    calls it, with the columns judging and with the model judging (however many plots),
+    and the model alone."""
+    obj = msgpack.unpackb(payload, raw=False)
+    c = validate_plot_columns(obj["plots"])
+    columns = {name: getattr(c, name) for name in COLUMNS}
+    out = {
+        "bytes": decode_plot_batch_bytes(payload),
+        "columns": wire.DecodedPlots(obj["radar_id"], obj["seq"], **columns, rejected=c.rejected),
+        "decode": wire.decode_plot_batch(payload),
+        "decode, columns": wire.decode_plot_batch(payload, columns_from=0),
+        "decode, model": wire.decode_plot_batch(payload, columns_from=wire.MAX_PLOTS_PER_BATCH + 1),
+        "model": wire.decode_plot_batch_by_model(payload),
+    }
+    ref = out["model"]
+    assert isinstance(ref, wire.DecodedPlots)
+    for reader, d in out.items():
+        if d is None:
+            continue
+        assert (d.radar_id, d.seq, d.rejected) == (ref.radar_id, ref.seq, ref.rejected), reader
+        for name in COLUMNS:
+            a, b = getattr(d, name), getattr(ref, name)
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), (reader, name, a, b)
+    return out
+
+
+def test_roll_is_read_where_sent_and_nan_where_not_by_every_reader():
+    """roll_deg (v1 extension, Mode S BDS 5,0): a value on some plots, nil or no key on
+    others; the bounds themselves are in range, an integer is a number."""
+    plot_list = [
+        full_plot(roll_deg=12.25),
+        full_plot(roll_deg=None),
+        {k: v for k, v in full_plot().items() if k != "roll_deg"},
+        full_plot(roll_deg=-90.0),
+        full_plot(roll_deg=90),
+        full_plot(roll_deg=-0.0, fl=None),
+    ]
+    rng = random.Random(5)
+    for payload in (batch(plot_list), pack_other_ways({"v": 1, "radar_id": "r1", "seq": 7, "plots": plot_list}, rng)):
+        out = every_reader(payload)
+        assert out["bytes"] is not None  # well-formed: the daemon's fast path reads it
+        d = out["model"]
+        assert isinstance(d, wire.DecodedPlots) and d.rejected == {} and d.roll_deg.dtype == float
+        roll = d.roll_deg.tolist()
+        assert roll[0] == 12.25 and math.isnan(roll[1]) and math.isnan(roll[2]) and roll[3:5] == [-90.0, 90.0]
+        assert roll[5] == 0.0 and math.copysign(1.0, roll[5]) == -1.0
+        assert d.fl[:5].tolist() == [350.0] * 5 and math.isnan(d.fl[5])  # roll is not fl's row
+
+
+@pytest.mark.parametrize(
+    "roll, reason",
+    [
+        (95.0, "plot_out_of_range"),
+        (-90.5, "plot_out_of_range"),
+        (math.nextafter(-90.0, -math.inf), "plot_out_of_range"),
+        (180, "plot_out_of_range"),
+        (math.nan, "plot_non_finite"),
+        (math.inf, "plot_non_finite"),
+        ("12.5", "plot_schema"),
+        (True, "plot_schema"),
+        ([12.5], "plot_schema"),
+    ],
+)
+def test_a_bad_roll_is_refused_by_every_reader_and_spares_the_batch(roll, reason):
+    plot_list = [full_plot(roll_deg=1.5), full_plot(roll_deg=roll, azimuth_deg=7.5), full_plot(roll_deg=None)]
+    plot_list += [full_plot(roll_deg=-1.5, azimuth_deg=float(i)) for i in range(30)]  # the columns judge
+    out = every_reader(batch(plot_list))
+    assert out["bytes"] is None  # handed back: the general path gives the reason
+    for reader, d in out.items():
+        if d is None:
+            continue
+        assert d.rejected == {reason: 1}, reader
+        assert len(d) == len(plot_list) - 1 and 7.5 not in d.azimuth_deg.tolist()
+        assert d.roll_deg[0] == 1.5 and math.isnan(d.roll_deg[1]) and (d.roll_deg[2:] == -1.5).all()
+
+
+def test_a_batch_of_an_older_sender_without_roll_decodes_with_roll_nan():
+    plot_list = [{k: v for k, v in full_plot(azimuth_deg=float(i)).items() if k != "roll_deg"} for i in range(30)]
+    for d in every_reader(batch(plot_list)).values():
+        assert isinstance(d, wire.DecodedPlots) and d.rejected == {} and len(d) == 30
+        assert d.roll_deg.shape == (30,) and np.isnan(d.roll_deg).all()
 
 
 def test_an_empty_and_a_full_batch():
@@ -376,6 +489,8 @@ def test_realistic_batches_decode_the_same_both_ways(simulated):
         ("t", "1.7e9"),
         ("mode3a", -1),
         ("track_no", 1.0),
+        ("roll_deg", 95.0),
+        ("roll_deg", "level"),
     ]
     n_batches = n_plots = 0
     for _, key, payload in simulated.messages:
@@ -410,6 +525,8 @@ def test_realistic_batches_decode_the_same_both_ways(simulated):
         pack({"v": 1, "radar_id": "r1", "seq": 2**64 - 1, "plots": []}),
         pack({"v": 1, "radar_id": "r1", "plots": []}),
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(t=math.nan)]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(roll_deg=-90.5)]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(roll_deg="3")]}),
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), "x": {"k": 1}}]}),  # a map in an extra
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), "x": "é"}]}),  # non-ASCII text
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), 3: 1}]}),  # a key not a str

@@ -42,7 +42,7 @@ import msgpack
 from radar_fusion import wire
 
 MAX_PAYLOAD_BYTES = 64 << 10
-PLOT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind")
+PLOT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg")
 HOSTILE_VALUES: list[Any] = [
     None,
     True,
@@ -82,6 +82,7 @@ def good_plot(t_s: float, range_m: float = 120_000.0, azimuth_deg: float = 45.0)
         "mode_s": "4CA1F3",
         "track_no": 17,
         "kind": "cmb",
+        "roll_deg": -12.5,
     }
 
 

@@ -329,6 +329,7 @@ def run_engine(
             mode_s=mode_s[order],
             track_no=np.full(A, -1, np.int64),
             kind=np.full(A, KIND_CODES["modes"], np.int8),
+            roll_deg=np.full(A, np.nan),
         )
         seqs[ri] += 1
         engine.ingest_plots(batch)

@@ -70,6 +70,13 @@ class Plot(BaseModel):
     mode_s: str | None = Field(None, description="Mode S address, 6 hex digits", pattern=MODE_S_PATTERN)
     track_no: int | None = Field(None, description="the radar's own track number", ge=0, le=2**32 - 1)
     kind: Literal["psr", "ssr", "cmb", "modes"] | None = Field(None, description="report type")
+    # v1 extension: last, so that the fields before it keep their order
+    roll_deg: float | None = Field(
+        None,
+        description="roll angle from Mode S BDS 5,0, degrees, positive right wing down (ICAO Doc 9871 table A-2-80)",
+        ge=-90,
+        le=90,
+    )
 
 
 class PlotBatch(_Message):
@@ -317,8 +324,8 @@ KIND_CODES = {None: 0, "psr": 1, "ssr": 2, "cmb": 3, "modes": 4}
 class DecodedPlots:
     """The accepted plots of one PlotBatch as columns (what the engine ingests).
 
-    Missing optional values are encoded as NaN (``fl``) or −1 (``mode3a``, ``mode_s``,
-    ``track_no``); ``mode_s`` is the 24-bit address as an integer.
+    Missing optional values are encoded as NaN (``fl``, ``roll_deg``) or −1 (``mode3a``,
+    ``mode_s``, ``track_no``); ``mode_s`` is the 24-bit address as an integer.
     """
 
     radar_id: str
@@ -331,6 +338,7 @@ class DecodedPlots:
     mode_s: np.ndarray
     track_no: np.ndarray
     kind: np.ndarray
+    roll_deg: np.ndarray
     rejected: dict[str, int] = field(default_factory=dict)
 
     def __len__(self) -> int:
@@ -434,7 +442,18 @@ def decode_plot_batch(
         return _decoded_by_model(radar_id, seq, plots)
     c = validate_plot_columns(plots)
     return DecodedPlots(
-        radar_id, seq, c.t_s, c.range_m, c.azimuth_deg, c.fl, c.mode3a, c.mode_s, c.track_no, c.kind, c.rejected
+        radar_id=radar_id,
+        seq=seq,
+        t_s=c.t_s,
+        range_m=c.range_m,
+        azimuth_deg=c.azimuth_deg,
+        fl=c.fl,
+        mode3a=c.mode3a,
+        mode_s=c.mode_s,
+        track_no=c.track_no,
+        kind=c.kind,
+        roll_deg=c.roll_deg,
+        rejected=c.rejected,
     )
 
 
@@ -478,6 +497,7 @@ def _decoded_by_model(radar_id: str, seq: int, plots: list[Any]) -> DecodedPlots
         mode_s=np.fromiter((-1 if p.mode_s is None else int(p.mode_s, 16) for p in good), np.int64, n),
         track_no=np.fromiter((-1 if p.track_no is None else p.track_no for p in good), np.int64, n),
         kind=np.fromiter((KIND_CODES[p.kind] for p in good), np.int8, n),
+        roll_deg=np.fromiter((math.nan if p.roll_deg is None else p.roll_deg for p in good), float, n),
         rejected=rejected,
     )
 

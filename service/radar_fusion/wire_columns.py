@@ -63,10 +63,12 @@ def _closed_interval(name: str) -> tuple[float, float]:
     return lo, hi
 
 
-# the numeric fields, judged together as the rows of one (6, n) float64 array
-_FLOAT_FIELDS = ("t", "range_m", "azimuth_deg", "fl")
+# the numeric fields, judged together as the rows of one (7, n) float64 array: the float
+# fields' rows first, then the integer fields' (wire_bytes.py reads the bounds' rows by this order)
+_FLOAT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "roll_deg")
 _INT_FIELDS = ("mode3a", "track_no")
 _NUMERIC = _FLOAT_FIELDS + _INT_FIELDS
+_N_FLOAT = len(_FLOAT_FIELDS)
 _REQUIRED = {name: f.is_required() for name, f in Plot.model_fields.items()}
 _ALLOWED = {
     name: (_INT_TYPES if name in _INT_FIELDS else _NUMBER_TYPES) | (frozenset() if _REQUIRED[name] else {_NONE_TYPE})
@@ -124,8 +126,32 @@ class PlotColumns:
     mode_s: np.ndarray
     track_no: np.ndarray
     kind: np.ndarray
+    roll_deg: np.ndarray
     rejected: dict[str, int]
     by_model: int = 0
+
+
+def _plot_columns(
+    a: np.ndarray, mode_s: np.ndarray, kind: np.ndarray, rejected: dict[str, int], by_model: int = 0
+) -> PlotColumns:
+    """The accepted plots' columns; ``a``: their numeric fields as rows in _NUMERIC's order
+    (NaN absent), the integer ones becoming int64 with −1 for absent (accepted values are
+    exact small integers)."""
+    floats = dict(zip(_FLOAT_FIELDS, a))
+    ints = dict(zip(_INT_FIELDS, np.where(np.isnan(a[_N_FLOAT:]), -1, a[_N_FLOAT:]).astype(np.int64)))
+    return PlotColumns(
+        t_s=floats["t"],
+        range_m=floats["range_m"],
+        azimuth_deg=floats["azimuth_deg"],
+        fl=floats["fl"],
+        mode3a=ints["mode3a"],
+        mode_s=mode_s,
+        track_no=ints["track_no"],
+        kind=kind,
+        roll_deg=floats["roll_deg"],
+        rejected=rejected,
+        by_model=by_model,
+    )
 
 
 def _absent(col: list[Any]) -> np.ndarray:
@@ -152,16 +178,16 @@ class _Batch:
 
 
 def _numbers(b: _Batch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The six numeric fields as rows of one float64 array (NaN: absent; integers compared
-    as floats, exactly for every value that can pass, the bounds being far below 2**53),
-    and per plot: a NaN or infinity was sent; a value is out of its range."""
+    """The numeric fields as rows of one float64 array, in _NUMERIC's order (NaN: absent;
+    integers compared as floats, exactly for every value that can pass, the bounds being
+    far below 2**53), and per plot: a NaN or infinity was sent; a value is out of its range."""
     cols = [b.column(name, _ALLOWED[name]) for name in _NUMERIC]
     a = np.array(cols, float).reshape(len(_NUMERIC), b.n)  # None → NaN; ints → float, 2**64 − 1 too
     isnan = np.isnan(a)
     non_finite = np.asarray(np.isinf(a).any(axis=0))
     if isnan.any():
         # every NaN is an absent value, unless a float field has more NaN than None
-        n_nan = np.count_nonzero(isnan[: len(_FLOAT_FIELDS)], axis=1).tolist()
+        n_nan = np.count_nonzero(isnan[:_N_FLOAT], axis=1).tolist()
         for k, count in enumerate(n_nan):
             if count and cols[k].count(None) != count:
                 non_finite |= isnan[k] & ~_absent(cols[k])
@@ -206,8 +232,7 @@ def validate_plot_columns(plots: list[Any]) -> PlotColumns:
     fault = non_finite | out_of_range | schema
     rejected: dict[str, int] = {}
     if b.to_model is None and not fault.any():  # the usual batch: every plot is good
-        ints = np.where(np.isnan(a[4:]), -1, a[4:]).astype(np.int64)
-        return PlotColumns(a[0], a[1], a[2], a[3], ints[0], mode_s, ints[1], kind, rejected)
+        return _plot_columns(a, mode_s, kind, rejected)
     judged = ~b.to_model if b.to_model is not None else np.ones(b.n, bool)
     non_finite &= judged
     out_of_range &= judged & ~non_finite
@@ -229,15 +254,11 @@ def validate_plot_columns(plots: list[Any]) -> PlotColumns:
             rejected[reason] = rejected.get(reason, 0) + 1
             continue
         # never so far (a type the columns refuse, the strict model refuses too): its values
-        a[:, row] = [p.t, p.range_m, p.azimuth_deg] + [
-            math.nan if x is None else x for x in (p.fl, p.mode3a, p.track_no)
-        ]
+        a[:, row] = [math.nan if (x := getattr(p, name)) is None else x for name in _NUMERIC]
         mode_s[row] = -1 if p.mode_s is None else int(p.mode_s, 16)
         kind[row] = KIND_CODES[p.kind]
         good[row] = True
-    a, mode_s, kind = a[:, good], mode_s[good], kind[good]
-    ints = np.where(np.isnan(a[4:]), -1, a[4:]).astype(np.int64)  # accepted values: exact small integers
-    return PlotColumns(a[0], a[1], a[2], a[3], ints[0], mode_s, ints[1], kind, rejected, len(by_model))
+    return _plot_columns(a[:, good], mode_s[good], kind[good], rejected, len(by_model))
 
 
 # --------------------------------------------------------------------------- out

@@ -48,6 +48,7 @@ import numpy as np
 from radar_fusion import wire
 from radar_fusion.geo.coordinates import RadarSites, SystemPlane, geodetic_to_polar
 from radar_fusion.geo.units import M_PER_FT
+from radar_fusion.tracking.singer_filter import G0_MPS2
 
 from .scenario import TRANSPONDER_CODES, RadarSpec, Rates, Target
 from .trajectories import Trajectories
@@ -103,6 +104,31 @@ def _wild_offsets(rng: np.random.Generator, rates: Rates, n_scans: int, n: int):
         dr, da = draw(s.size)
         d_range[s, i], d_az[s, i] = dr, da
     return d_range, d_az, (d_range != 0.0) | (d_az != 0.0)
+
+
+def _roll_reports(
+    traj: Trajectories, tgt: np.ndarray, t_s: np.ndarray, mode_s: np.ndarray, rates: Rates, rng: np.random.Generator
+) -> np.ndarray:
+    """The roll angle a Mode S plot reports (BDS 5,0), degrees, positive right wing down;
+    NaN on the plots that carry none (``rates.roll_prob`` of the Mode S ones).
+
+    The truth's roll is the bank of a coordinated turn at its turn rate, tan φ = v ψ̇ / g
+    (ψ̇ the heading rate, clockwise positive, from the velocity 0.5 s either side), plus
+    ``rates.sigma_roll_deg`` of noise, rounded to the register's 45/256°. The draws come
+    from their own generator (``rng`` spawned by the caller), so every other draw of the
+    radar, and with them all plots, stay those of the same seed without roll reports."""
+    out = np.full(t_s.shape[0], np.nan)
+    carry = np.flatnonzero(mode_s & (rng.random(t_s.shape[0]) < rates.roll_prob))
+    if not carry.size:
+        return out
+    a = traj.state(tgt[carry], t_s[carry] - 0.5)
+    b = traj.state(tgt[carry], t_s[carry] + 0.5)
+    heading_rate_rad_s = np.angle(np.exp(1j * (np.arctan2(b.vx_mps, b.vy_mps) - np.arctan2(a.vx_mps, a.vy_mps))))
+    speed_mps = 0.5 * (np.hypot(a.vx_mps, a.vy_mps) + np.hypot(b.vx_mps, b.vy_mps))
+    roll = np.degrees(np.arctan(speed_mps * heading_rate_rad_s / G0_MPS2))
+    roll += rng.normal(0.0, rates.sigma_roll_deg, carry.size)
+    out[carry] = np.clip(np.round(roll * 256.0 / 45.0) * 45.0 / 256.0, -90.0, 90.0)
+    return out
 
 
 class TargetTable:
@@ -215,6 +241,7 @@ def radar_plots(
         c["az"] + spec.azimuth_bias_deg + rng.normal(0.0, spec.sigma_azimuth_deg, m) + (d_az[step, tgt] if m else 0.0)
     )
     reported = detected & (range_m > 0.0) & (range_m <= spec.max_range_m)
+    roll_deg = _roll_reports(traj, tgt, c["t"], kind == KIND_MODES, rates, rng.spawn(1)[0])
 
     # ---- false plots: Poisson per revolution, uniform over the coverage disc
     rev0 = math.floor(beam_angle(t_start) / 360.0)
@@ -240,6 +267,7 @@ def radar_plots(
         "kind": np.concatenate([kind[sel], np.full(int(f_keep.sum()), KIND_PSR if spec.psr else KIND_SSR, np.int8)]),
         "target_index": np.concatenate([tgt[sel], np.full(int(f_keep.sum()), -1)]).astype(np.int64),
         "wild": np.concatenate([wild[sel], np.zeros(int(f_keep.sum()), bool)]),
+        "roll_deg": np.concatenate([roll_deg[sel], np.full(int(f_keep.sum()), np.nan)]),
     }
     az = np.mod(out["azimuth_deg"], 360.0)
     out["azimuth_deg"] = np.where(az >= 360.0, 0.0, az)

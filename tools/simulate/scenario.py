@@ -42,6 +42,12 @@ class Rates:
     """magnitude of a wild range error, uniform between the two, random sign"""
     wild_azimuth_deg: tuple[float, float] = (1.0, 4.0)
     """magnitude of a wild azimuth error, uniform between the two, random sign"""
+    roll_prob: float = 0.25
+    """probability that a Mode S plot carries the aircraft's roll angle (BDS 5,0): a Mode S
+    radar reads the register every few scans among the others it extracts; on the Barcelona
+    hour 22-25 % of each aircraft's plots carry one (every fourth scan)"""
+    sigma_roll_deg: float = 1.0
+    """noise of the reported roll angle, degrees (then rounded to the register's 45/256°)"""
     wild_errors: bool = True
     """False: the wild plots are drawn as usual but their gross errors are not applied, so the
     simulation is the clean twin of the one with them (the same noise, detections and false

@@ -36,7 +36,7 @@ class PlotColumns(wire.DecodedPlots):
     (:class:`wire.DecodedPlots`, so a batch goes to :meth:`Engine.ingest_plots` as it is,
     for benchmarks without msgpack), plus what only the simulator knows.
 
-    Missing values: ``fl`` NaN, ``mode3a``/``mode_s``/``track_no`` -1; ``kind`` uses
+    Missing values: ``fl`` and ``roll_deg`` NaN, ``mode3a``/``mode_s``/``track_no`` -1; ``kind`` uses
     :data:`wire.KIND_CODES`; ``radar_index`` is the radar's row of ``Scenario.radars``,
     ``t_pub_s`` the batch's publish time; ``target_index`` is the true target (row of
     ``Scenario.targets``), -1 for false plots; ``wild`` marks gross errors.
@@ -104,7 +104,9 @@ class Simulation:
         return _plot_columns("*", -1, -1, math.nan, {name: cat(name) for name in _PLOT_COLUMNS})
 
 
-_PLOT_COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "target_index", "wild")
+_PLOT_COLUMNS = (
+    "t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg", "target_index", "wild",
+)  # fmt: skip
 """The per-plot columns of a :class:`PlotColumns`."""
 
 
@@ -125,6 +127,7 @@ def _plot_columns(
         mode_s=c["mode_s"],
         track_no=c["track_no"],
         kind=c["kind"],
+        roll_deg=c["roll_deg"],
         target_index=c["target_index"],
         wild=c["wild"],
     )

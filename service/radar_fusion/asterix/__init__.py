@@ -27,7 +27,7 @@ Callers import from this package; the modules import from each other.
 
 from __future__ import annotations
 
-from .bds import decode_bds50, decode_bds60
+from .bds import bds50_roll_deg, decode_bds50, decode_bds60
 from .bridge import AsterixToWire, WireMessage, bds50_reference
 from .cat062 import Cat062Encoder
 from .cat063 import CAT063, Cat063Encoder, SensorStatusRecord, decode_cat063_block
@@ -63,6 +63,7 @@ __all__ = [
     "TimeOfDayResolver",
     "WireMessage",
     "bds50_reference",
+    "bds50_roll_deg",
     "decode_bds50",
     "decode_bds60",
     "decode_cat062_block",

@@ -33,11 +33,21 @@ def decode_bds50(mb: int) -> dict[str, float] | None:
     if gs_kt > 800:
         return None
     out = {"ground_speed_mps": gs_kt * MPS_PER_KT, "track_angle_deg": track_deg % 360.0}
-    if _bits(mb, 1, 1):
-        out["roll_deg"] = _signed(_bits(mb, 2, 1), _bits(mb, 3, 9), 9) * 45.0 / 256.0
+    if (roll_deg := bds50_roll_deg(mb)) is not None:
+        out["roll_deg"] = roll_deg
     if _bits(mb, 46, 1):
         out["tas_mps"] = _bits(mb, 47, 10) * 2.0 * MPS_PER_KT
     return out
+
+
+def bds50_roll_deg(mb: int) -> float | None:
+    """The roll angle of a BDS 5,0 word (ICAO Doc 9871 table A-2-80, bits 1-11: status,
+    sign, 9 bits of 45/256°), degrees, positive right wing down; ``None`` when its status
+    bit is clear. Read on its own: a register whose ground speed or track is not available
+    may still report the roll."""
+    if not _bits(mb, 1, 1):
+        return None
+    return _signed(_bits(mb, 2, 1), _bits(mb, 3, 9), 9) * 45.0 / 256.0
 
 
 def decode_bds60(mb: int) -> dict[str, float] | None:

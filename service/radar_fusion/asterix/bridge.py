@@ -1,7 +1,9 @@
 """ASTERIX -> wire contract (DESIGN.md §3): CAT048 plots and CAT034 markers to bus messages.
 
 :class:`AsterixToWire` maps each SAC/SIC to a configured radar and turns datagrams into
-PlotBatch / RadarStatus messages, ready to publish or record; :func:`bds50_reference`
+PlotBatch / RadarStatus messages, ready to publish or record (a plot whose I048/250 holds
+BDS 5,0 carries the aircraft's roll angle, ``roll_deg``, the IMM's turn evidence);
+:func:`bds50_reference`
 gathers the aircraft's own BDS 5,0 velocity reports of a recording, to check tracks
 against.
 """
@@ -18,7 +20,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from ..wire import Plot, PlotBatch, RadarStatus, encode
-from .bds import decode_bds50
+from .bds import bds50_roll_deg, decode_bds50
 from .decode import SectorMessage, TargetReport, decode_datablock
 from .files import FileFormat, iter_file
 from .framing import DecodeCounters, split_datablocks
@@ -121,6 +123,10 @@ class AsterixToWire:
                     self.counters.counts["statuses"] += 1
                     continue
                 fl = item.fl if item.fl is not None and -20 <= item.fl <= 1300 else None
+                roll_deg = None  # the aircraft's roll angle, when the radar read its BDS 5,0
+                for register, mb in item.bds:
+                    if register == 0x50:
+                        roll_deg = bds50_roll_deg(mb)
                 try:
                     plot = Plot(
                         t=t_s,
@@ -131,6 +137,7 @@ class AsterixToWire:
                         mode_s=item.mode_s,
                         track_no=item.track_no,
                         kind=item.kind,
+                        roll_deg=roll_deg,
                     )
                 except ValidationError:
                     self.counters.skip("invalid_plot")
