@@ -473,6 +473,116 @@ def test_rate_one_turn_imm_beats_quiet_singer_and_detects_the_manoeuvre() -> Non
     assert mu[end + 8] < 0.2 * mu[first:end].max()  # falls within 8 updates after the turn
 
 
+# ------------------------------------------------------------------ Mode S roll angle
+
+
+def hand_roll_likelihood(params: IMMParams, roll_deg: float) -> np.ndarray:
+    """p(roll | model) written out with scipy's normal density, model by model: quiet
+    N(0, 2.5°), manoeuvre N(0, 20°), then the banked turns, right and left, N(±bank, 5°),
+    each mixed with the uniform share over ±90°."""
+    from scipy.stats import norm
+
+    means = [0.0, 0.0] + [b * s for b in params.turn_banks_deg for s in (1.0, -1.0)]
+    sigmas = [params.roll_quiet_sigma_deg, params.roll_manoeuvre_sigma_deg]
+    sigmas += [params.roll_turn_sigma_deg] * (2 * len(params.turn_banks_deg))
+    eps = params.roll_outlier_share
+    return np.array([(1 - eps) * norm.pdf(roll_deg, mu, sd) + eps / 180.0 for mu, sd in zip(means, sigmas)])
+
+
+def test_roll_evidence_matches_hand_computation() -> None:
+    """A Mode S roll angle multiplies each model's likelihood Λ_j (eq. 5) by p(roll | j):
+    μ_j ∝ Λ_j c̄_j p(roll | j). The kernels' cycle against hand_cycle's μ times that
+    product, carried on to the next cycles' mixing; without a report, nothing changes."""
+    params = IMMParams()
+    imm = IMMFilter(params)
+    dts = np.array([4.0, 4.0, 4.0, 5.0, 4.0, 4.0, 3.0, 4.0])
+    zs = turning_measurements(dts.size, dts, seed=5)
+    rolls = [math.nan, 1.2, math.nan, math.nan, 24.0, math.nan, -3.0, 17.5]
+    st = plain = imm.initiate(X0[None], P0[None])
+    m = imm.n_models
+    xs, Ps, mu = [X0.copy()] * m, [P0.copy()] * m, params.prior_mu()
+    for dt, z, roll in zip(dts, zs, rolls):
+        plain = imm.update(imm.predict(plain, dt), z[None], R50[None])
+        lf = imm.roll_log_likelihoods(np.array([roll]), np.array([200.0]), np.array([0.0]))
+        both, _, _ = imm.predict_update(st, np.array([dt]), z[None], R50[None], lf)
+        st = imm.update(imm.predict(st, dt), z[None], R50[None], lf)
+        xs, Ps, mu = hand_cycle(params, xs, Ps, mu, float(dt), z, R50)
+        if math.isnan(roll):
+            assert np.all(lf == 0.0)
+        else:
+            mu = mu * hand_roll_likelihood(params, roll)
+            mu = mu / mu.sum()
+        np.testing.assert_allclose(st.mu[0], mu, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(both.mu[0], mu, rtol=1e-9, atol=1e-12)
+        for j in range(m):
+            np.testing.assert_allclose(st.x_models[0, j], xs[j], rtol=1e-9, atol=1e-7)
+    # the last report, 17.5° right, against positions turning left: it still moves μ
+    right = [2, 4]
+    assert st.mu[0, right].sum() > 5 * plain.mu[0, right].sum()
+
+
+def test_roll_of_a_fixed_rate_turn_is_its_bank_at_the_tracks_speed() -> None:
+    """A fixed-rate model's roll is that of a coordinated turn at the track's speed:
+    tan φ = v ω / g (3°/s at 150 m/s: 38.7°), so a report of that roll favours it."""
+    params = IMMParams(turn_rates_deg_s=(3.0,), turn_banks_deg=())
+    imm = IMMFilter(params)
+    bank_deg = math.degrees(math.atan(150.0 * math.radians(3.0) / 9.80665))
+    lf = imm.roll_log_likelihoods(np.array([bank_deg, -bank_deg]), np.array([150.0, 0.0]), np.array([0.0, -150.0]))
+    sd, eps = params.roll_turn_sigma_deg, params.roll_outlier_share
+    peak = math.log((1 - eps) / (sd * math.sqrt(2 * math.pi)) + eps / 180.0)
+    np.testing.assert_allclose([lf[0, 2], lf[1, 3]], [peak, peak], rtol=1e-12)
+    assert lf[0, 2] > lf[0, 3] + 5 and lf[1, 3] > lf[1, 2] + 5  # the uniform share caps it at log(180 / (ε σ √2π))
+    assert IMMFilter(IMMParams(roll_dap=False)).roll_log_likelihoods(np.array([25.0]), [200.0], [0.0]).max() == 0.0
+
+
+def test_roll_reports_bring_the_turn_model_in_from_the_first_report() -> None:
+    """200 m/s, a left turn of 1.5°/s (a 28° bank) for 60 s, plots every 4 s with σ = 80 m
+    (a fused plot far out), a roll report on every third plot (σ 1°), 200 runs: the turn's
+    position error falls and the turn models take over at the first report in the turn,
+    where positions alone need several scans; straight flight is not paid for."""
+    imm = IMMFilter(IMMParams())
+    n_runs, dt, t_turn, turn_s = 200, 4.0, 160.0, 60.0
+    w = math.radians(1.5)
+    bank_deg = math.degrees(math.atan(200.0 * w / 9.80665))
+    t = np.arange(dt, 320.0 + dt / 2, dt)
+    truth = _turn_truth(t, t_turn, turn_s, 200.0, w)
+    rng = np.random.default_rng(8)
+    z_all = truth[None] + 80.0 * rng.standard_normal((n_runs, t.size, 2))
+    in_turn_at = (t > t_turn) & (t <= t_turn + turn_s)
+    true_roll = np.where(in_turn_at, -bank_deg, 0.0)  # a left turn: left wing down, negative
+    report = (np.arange(t.size) % 3 == 0)[None] & np.ones((n_runs, 1), bool)
+    rolls = np.where(report, true_roll[None] + rng.standard_normal((n_runs, t.size)), np.nan)
+    R = np.broadcast_to(80.0**2 * np.eye(2), (n_runs, 2, 2))
+    x0 = np.broadcast_to(X0, (n_runs, 6)).copy()
+    err: dict[str, list[np.ndarray]] = {"roll": [], "positions": []}
+    turn_mu: dict[str, list[float]] = {"roll": [], "positions": []}
+    for key in err:
+        st = imm.initiate(x0, np.broadcast_to(P0, (n_runs, 6, 6)))
+        for k in range(t.size):
+            lf = (
+                imm.roll_log_likelihoods(rolls[:, k], np.full(n_runs, 200.0), np.zeros(n_runs))
+                if key == "roll"
+                else None
+            )
+            st, x, _ = imm.predict_update(st, np.full(n_runs, dt), z_all[:, k], R, lf)
+            err[key].append(np.sum((x[:, [0, 3]] - truth[k]) ** 2, axis=1))
+            turn_mu[key].append(float(st.mu[:, [3, 5]].sum(axis=1).mean()))  # the left turns
+    straight = (t > 60.0) & (t <= t_turn)
+    turn_and_after = (t > t_turn) & (t <= t_turn + turn_s + 24.0)  # the roll-out's scans too
+    rms = {k: {w_: math.sqrt(np.mean(np.array(e)[m])) for w_, m in (("turn", turn_and_after), ("straight", straight))}
+           for k, e in err.items()}  # fmt: skip
+    print(f"\nturn / straight RMS m: with roll {rms['roll']['turn']:.1f} / {rms['roll']['straight']:.1f}, "
+          f"positions alone {rms['positions']['turn']:.1f} / {rms['positions']['straight']:.1f}")  # fmt: skip
+    assert rms["roll"]["turn"] < 0.97 * rms["positions"]["turn"]
+    assert rms["roll"]["straight"] < 1.02 * rms["positions"]["straight"]
+    first = int(np.flatnonzero(in_turn_at & report[0])[0])  # the first report inside the turn
+    assert turn_mu["roll"][first] > 0.9
+    assert turn_mu["positions"][first] < 0.7
+    out = int(np.flatnonzero((t > t_turn + turn_s) & report[0])[0])  # the first report after it
+    assert turn_mu["roll"][out] < 0.1
+    assert turn_mu["positions"][out] > 0.3
+
+
 # ------------------------------------------------------------------ vectorisation
 
 

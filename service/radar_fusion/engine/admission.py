@@ -192,6 +192,7 @@ class Admission:
                 batch.mode_s[idx],
                 batch.mode3a[idx],
                 batch.track_no[idx],
+                batch.roll_deg[idx],
             ),
             i,
             t_min_s,

@@ -32,7 +32,7 @@ from ..wire_columns import MapRows, array_header, map_header
 # Columns a buffered plot carries (all numpy arrays of one length). Plots are buffered
 # as the radar measured them (polar); the engine gates and converts a whole period at
 # once when it closes, which costs one vectorised pass instead of one per batch.
-PLOT_COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "radar", "mode_s", "mode3a", "track_no")
+PLOT_COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "radar", "mode_s", "mode3a", "track_no", "roll_deg")
 
 
 @dataclass
@@ -47,6 +47,13 @@ class PlotChunk:
     mode_s: np.ndarray  # int64, -1 none
     mode3a: np.ndarray  # int64, -1 none
     track_no: np.ndarray  # int64, -1 none
+    # Mode S BDS 5,0 roll angle, degrees, positive right wing down; float, NaN none
+    # (None when made: none for every plot)
+    roll_deg: np.ndarray = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.roll_deg is None:
+            self.roll_deg = np.full(self.t_s.shape[0], np.nan)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -62,7 +69,7 @@ class PlotChunk:
     @staticmethod
     def empty() -> PlotChunk:
         f, i = np.empty(0), np.empty(0, np.int64)
-        return PlotChunk(f, f, f, f, i, i, i, i)
+        return PlotChunk(f, f, f, f, i, i, i, i, f)
 
     def select(self, mask: np.ndarray) -> PlotChunk:
         return PlotChunk(*(getattr(self, name)[mask] for name in PLOT_COLUMNS))
@@ -449,6 +456,8 @@ class ConvertedPlots:
     range_m: np.ndarray
     azimuth_deg: np.ndarray
     altitude_m: np.ndarray
+    # Mode S BDS 5,0 roll angle, degrees (PlotChunk.roll_deg), NaN none
+    roll_deg: np.ndarray
     # (n, 2, 2) the unknown height's part of a plot converted without any height
     # (geo.unknown_height.unknown_height_plots), zero for the others; not in cov_m2
     height_cov_m2: np.ndarray | None = None
@@ -480,6 +489,9 @@ class ClusterMeasurements:
     mode3a: np.ndarray  # int64, -1 none
     revisit_s: np.ndarray  # shortest rotation period among the cluster's radars
     sources: np.ndarray  # uint64 bit mask of the cluster's radars
+    # mean Mode S roll angle (BDS 5,0) of the cluster's plots that carry one, degrees, NaN
+    # none: evidence of the IMM's mode (imm.IMMFilter.roll_log_likelihoods)
+    roll_deg: np.ndarray | None = None
     # (K, 2, 2) for a cluster of plots without any height, the unknown height's part of
     # its error (not in R_m2; the track's covariance floor), zero for the others
     height_cov_m2: np.ndarray | None = None

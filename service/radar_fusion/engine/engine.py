@@ -348,6 +348,7 @@ class Engine:
             range_m,
             azimuth_deg,
             altitude_m,
+            raw.roll_deg,
             height_cov_m2,
         )
 
@@ -611,6 +612,9 @@ class Engine:
             )
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
+        roll_used = plots.roll_deg[used]
+        roll_n = np.bincount(lab, weights=np.isfinite(roll_used).astype(float), minlength=n_clusters)
+        roll_sum = np.bincount(lab, weights=np.nan_to_num(roll_used), minlength=n_clusters)
         mode_s = np.full(n_clusters, -1, np.int64)
         np.maximum.at(mode_s, lab, plots.mode_s[used])
         mode3a = np.full(n_clusters, -1, np.int64)
@@ -631,6 +635,7 @@ class Engine:
             mode3a=mode3a,
             revisit_s=revisit_s,
             sources=sources,
+            roll_deg=np.where(roll_n > 0, roll_sum / np.maximum(roll_n, 1), np.nan),
             height_cov_m2=cluster_h_cov,
             far=far,
         )
@@ -939,7 +944,11 @@ class Engine:
             if self.imm is not None:
                 # in place: the rows r of the table's model columns become their updated states
                 state = IMMState(tr.x_models, tr.P_models, tr.mu)
-                x_c[init], P_c[init] = self.imm.predict_update_rows(state, r, dt_s[init], z_m[init], R_m2[init])
+                # a Mode S roll angle: evidence of the mode beside the position (eq. 5)
+                roll = None
+                if cl.roll_deg is not None and np.isfinite(cl.roll_deg[matched[init]]).any():
+                    roll = self.imm.roll_log_likelihoods(cl.roll_deg[matched[init]], tr.x[r, 1], tr.x[r, 4])
+                x_c[init], P_c[init] = self.imm.predict_update_rows(state, r, dt_s[init], z_m[init], R_m2[init], roll)
             else:
                 x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
                 x, P, nu, S = self.filter.update(x[init], P[init], z_m[init], R_m2[init])
