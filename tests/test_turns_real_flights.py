@@ -60,8 +60,8 @@ def test_mode_s_roll_reports_bring_the_turn_models_in_sooner(case_dir: Path) -> 
     """The same plots with and without the Mode S roll angle (BDS 5,0) as evidence of the
     mode (imm.IMMFilter.roll_log_likelihoods). The simulated Mode S radars report the bank
     of the smoothed real path's turn on a quarter of their plots, as the Barcelona radar
-    does. Measured when written: turning 57.2 against 67.6 m (onset 64.7 against 78.9 m),
-    straight 45.9 against 47.3 m, velocity 8.5 against 9.0 m/s."""
+    does. Measured when written: turning 57.0 against 67.6 m (onset 64.4 against 78.9 m),
+    straight 46.0 against 47.3 m, velocity 8.48 against 9.04 m/s."""
     roll = _scores(case_dir, {})
     positions = _scores(case_dir, {"roll_dap": False})
     print(

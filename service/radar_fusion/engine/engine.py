@@ -613,6 +613,7 @@ class Engine:
         fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
         fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
         roll_used = plots.roll_deg[used]
+        self.counters["plots_roll"] += int(np.isfinite(roll_used).sum())
         roll_n = np.bincount(lab, weights=np.isfinite(roll_used).astype(float), minlength=n_clusters)
         roll_sum = np.bincount(lab, weights=np.nan_to_num(roll_used), minlength=n_clusters)
         mode_s = np.full(n_clusters, -1, np.int64)
@@ -946,8 +947,9 @@ class Engine:
                 state = IMMState(tr.x_models, tr.P_models, tr.mu)
                 # a Mode S roll angle: evidence of the mode beside the position (eq. 5)
                 roll = None
-                if cl.roll_deg is not None and np.isfinite(cl.roll_deg[matched[init]]).any():
+                if cl.roll_deg is not None and (n_roll := int(np.isfinite(cl.roll_deg[matched[init]]).sum())):
                     roll = self.imm.roll_log_likelihoods(cl.roll_deg[matched[init]], tr.x[r, 1], tr.x[r, 4])
+                    self.counters["updates_roll"] += n_roll if self.imm.params.roll_dap else 0
                 x_c[init], P_c[init] = self.imm.predict_update_rows(state, r, dt_s[init], z_m[init], R_m2[init], roll)
             else:
                 x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
