@@ -21,7 +21,7 @@ from pydantic import ValidationError
 from scipy.linalg import expm
 from scipy.stats import chi2, multivariate_normal
 
-from radar_fusion.tracking.imm import MANOEUVRE, QUIET, IMMFilter, IMMParams, IMMState
+from radar_fusion.tracking.imm import MANOEUVRE, QUIET, Evidence, IMMFilter, IMMParams, IMMState
 from radar_fusion.tracking.singer_filter import SingerFilter
 
 H = np.zeros((2, 6))
@@ -519,6 +519,40 @@ def test_roll_evidence_matches_hand_computation() -> None:
     # the last report, 17.5° right, against positions turning left: it still moves μ
     right = [2, 4]
     assert st.mu[0, right].sum() > 5 * plain.mu[0, right].sum()
+
+
+def test_roll_evidence_bayes_factor_and_weight() -> None:
+    """imm.Evidence: the kernels' log Bayes factor of the roll against the position equals
+    log Σ c̄ f Λ − log Σ c̄ f − log Σ c̄ Λ from the predicted state's own per-model
+    likelihoods (log_likelihoods, scipy's logsumexp); weight 0 leaves μ as without any roll
+    but still measures the factor; a roll the positions bear out scores above one that
+    contradicts them."""
+    from scipy.special import logsumexp
+
+    imm = IMMFilter(IMMParams())
+    rng = np.random.default_rng(11)
+    st = _random_state(imm, 40, rng)
+    dt = rng.uniform(2.0, 8.0, 40)
+    z = st.x_models[:, 0][:, [0, 3]] + rng.normal(0.0, 60.0, (40, 2))
+    R = np.broadcast_to(60.0**2 * np.eye(2), (40, 2, 2))
+    roll = np.where(rng.random(40) < 0.8, rng.uniform(-30.0, 30.0, 40), np.nan)
+    lf = imm.roll_log_likelihoods(roll, st.x_models[:, 0, 1], st.x_models[:, 0, 4])
+    pred = imm.predict(st, dt)
+    lp = imm.log_likelihoods(pred, z, R) + np.log(pred.mu)
+    want = logsumexp(lp + lf, axis=1) - logsumexp(lf + np.log(pred.mu), axis=1) - logsumexp(lp, axis=1)
+    for weight in (None, np.zeros(40)):
+        ev = Evidence(np.empty(40), weight)
+        upd, _, _ = imm.predict_update(st, dt, z, R, lf, ev)
+        np.testing.assert_allclose(ev.log_bayes_factor, want, rtol=1e-9, atol=1e-9)
+        ev2 = Evidence(np.empty(40), weight)
+        imm.update(pred, z, R, lf, ev2)
+        np.testing.assert_allclose(ev2.log_bayes_factor, want, rtol=1e-9, atol=1e-9)
+        plain, _, _ = imm.predict_update(st, dt, z, R)
+        if weight is None:
+            assert np.abs(upd.mu - plain.mu).max() > 0.1
+        else:  # weight 0: as if no roll were given
+            np.testing.assert_allclose(upd.mu, plain.mu, rtol=1e-12, atol=1e-15)
+    assert np.all(want[np.isnan(roll)] == 0.0)
 
 
 def test_roll_of_a_fixed_rate_turn_is_its_bank_at_the_tracks_speed() -> None:

@@ -61,7 +61,7 @@ from ..tracking.fusion import (
     fuse_common_velocity,
     leave_one_out_outliers,
 )
-from ..tracking.imm import QUIET, IMMFilter, IMMState
+from ..tracking.imm import QUIET, Evidence, IMMFilter, IMMState
 from ..tracking.initiation import (
     floor_covariance,
     one_point_initiation,
@@ -946,11 +946,17 @@ class Engine:
                 # in place: the rows r of the table's model columns become their updated states
                 state = IMMState(tr.x_models, tr.P_models, tr.mu)
                 # a Mode S roll angle: evidence of the mode beside the position (eq. 5)
-                roll = None
-                if cl.roll_deg is not None and (n_roll := int(np.isfinite(cl.roll_deg[matched[init]]).sum())):
-                    roll = self.imm.roll_log_likelihoods(cl.roll_deg[matched[init]], tr.x[r, 1], tr.x[r, 4])
-                    self.counters["updates_roll"] += n_roll if self.imm.params.roll_dap else 0
-                x_c[init], P_c[init] = self.imm.predict_update_rows(state, r, dt_s[init], z_m[init], R_m2[init], roll)
+                roll = evidence = have = None
+                if cl.roll_deg is not None and self.imm.params.roll_dap:
+                    have = np.isfinite(cl.roll_deg[matched[init]])
+                    if have.any():
+                        roll = self.imm.roll_log_likelihoods(cl.roll_deg[matched[init]], tr.x[r, 1], tr.x[r, 4])
+                        evidence = Evidence(np.zeros(r.size), weight=(~tr.roll_distrust[r]).astype(float))
+                x_c[init], P_c[init] = self.imm.predict_update_rows(
+                    state, r, dt_s[init], z_m[init], R_m2[init], roll, evidence
+                )
+                if evidence is not None and have is not None:
+                    self._check_roll(r[have], evidence.log_bayes_factor[have])
             else:
                 x, P = self.manoeuvres.predict(self.filter, tr.x[rows], tr.P[rows], dt_s, tr.manoeuvre[rows])
                 x, P, nu, S = self.filter.update(x[init], P[init], z_m[init], R_m2[init])
@@ -996,6 +1002,20 @@ class Engine:
         tr.seen_by[rows] |= cl.sources[matched]
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
+
+    def _check_roll(self, rows: np.ndarray, log_bf: np.ndarray) -> None:
+        """The roll reports' check, per track: s ← memory · s + log BF, the Bayes factor by
+        which the report made the track's position more likely (imm.Evidence). Reports the
+        positions keep contradicting (a transponder's roll stuck or wrong) are set aside below
+        ``roll_distrust_below`` and count again above ``roll_trust_above``."""
+        assert self.imm is not None
+        p, tr = self.imm.params, self.tracks
+        distrusted = tr.roll_distrust[rows]
+        self.counters["updates_roll"] += int((~distrusted).sum())
+        tr.roll_check[rows] = check = p.roll_check_memory * tr.roll_check[rows] + log_bf
+        now = np.where(distrusted, check < p.roll_trust_above, check < p.roll_distrust_below)
+        self.counters["tracks_roll_set_aside"] += int((now & ~distrusted).sum())
+        tr.roll_distrust[rows] = now
 
     def _refuse_impossible_pairs(self, cl: ClusterMeasurements) -> None:
         """A one-plot track without altitude and a second cluster without any height: their

@@ -129,7 +129,7 @@ from . import imm_kernels, singer_filter
 from .coordinated_turn import MIN_TURN_SPEED_MPS, BankedTurnModel, CoordinatedTurnModel
 from .singer_filter import G0_MPS2, POS_IDX, STATE_DIM, SingerFilter, inv_2x2
 
-__all__ = ["MANOEUVRE", "QUIET", "IMMFilter", "IMMParams", "IMMState"]
+__all__ = ["MANOEUVRE", "QUIET", "Evidence", "IMMFilter", "IMMParams", "IMMState"]
 
 Float = NDArray[np.float64]
 
@@ -286,6 +286,31 @@ class IMMParams(BaseModel):
         "(~550 for the quiet model's 2.5°, ~270 for a turn's 5° at 5 %), never rules one out",
     )
 
+    roll_check_memory: float = Field(
+        0.8,
+        ge=0,
+        lt=1,
+        description="fading factor per report of a track's roll check: the sum s ← memory · s + log BF of its "
+        "reports' Bayes factors against the positions (imm.Evidence). A transponder whose roll is wrong (stuck "
+        "at 25° in straight flight: −0.6 a report) drives s to about −3; true reports keep it at 0 or above",
+    )
+    roll_distrust_below: float = Field(
+        -2.5,
+        lt=0,
+        description="a track's roll reports are set aside (weight 0; still checked) when its roll check falls "
+        "below this. Default −2.5: a roll stuck at 25° (10°) in straight flight made the track 29 → 76 m "
+        "(70 m) without the check, 34 m (48 m) with it, set aside after 3-11 reports; on the real-path ADS-B "
+        "case it set aside 1 of 57 flights' true reports and changed nothing to the centimetre (at −1.5: 7 "
+        "flights, position +0.1 m)",
+    )
+    roll_trust_above: float = Field(
+        -0.1,
+        lt=0,
+        description="a track's set-aside roll reports count again once its roll check is back above this: "
+        "reports that stay wrong stay out (their check, unapplied, settles near −0.4), reports that come "
+        "right come back within a few",
+    )
+
     def models(self) -> tuple[Model, ...]:
         """The models, in mode order (QUIET, MANOEUVRE, then a right and a left turn for each
         fixed rate and then for each bank angle)."""
@@ -323,6 +348,23 @@ class IMMParams(BaseModel):
         models other than the quiet one."""
         m = self.dwell_s().size  # the model count
         return np.array([1.0 - self.prior_manoeuvre_prob] + [self.prior_manoeuvre_prob / (m - 1)] * (m - 1))
+
+
+@dataclass
+class Evidence:
+    """What a cycle does with ``mode_loglik`` besides adding it: ``weight`` (N,) scales it
+    in each track's log-likelihood (None: 1; 0: a track whose reports are not trusted,
+    engine), and the kernels write into ``log_bayes_factor`` (N,) how much more likely
+    the position became with it, whatever its weight:
+
+        log [Σ_j c̄_j f_j Λ_j / Σ_j c̄_j f_j] − log Σ_j c̄_j Λ_j,     log f_j = mode_loglik_j
+
+    (eq. 1, 5): 0 without any, about 0 or above for a report the positions bear out (a
+    turn the roll shows before the track does: +2.5 at its first scan), below 0 for one
+    they contradict (a roll of 25° reported in straight flight: −0.6 a report)."""
+
+    log_bayes_factor: Float
+    weight: Float | None = None
 
 
 @dataclass
@@ -571,15 +613,21 @@ class IMMFilter:
         return self._predict_block(state, np.arange(len(state)), dt_s, _POSITION_VELOCITY)
 
     def predict_update(
-        self, state: IMMState, dt_s: ArrayLike, z: ArrayLike, R: ArrayLike, mode_loglik: ArrayLike | None = None
+        self,
+        state: IMMState,
+        dt_s: ArrayLike,
+        z: ArrayLike,
+        R: ArrayLike,
+        mode_loglik: ArrayLike | None = None,
+        evidence: Evidence | None = None,
     ) -> tuple[IMMState, Float, Float]:
         """A whole cycle in one pass (imm_kernels.predict_update_kernel): update(predict(state,
         dt_s), z, R) and its combination (eq. 7-8), without the prediction written out.
         ``mode_loglik`` (N, M), when given, is added to each model's log-likelihood (eq. 5):
-        :meth:`roll_log_likelihoods`."""
+        :meth:`roll_log_likelihoods`; ``evidence`` its weights and its Bayes factors."""
         n, m = len(state), self.n_models
         out = IMMState(np.empty((n, m, STATE_DIM)), np.empty((n, m, STATE_DIM, STATE_DIM)), np.empty((n, m)))
-        x, P = self._predict_update_into(state, out, np.arange(n), dt_s, z, R, mode_loglik)
+        x, P = self._predict_update_into(state, out, np.arange(n), dt_s, z, R, mode_loglik, evidence)
         return out, x, P
 
     def predict_update_rows(
@@ -590,6 +638,7 @@ class IMMFilter:
         z: ArrayLike,
         R: ArrayLike,
         mode_loglik: ArrayLike | None = None,
+        evidence: Evidence | None = None,
     ) -> tuple[Float, Float]:
         """predict_update() of the rows ``rows`` of ``state`` (a track table's columns), in
         place: those rows of state's arrays (float64, C-contiguous) become the updated
@@ -598,12 +647,20 @@ class IMMFilter:
             if a.dtype != np.float64 or not a.flags.c_contiguous or not a.flags.writeable:
                 raise ValueError("predict_update_rows updates writable float64 C-contiguous arrays in place")
         rows = np.ascontiguousarray(rows, dtype=np.int64)
-        return self._predict_update_into(state, state, rows, dt_s, z, R, mode_loglik)
+        return self._predict_update_into(state, state, rows, dt_s, z, R, mode_loglik, evidence)
 
-    def _mode_loglik(self, mode_loglik: ArrayLike | None, n: int) -> Float:
-        if mode_loglik is None:
-            return np.zeros((n, self.n_models))
-        return np.ascontiguousarray(np.broadcast_to(np.asarray(mode_loglik, dtype=np.float64), (n, self.n_models)))
+    def _mode_loglik(
+        self, mode_loglik: ArrayLike | None, evidence: Evidence | None, n: int
+    ) -> tuple[Float, Float, Float]:
+        """The kernels' lf (n, M), its weights lfw (n,) and the out_lbf (n,) to write."""
+        lf = np.zeros((n, self.n_models)) if mode_loglik is None else np.asarray(mode_loglik, dtype=np.float64)
+        lf = np.ascontiguousarray(np.broadcast_to(lf, (n, self.n_models)))
+        w = np.ones(n) if evidence is None or evidence.weight is None else evidence.weight
+        lfw = np.ascontiguousarray(np.broadcast_to(np.asarray(w, dtype=np.float64), (n,)))
+        lbf = np.empty(n) if evidence is None else evidence.log_bayes_factor
+        if lbf.shape != (n,) or lbf.dtype != np.float64 or not lbf.flags.c_contiguous:
+            raise ValueError("Evidence.log_bayes_factor: a float64 C-contiguous (N,) array to write")
+        return lf, lfw, lbf
 
     def roll_log_likelihoods(self, roll_deg: ArrayLike, vx_mps: ArrayLike, vy_mps: ArrayLike) -> Float:
         """log p(roll | model j) of each track's Mode S roll angle (BDS 5,0, degrees, positive
@@ -652,6 +709,7 @@ class IMMFilter:
         z: ArrayLike,
         R: ArrayLike,
         mode_loglik: ArrayLike | None = None,
+        evidence: Evidence | None = None,
     ) -> tuple[Float, Float]:
         k = rows.size
         dt = self._dt(dt_s, k)
@@ -660,12 +718,12 @@ class IMMFilter:
         xm, Pm, mu = _arrays(state)
         dt, tau, terms, family, omega, q_keys = self._model_args(dt)
         z, R = _c64(z), _c64(R)
-        lf = self._mode_loglik(mode_loglik, k)
+        lf, lfw, lbf = self._mode_loglik(mode_loglik, evidence, k)
 
         def share(a: int, b: int) -> None:
             imm_kernels.predict_update_kernel(
-                xm, Pm, mu, rows[a:b], dt[a:b], tau, terms[a:b], family, omega, q_keys, z[a:b], R[a:b], lf[a:b],
-                out.x_models, out.P_models, out.mu, x[a:b], P[a:b],
+                xm, Pm, mu, rows[a:b], dt[a:b], tau, terms[a:b], family, omega, q_keys, z[a:b], R[a:b],
+                lf[a:b], lfw[a:b], out.x_models, out.P_models, out.mu, x[a:b], P[a:b], lbf[a:b],
             )  # fmt: skip
 
         self._run_in_shares(k, share)
@@ -678,16 +736,24 @@ class IMMFilter:
         S = state.P_models[:, :, POS_IDX[:, None], POS_IDX[None, :]] + np.asarray(R, dtype=float)[:, None]
         return _gauss_loglik(nu.reshape(n * m, 2), S.reshape(n * m, 2, 2)).reshape(n, m)
 
-    def update(self, state: IMMState, z: ArrayLike, R: ArrayLike, mode_loglik: ArrayLike | None = None) -> IMMState:
+    def update(
+        self,
+        state: IMMState,
+        z: ArrayLike,
+        R: ArrayLike,
+        mode_loglik: ArrayLike | None = None,
+        evidence: Evidence | None = None,
+    ) -> IMMState:
         """Steps 3-4: each model's Kalman update (Shu eq. 7, 9, 10) with the fused
         measurement z (N,2) of covariance R (N,2,2), and the mode probabilities (eq. 5-6)
-        (imm_kernels.update_kernel); ``mode_loglik`` (N, M) as in :meth:`predict_update`."""
+        (imm_kernels.update_kernel); ``mode_loglik`` (N, M) and ``evidence`` as in
+        :meth:`predict_update`."""
         n, m = len(state), self.n_models
         x_upd = np.empty((n, m, STATE_DIM))
         P_upd = np.empty((n, m, STATE_DIM, STATE_DIM))
         mu = np.empty((n, m))
-        lf = self._mode_loglik(mode_loglik, n)
-        imm_kernels.update_kernel(*_arrays(state), _c64(z), _c64(R), lf, x_upd, P_upd, mu)
+        lf, lfw, lbf = self._mode_loglik(mode_loglik, evidence, n)
+        imm_kernels.update_kernel(*_arrays(state), _c64(z), _c64(R), lf, lfw, x_upd, P_upd, mu, lbf)
         return IMMState(x_upd, P_upd, mu)
 
     @staticmethod

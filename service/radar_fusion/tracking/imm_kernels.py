@@ -496,10 +496,11 @@ def _combine(X: np.ndarray, P: np.ndarray, w: np.ndarray, x: np.ndarray, Pc: np.
 
 @_compiled
 def _gather_measurements(
-    z: np.ndarray, R: np.ndarray, lf: np.ndarray, k0: int, nl: int, Z: np.ndarray, RL: np.ndarray, LF: np.ndarray
-) -> None:
-    """Each lane's measurement into Z (2, L), its covariance into RL (2, 2, L) and its
-    per-model log-likelihood term into LF (M, L)."""
+    z: np.ndarray, R: np.ndarray, lf: np.ndarray, lfw: np.ndarray, k0: int, nl: int,
+    Z: np.ndarray, RL: np.ndarray, LF: np.ndarray, LW: np.ndarray,
+) -> None:  # fmt: skip
+    """Each lane's measurement into Z (2, L), its covariance into RL (2, 2, L), its
+    per-model log-likelihood term into LF (M, L) and that term's weight into LW (L,)."""
     for lane in range(_L):
         k = _lane_track(k0, nl, lane)
         for a in range(2):
@@ -508,11 +509,33 @@ def _gather_measurements(
                 RL[a, b, lane] = R[k, a, b]
         for j in range(LF.shape[0]):
             LF[j, lane] = lf[k, j]
+        LW[lane] = lfw[k]
+
+
+@_compiled
+def _lse(a: np.ndarray, lane: int) -> float:
+    """log Σ_j exp a[j, lane] (−inf when every term is)."""
+    top = -np.inf
+    for j in range(a.shape[0]):
+        top = max(top, a[j, lane])
+    if top == -np.inf:
+        return top
+    total = 0.0
+    for j in range(a.shape[0]):
+        total += math.exp(a[j, lane] - top)
+    return top + math.log(total)
+
+
+@_compiled
+def _scatter_lane_values(v: np.ndarray, k0: int, nl: int, out: np.ndarray) -> None:
+    for lane in range(nl):
+        out[k0 + lane] = v[lane]
 
 
 @_compiled
 def _update(
-    XP: np.ndarray, PP: np.ndarray, cbar: np.ndarray, Z: np.ndarray, RL: np.ndarray, LF: np.ndarray,
+    XP: np.ndarray, PP: np.ndarray, cbar: np.ndarray, Z: np.ndarray, RL: np.ndarray, LF: np.ndarray, LW: np.ndarray,
+    LB: np.ndarray, LP: np.ndarray, EV: np.ndarray,
     XU: np.ndarray, PU: np.ndarray, MU: np.ndarray, logw: np.ndarray, K: np.ndarray, PHt: np.ndarray, G: np.ndarray,
 ) -> None:  # fmt: skip
     """Steps 3-4 in every lane: each model's Kalman update of XP (M, 6, L), PP (M, 6, 6, L)
@@ -522,9 +545,15 @@ def _update(
 
     into XU, PU (P symmetrised, ½ (P + Pᵀ), as imm.IMMFilter.update does); its
     log-likelihood log Λ_j (eq. 5) and μ_j ∝ Λ_j c̄_j into MU (eq. 6, by log-sum-exp; c̄_j =
-    0 gives μ_j = 0).  LF (M, L) is added to log Λ_j: the log-likelihood of what else the
-    measurement says about the mode (imm.IMMFilter.roll_log_likelihoods: a Mode S roll
-    angle; zero without one).  logw (M, L), K and PHt (6, 2, L), G (7, L): scratch."""
+    0 gives μ_j = 0).  LF (M, L), times its weight LW (L,), is added to log Λ_j: the
+    log-likelihood of what else the measurement says about the mode
+    (imm.IMMFilter.roll_log_likelihoods: a Mode S roll angle; zero without one).  Into LB
+    (L,) the log Bayes factor by which LF's evidence made the position more or less likely,
+
+        log [Σ_j c̄_j f_j Λ_j / Σ_j c̄_j f_j] − log Σ_j c̄_j Λ_j,     f_j = exp LF_j,
+
+    whatever its weight (0 without one; imm.IMMFilter.roll_log_likelihoods says what it is
+    for).  LP (M, L) log Λ_j c̄_j, logw (M, L), K and PHt (6, 2, L), G (7, L): scratch."""
     m = cbar.shape[0]
     log_2pi = math.log(2.0 * math.pi)
     for j in range(m):
@@ -560,8 +589,17 @@ def _update(
         for lane in range(_L):
             nu0, nu1 = G[4, lane], G[5, lane]
             d2 = nu0 * (G[0, lane] * nu0 + G[1, lane] * nu1) + nu1 * (G[2, lane] * nu0 + G[3, lane] * nu1)
-            lw = -0.5 * d2 - 0.5 * math.log(G[6, lane]) - log_2pi + LF[j, lane]  # eq. 5
-            logw[j, lane] = lw + math.log(cbar[j, lane]) if cbar[j, lane] > 0.0 else -np.inf
+            lw = -0.5 * d2 - 0.5 * math.log(G[6, lane]) - log_2pi  # eq. 5
+            LP[j, lane] = lw + math.log(cbar[j, lane]) if cbar[j, lane] > 0.0 else -np.inf
+            logw[j, lane] = LP[j, lane] + LW[lane] * LF[j, lane]
+    for lane in range(_L):  # the evidence's Bayes factor against the position: LP + LF, LF + log c̄, LP
+        position = _lse(LP, lane)
+        for j in range(m):
+            EV[0, j, lane] = LP[j, lane] + LF[j, lane]
+            EV[1, j, lane] = LF[j, lane] + math.log(cbar[j, lane]) if cbar[j, lane] > 0.0 else -np.inf
+        with_evidence = _lse(EV[0], lane)
+        prior = _lse(EV[1], lane)
+        LB[lane] = with_evidence - prior - position if position > -np.inf and prior > -np.inf else 0.0
     for lane in range(_L):
         top = logw[0, lane]
         for j in range(1, m):
@@ -713,18 +751,21 @@ def predict_update_kernel(
     z: np.ndarray,
     R: np.ndarray,
     lf: np.ndarray,
+    lfw: np.ndarray,
     out_xm: np.ndarray,
     out_Pm: np.ndarray,
     out_mu: np.ndarray,
     out_x: np.ndarray,
     out_P: np.ndarray,
+    out_lbf: np.ndarray,
 ) -> None:
     """One whole cycle per track, steps 1-5: predict_kernel over dt, then update_kernel
     with z, R and the combination, without writing the prediction out.  Track k is row
     rows[k] of the state and of out_xm, out_Pm, out_mu, which may be the state's own arrays
     (a chunk's rows are read whole before they are written: the update in place); dt,
-    terms, z, R, lf (N, M: added to each model's log-likelihood, ``_update``), out_x and
-    out_P per k."""
+    terms, z, R, lf (N, M: added to each model's log-likelihood times lfw (N,),
+    ``_update``), out_x, out_P and out_lbf (N,: lf's log Bayes factor against the position)
+    per k."""
     n, m = rows.shape[0], mu.shape[1]
     X, XP, X0, S = np.empty((m, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _NP, _L)), np.empty((m, _NP, _L))
     PP, XU, PU = np.empty((m, _D, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _D, _D, _L))
@@ -732,22 +773,23 @@ def predict_update_kernel(
     DT, W, TJ, TB, tb = np.empty(_L), np.empty(_L), np.empty((m, TERMS, _L)), np.empty((TERMS, _L)), np.empty(TERMS)
     x0, P0, T = np.empty((_D, _L)), np.empty((_D, _D, _L)), np.empty((_D, _D, _L))
     Z, RL, MUU, logw = np.empty((2, _L)), np.empty((2, 2, _L)), np.empty((m, _L)), np.empty((m, _L))
-    LF = np.empty((m, _L))
+    LF, LW, LB, LP, EV = np.empty((m, _L)), np.empty(_L), np.empty(_L), np.empty((m, _L)), np.empty((2, m, _L))
     K, PHt, G = np.empty((_D, 2, _L)), np.empty((_D, 2, _L)), np.empty((7, _L))
     xc, Pc = np.empty((_D, _L)), np.empty((_D, _D, _L))
     for k0 in range(0, n, _L):
         nl = min(_L, n - k0)
         _gather_mixing(xm, Pm, mu, rows, k0, nl, X, S, MU)
         _gather_per_track(dt, terms, k0, nl, DT, TJ)
-        _gather_measurements(z, R, lf, k0, nl, Z, RL, LF)
+        _gather_measurements(z, R, lf, lfw, k0, nl, Z, RL, LF, LW)
         _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
         for j in range(m):
             _unpack(X0[j], X[0], x0, P0)
             _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
-        _update(XP, PP, cbar, Z, RL, LF, XU, PU, MUU, logw, K, PHt, G)
+        _update(XP, PP, cbar, Z, RL, LF, LW, LB, LP, EV, XU, PU, MUU, logw, K, PHt, G)
         _combine(XU, PU, MUU, xc, Pc)
         _scatter_models(XU, PU, MUU, rows, k0, nl, out_xm, out_Pm, out_mu)
         _scatter_combined(xc, Pc, k0, nl, out_x, out_P)
+        _scatter_lane_values(LB, k0, nl, out_lbf)
 
 
 @_compiled
@@ -758,25 +800,30 @@ def update_kernel(
     z: np.ndarray,
     R: np.ndarray,
     lf: np.ndarray,
+    lfw: np.ndarray,
     out_xm: np.ndarray,
     out_Pm: np.ndarray,
     out_mu: np.ndarray,
+    out_lbf: np.ndarray,
 ) -> None:
     """Steps 3-4 for N tracks (``_update``): each model's Kalman update with the
     measurement z (N,2) of covariance R (N,2,2), and the mode probabilities, with lf (N,M)
-    added to each model's log-likelihood (``_update``)."""
+    times lfw (N,) added to each model's log-likelihood, lf's log Bayes factor into out_lbf
+    (``_update``)."""
     n, m = cbar.shape
     rows = np.arange(n)
     XP, XU, PP, PU = np.empty((m, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _D, _D, _L)), np.empty((m, _D, _D, _L))
     CB, MUU, logw = np.empty((m, _L)), np.empty((m, _L)), np.empty((m, _L))
     Z, RL, G, LF = np.empty((2, _L)), np.empty((2, 2, _L)), np.empty((7, _L)), np.empty((m, _L))
+    LW, LB, LP, EV = np.empty(_L), np.empty(_L), np.empty((m, _L)), np.empty((2, m, _L))
     K, PHt = np.empty((_D, 2, _L)), np.empty((_D, 2, _L))
     for k0 in range(0, n, _L):
         nl = min(_L, n - k0)
         _gather_models(xm, Pm, cbar, rows, k0, nl, XP, PP, CB)
-        _gather_measurements(z, R, lf, k0, nl, Z, RL, LF)
-        _update(XP, PP, CB, Z, RL, LF, XU, PU, MUU, logw, K, PHt, G)
+        _gather_measurements(z, R, lf, lfw, k0, nl, Z, RL, LF, LW)
+        _update(XP, PP, CB, Z, RL, LF, LW, LB, LP, EV, XU, PU, MUU, logw, K, PHt, G)
         _scatter_models(XU, PU, MUU, rows, k0, nl, out_xm, out_Pm, out_mu)
+        _scatter_lane_values(LB, k0, nl, out_lbf)
 
 
 @_compiled

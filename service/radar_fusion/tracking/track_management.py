@@ -182,11 +182,15 @@ _FIELDS = {
     "held_R_m2": ((2, 2), float, np.nan),
     "held_t_s": ((), float, np.nan),
     "held_sources": ((), np.uint64, 0),  # its radars (bit mask)
+    # the Mode S roll reports' check (IMM, engine._update): a fading sum of their log Bayes
+    # factors against the positions (imm.Evidence), and whether they are set aside
+    "roll_check": ((), float, 0.0),
+    "roll_distrust": ((), bool, False),
 }
 
 #: columns added after the state format's first release: a state without them is read
 #: with their fill (engine/state.py)
-OPTIONAL_FIELDS = ("held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources")
+OPTIONAL_FIELDS = ("held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources", "roll_check", "roll_distrust")
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
 # track axis: (N, M, 6), (N, M, 6, 6), (N, M). A table for the single-model Singer filter
@@ -231,6 +235,8 @@ class TrackTable:
     held_R_m2: NDArray[np.float64]  # (N, 2, 2) its covariance
     held_t_s: NDArray[np.float64]  # its time, NaN: none held
     held_sources: NDArray[np.uint64]  # its radars (bit mask)
+    roll_check: NDArray[np.float64]  # fading sum of the roll reports' log Bayes factors (imm.Evidence)
+    roll_distrust: NDArray[np.bool_]  # the track's roll reports are set aside
     x_models: NDArray[np.float64]  # (N, M, 6) each IMM model's state at t_state_s
     P_models: NDArray[np.float64]  # (N, M, 6, 6)
     mu: NDArray[np.float64]  # (N, M) IMM mode probabilities
