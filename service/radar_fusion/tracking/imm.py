@@ -101,6 +101,13 @@ after the last update, p_ij = Π[i, j] from mode i to mode j:
    evaluated in the log domain (log Λ_j + log c̄_j, normalised by log-sum-exp), so a
    measurement far from every model's prediction does not underflow to 0/0.
 
+   The aircraft's own roll angle (Mode S BDS 5,0, a plot's ``roll_deg``), where a radar
+   read it, is a second measurement of the mode, taken as independent of the position
+   given the mode: Λ_j in (5)-(6) becomes Λ_j f_j, f_j = p(roll | model j)
+   (:meth:`IMMFilter.roll_log_likelihoods`; an extension, not in the papers).  Each such
+   report is checked against the positions by its Bayes factor (:class:`Evidence`), and
+   the engine sets aside the reports of a track that the positions keep contradicting.
+
 5. Combination, for output only (it is not fed back), in :meth:`IMMFilter.combine`:
 
        x = Σ_j μ_j x_j                                                                  (7)
@@ -260,8 +267,9 @@ class IMMParams(BaseModel):
     roll_quiet_sigma_deg: float = Field(
         2.5,
         gt=0,
-        description="σ of the roll angle in the quiet and the manoeuvre-free straight flight, degrees. Default "
-        "2.5°: on the Barcelona hour's 8,984 roll reports, half are within 0.35° of wings level, 90 % within 2.6°",
+        description="σ of the roll angle about wings level under the quiet (straight-flight) model, degrees. "
+        "Default 2.5°: on the Barcelona hour's 8,984 roll reports, half are within 0.35° of wings level, 90 % "
+        "within 2.6°",
     )
     roll_turn_sigma_deg: float = Field(
         5.0,
