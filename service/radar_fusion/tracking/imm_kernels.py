@@ -593,6 +593,12 @@ def _update(
             LP[j, lane] = lw + math.log(cbar[j, lane]) if cbar[j, lane] > 0.0 else -np.inf
             logw[j, lane] = LP[j, lane] + LW[lane] * LF[j, lane]
     for lane in range(_L):  # the evidence's Bayes factor against the position: LP + LF, LF + log c̄, LP
+        LB[lane] = 0.0
+        informative = False
+        for j in range(m):
+            informative = informative or LF[j, lane] != 0.0
+        if not informative:  # no report (most tracks, most scans): a factor of 1
+            continue
         position = _lse(LP, lane)
         for j in range(m):
             EV[0, j, lane] = LP[j, lane] + LF[j, lane]
