@@ -48,7 +48,7 @@ import numpy as np
 from radar_fusion import wire
 from radar_fusion.geo.coordinates import RadarSites, SystemPlane, geodetic_to_polar
 from radar_fusion.geo.units import M_PER_FT
-from radar_fusion.tracking.singer_filter import G0_MPS2
+from radar_fusion.tracking.coordinated_turn import bank_of_turn_deg
 
 from .scenario import TRANSPONDER_CODES, RadarSpec, Rates, Target
 from .trajectories import Trajectories
@@ -125,7 +125,7 @@ def _roll_reports(
     b = traj.state(tgt[carry], t_s[carry] + 0.5)
     heading_rate_rad_s = np.angle(np.exp(1j * (np.arctan2(b.vx_mps, b.vy_mps) - np.arctan2(a.vx_mps, a.vy_mps))))
     speed_mps = 0.5 * (np.hypot(a.vx_mps, a.vy_mps) + np.hypot(b.vx_mps, b.vy_mps))
-    roll = np.degrees(np.arctan(speed_mps * heading_rate_rad_s / G0_MPS2))
+    roll = bank_of_turn_deg(speed_mps, heading_rate_rad_s)
     roll += rng.normal(0.0, rates.sigma_roll_deg, carry.size)
     out[carry] = np.clip(np.round(roll * 256.0 / 45.0) * 45.0 / 256.0, -90.0, 90.0)
     return out

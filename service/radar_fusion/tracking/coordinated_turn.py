@@ -281,6 +281,13 @@ class CoordinatedTurnModel:
         return _predict_ct(x, P, dt_s, self.turn_rate_rad_s, self.q_m2_s3)
 
 
+def bank_of_turn_deg(speed_mps: ArrayLike, heading_rate_rad_s: ArrayLike) -> np.ndarray:
+    """φ of eq. (5) turned round, tan φ = v ψ̇ / g: the bank (degrees, positive to the
+    right) of a coordinated turn at speed v whose heading turns at ψ̇ (clockwise positive,
+    the sense of a heading; the opposite of eq. (1)'s ω)."""
+    return np.asarray(np.degrees(np.arctan(np.asarray(speed_mps, dtype=float) * heading_rate_rad_s / G0_MPS2)))
+
+
 def banked_turn_rate_rad_s(vx_mps: ArrayLike, vy_mps: ArrayLike, bank_deg: float) -> np.ndarray:
     """ω of eq. (5) in the sign convention of eq. (1) (a right turn, positive bank, is
     clockwise: ω < 0), at the speed of (vx, vy), floored at ``MIN_TURN_SPEED_MPS``."""

@@ -133,8 +133,8 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from . import imm_kernels, singer_filter
-from .coordinated_turn import MIN_TURN_SPEED_MPS, BankedTurnModel, CoordinatedTurnModel
-from .singer_filter import G0_MPS2, POS_IDX, STATE_DIM, SingerFilter, inv_2x2
+from .coordinated_turn import MIN_TURN_SPEED_MPS, BankedTurnModel, CoordinatedTurnModel, bank_of_turn_deg
+from .singer_filter import POS_IDX, STATE_DIM, SingerFilter, inv_2x2
 
 __all__ = ["MANOEUVRE", "QUIET", "Evidence", "IMMFilter", "IMMParams", "IMMState"]
 
@@ -700,7 +700,7 @@ class IMMFilter:
                 mean[:, j], sigma[j] = model.bank_deg, p.roll_turn_sigma_deg
             else:  # a fixed rate, positive to the right (CoordinatedTurnModel.turn_rate_deg_s)
                 v = np.nan_to_num(np.maximum(speed, MIN_TURN_SPEED_MPS), nan=MIN_TURN_SPEED_MPS)
-                mean[:, j] = np.degrees(np.arctan(v * math.radians(model.turn_rate_deg_s) / G0_MPS2))
+                mean[:, j] = bank_of_turn_deg(v, math.radians(model.turn_rate_deg_s))
                 sigma[j] = p.roll_turn_sigma_deg
         d = (phi - mean) / sigma
         gauss = np.exp(-0.5 * d * d) / (sigma * math.sqrt(2.0 * math.pi))
