@@ -92,6 +92,14 @@ from .columns import ClusterMeasurements, ConvertedPlots, PeriodOutput, PlotChun
 from .period_buffer import PeriodBuffer
 
 
+def _mean_known(label: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Per label 0..n-1, the mean of its finite values (NaN: none known), e.g. a cluster's
+    Mode C flight level or Mode S roll angle from the plots that carry one."""
+    known = np.bincount(label, weights=np.isfinite(values).astype(float), minlength=n)
+    total = np.bincount(label, weights=np.nan_to_num(values), minlength=n)
+    return np.where(known > 0, total / np.maximum(known, 1), np.nan)
+
+
 class Engine:
     """Sans-I/O multi-radar fusion engine (DESIGN.md §2)."""
 
@@ -610,12 +618,8 @@ class Engine:
                 pvv_pad[res.cluster_track[joint]],
                 joint.size,
             )
-        fl_sum = np.bincount(lab, weights=np.nan_to_num(plots.fl[used]), minlength=n_clusters)
-        fl_n = np.bincount(lab, weights=np.isfinite(plots.fl[used]).astype(float), minlength=n_clusters)
         roll_used = plots.roll_deg[used]
         self.counters["plots_roll"] += int(np.isfinite(roll_used).sum())
-        roll_n = np.bincount(lab, weights=np.isfinite(roll_used).astype(float), minlength=n_clusters)
-        roll_sum = np.bincount(lab, weights=np.nan_to_num(roll_used), minlength=n_clusters)
         mode_s = np.full(n_clusters, -1, np.int64)
         np.maximum.at(mode_s, lab, plots.mode_s[used])
         mode3a = np.full(n_clusters, -1, np.int64)
@@ -631,12 +635,12 @@ class Engine:
             t_s=t_c,
             z_m=z_m,
             R_m2=R_m2,
-            fl=np.where(fl_n > 0, fl_sum / np.maximum(fl_n, 1), np.nan),
+            fl=_mean_known(lab, plots.fl[used], n_clusters),
             mode_s=mode_s,
             mode3a=mode3a,
             revisit_s=revisit_s,
             sources=sources,
-            roll_deg=np.where(roll_n > 0, roll_sum / np.maximum(roll_n, 1), np.nan),
+            roll_deg=_mean_known(lab, roll_used, n_clusters),
             height_cov_m2=cluster_h_cov,
             far=far,
         )
