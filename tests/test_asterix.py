@@ -7,6 +7,7 @@ never copied into the repository; tests that need them skip when they are absent
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import random
 import socket
@@ -155,8 +156,84 @@ def test_jahorina_bridge_plots_are_valid_wire_messages():
     }
     assert len(got) > 100 and got.items() <= want.items()
     assert len(got) == len(want)  # a repeated block's reports are the same reports
+    # so do its ground speed and true track angle, where the register has both (here all)
+    want_v = {
+        (r.mode_s, round(r.tod_s, 3)): (v["ground_speed_mps"], v["track_angle_deg"])
+        for r in items
+        if isinstance(r, TargetReport)
+        for reg, mb in r.bds
+        if reg == 0x50 and (v := decode_bds50(mb)) is not None
+    }
+    got_v, n_plots = {}, 0
+    for m in messages:
+        if m.key != "radar/jahorina/plots":
+            continue
+        decoded = decode_plot_batch(m.payload)  # the wire's columns: the same values, NaN none
+        gs = [math.nan if p.ground_speed_mps is None else p.ground_speed_mps for p in m.message.plots]
+        trk = [math.nan if p.track_angle_deg is None else p.track_angle_deg for p in m.message.plots]
+        np.testing.assert_array_equal(decoded.ground_speed_mps, gs)
+        np.testing.assert_array_equal(decoded.track_angle_deg, trk)
+        for p in m.message.plots:
+            n_plots += 1
+            assert (p.ground_speed_mps is None) == (p.track_angle_deg is None)
+            if p.ground_speed_mps is not None:
+                got_v[(p.mode_s, round(p.t - day0, 3))] = (p.ground_speed_mps, p.track_angle_deg)
+    assert len(got_v) > 100 and got_v.items() <= want_v.items() and len(got_v) == len(want_v)
+    assert len(got_v) < n_plots  # only the plots whose report holds BDS 5,0
+    gs_kt = np.array([v[0] for v in got_v.values()]) / MPS_PER_KT
+    trk_lsb = np.array([v[1] for v in got_v.values()]) * 512.0 / 90.0
+    # the register's steps: 2 kt, 90/512°
+    assert np.allclose(gs_kt, 2.0 * np.round(gs_kt / 2.0)) and np.allclose(trk_lsb, np.round(trk_lsb))
+    assert 80.0 < np.median(gs_kt) < 600.0 and np.ptp(trk_lsb) * 90.0 / 512.0 > 180.0  # airliners, every way
     assert day0 + 33_932 <= min(times) and max(times) <= day0 + 34_013  # 80 s, 09:25:32-09:26:53
     assert np.all(np.diff(times) > -2.0)  # time-ordered up to the radar's own jitter
+
+
+def test_the_bridge_sends_each_bds50_field_as_the_register_has_it(monkeypatch):
+    """Jahorina's reports with their BDS 5,0 replaced: with ground speed and track and roll,
+    with roll alone (speed and track flagged unavailable: decode_bds50 gives none), with
+    speed and track and no roll, and without the register: the plot carries what it has."""
+    from radar_fusion.asterix import bridge as bridge_module
+
+    track_raw = round(-30 / (90 / 512))  # 330°
+    full = mb_field([(1, 1, 1), (3, 9, 57), (12, 1, 1), (13, 1, 1), (14, 10, track_raw), (24, 1, 1), (25, 10, 225)])
+    roll_only = mb_field([(1, 1, 1), (3, 9, 57), (24, 1, 1), (25, 10, 225)])
+    no_roll = mb_field([(12, 1, 1), (14, 10, 256), (24, 1, 1), (25, 10, 200)])
+    words = [((0x50, full),), ((0x40, 0), (0x50, roll_only)), ((0x50, no_roll),), ((0x60, full),)]
+    real = bridge_module.decode_datablock
+    k = 0
+
+    def with_words(block, counters):
+        nonlocal k
+        out = []
+        for item in real(block, counters):
+            if isinstance(item, TargetReport):
+                item = dataclasses.replace(item, bds=words[k % 4])
+                k += 1
+            out.append(item)
+        return out
+
+    monkeypatch.setattr(bridge_module, "decode_datablock", with_words)
+    _, messages, _ = bridge_file(need(JAHORINA), example_settings({"jahorina"}), DAY, order_by_time=False)
+    seen = Counter()
+    for m in messages:
+        if m.key != "radar/jahorina/plots":
+            continue
+        decoded = decode_plot_batch(m.payload)
+        assert decoded.rejected == {}
+        for i, p in enumerate(m.message.plots):
+            have = (p.roll_deg is not None, p.ground_speed_mps is not None, p.track_angle_deg is not None)
+            seen[have] += 1
+            if have == (True, True, True):
+                assert p.ground_speed_mps == 450 * MPS_PER_KT and p.track_angle_deg == 360.0 + track_raw * 90 / 512
+                assert p.roll_deg == 57 * 45 / 256
+            elif have == (False, True, True):
+                assert p.ground_speed_mps == 400 * MPS_PER_KT and p.track_angle_deg == 45.0
+            want = [math.nan if x is None else x for x in (p.roll_deg, p.ground_speed_mps, p.track_angle_deg)]
+            got = [decoded.roll_deg[i], decoded.ground_speed_mps[i], decoded.track_angle_deg[i]]
+            np.testing.assert_array_equal(got, want)  # the wire's columns: the same, NaN none
+    assert set(seen) == {(True, True, True), (True, False, False), (False, True, True), (False, False, False)}
+    assert min(seen.values()) > 300
 
 
 def test_croatia_pcap_decodes_and_flows():

@@ -78,6 +78,8 @@ def plot_of(engine, radar, seq, t_s):
         np.array([-1]),
         np.zeros(1, np.int8),
         np.array([np.nan]),
+        np.array([np.nan]),
+        np.array([np.nan]),
     )
 
 
@@ -658,7 +660,7 @@ def primary_plot_at(engine, seq, t_s, xy_m):
     r_m, az_deg, _ = geodetic_to_polar(engine.sites, 1, lat, lon, np.array([FL * M_PER_FL]))
     one = np.array([-1])
     nan = np.array([np.nan])
-    return DecodedPlots("b", seq, np.array([t_s]), r_m, az_deg, nan, one, one, one, np.zeros(1, np.int8), nan)
+    return DecodedPlots("b", seq, np.array([t_s]), r_m, az_deg, nan, one, one, one, np.zeros(1, np.int8), nan, nan, nan)
 
 
 @pytest.mark.parametrize(("step_m", "refused"), [(600.0, False), (3_000.0, True)])

@@ -67,13 +67,18 @@ def check_decoded(d) -> None:
         return
     assert set(d.rejected) <= REASONS and all(n > 0 for n in d.rejected.values())
     n = len(d)
-    for col in (d.range_m, d.azimuth_deg, d.fl, d.mode3a, d.mode_s, d.track_no, d.kind, d.roll_deg):
+    for col in (
+        d.range_m, d.azimuth_deg, d.fl, d.mode3a, d.mode_s, d.track_no, d.kind,
+        d.roll_deg, d.ground_speed_mps, d.track_angle_deg,
+    ):  # fmt: skip
         assert col.shape == (n,)
     assert np.isfinite(d.t_s).all() and np.isfinite(d.range_m).all() and np.isfinite(d.azimuth_deg).all()
     assert ((d.t_s > 0) & (d.t_s < 1e10)).all()
     assert ((d.range_m >= 0) & (d.azimuth_deg >= 0) & (d.azimuth_deg < 360)).all()
     assert (np.isnan(d.fl) | ((d.fl >= -20) & (d.fl <= 1300))).all()
     assert (np.isnan(d.roll_deg) | ((d.roll_deg >= -90) & (d.roll_deg <= 90))).all()
+    assert (np.isnan(d.ground_speed_mps) | ((d.ground_speed_mps >= 0) & (d.ground_speed_mps <= 1100))).all()
+    assert (np.isnan(d.track_angle_deg) | ((d.track_angle_deg >= 0) & (d.track_angle_deg < 360))).all()
     assert ((d.mode3a >= -1) & (d.mode3a <= 0o7777)).all() and ((d.mode_s >= -1) & (d.mode_s < 1 << 24)).all()
 
 
@@ -189,11 +194,15 @@ BAD_PLOTS = [
     *[({"azimuth_deg": v}, "plot_non_finite") for v in (math.nan, -math.inf)],
     ({"fl": math.nan}, "plot_non_finite"),
     *[({"roll_deg": v}, "plot_non_finite") for v in (math.nan, math.inf)],
+    *[({"ground_speed_mps": v}, "plot_non_finite") for v in (math.nan, math.inf)],
+    *[({"track_angle_deg": v}, "plot_non_finite") for v in (math.nan, -math.inf)],
     *[({"range_m": v}, "plot_out_of_range") for v in (-1.0, -1e9, 2e6 + 1)],
     *[({"azimuth_deg": v}, "plot_out_of_range") for v in (360.0, 720.0, -0.001, -360.0)],
     *[({"t": v}, "plot_out_of_range") for v in (0.0, -T0, 1e10, 1e300)],
     *[({"fl": v}, "plot_out_of_range") for v in (-21.0, 1301.0)],
     *[({"roll_deg": v}, "plot_out_of_range") for v in (95.0, -90.5, 181)],
+    *[({"ground_speed_mps": v}, "plot_out_of_range") for v in (-0.5, -1, 1100.5, 2000)],
+    *[({"track_angle_deg": v}, "plot_out_of_range") for v in (360.0, 360, -0.1, 720.0)],
     *[({"mode3a": v}, "plot_out_of_range") for v in (-1, 0o10000, 2**64 - 1)],
     *[({"mode_s": v}, "plot_out_of_range") for v in ("XYZ123", "4CA1F", "4CA1F3F", "")],
     *[({"track_no": v}, "plot_out_of_range") for v in (-1, 2**32)],
@@ -203,6 +212,8 @@ BAD_PLOTS = [
     ({"mode_s": 0x4CA1F3}, "plot_schema"),
     ({"track_no": 1.5}, "plot_schema"),
     *[({"roll_deg": v}, "plot_schema") for v in ("12.5", True, [1.0])],
+    *[({"ground_speed_mps": v}, "plot_schema") for v in ("231", False, {"kt": 450})],
+    *[({"track_angle_deg": v}, "plot_schema") for v in ("090", True, [90.0])],
     ({"kind": "laser"}, "plot_schema"),
     ({"kind": 1}, "plot_schema"),
 ]

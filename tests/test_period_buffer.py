@@ -64,6 +64,8 @@ def plots(radar_id, seq, t_s, range_m=50_000.0, azimuth_deg=90.0):
         np.full(n, -1),
         np.zeros(n, np.int8),
         np.full(n, np.nan),
+        np.full(n, np.nan),
+        np.full(n, np.nan),
     )
 
 
@@ -140,6 +142,25 @@ def test_flush_closes_what_is_buffered():
     out = eng.flush()
     assert [o.t_s for o in out] == [T0 + 4.0, T0 + 8.0, T0 + 12.0]
     assert sum(o.n_plots for o in out) == 3 and eng.buffer.buffered_plots == 0
+
+
+def test_mode_s_bds50_columns_ride_with_their_plots_into_the_period():
+    """A plot's roll, ground speed and track angle (BDS 5,0; NaN none) stay with it through
+    admission and the buffer, into the closed period's PlotChunk."""
+    eng = Engine(settings())
+    p = plots("a", 1, [T0 + 3.0, T0 + 1.0, T0 + 2.0, T0 + 5.0])
+    p.roll_deg = np.array([3.0, np.nan, -1.0, 7.0])
+    p.ground_speed_mps = np.array([230.0, 120.5, np.nan, 99.0])
+    p.track_angle_deg = np.array([10.0, 359.5, np.nan, 45.0])
+    assert eng.ingest_plots(p) == 4
+    _, _, chunk = eng.buffer.pop_period(force=True)
+    order = np.argsort(chunk.t_s)
+    assert chunk.t_s[order].tolist() == [T0 + 1.0, T0 + 2.0, T0 + 3.0]
+    np.testing.assert_array_equal(chunk.roll_deg[order], [np.nan, -1.0, 3.0])
+    np.testing.assert_array_equal(chunk.ground_speed_mps[order], [120.5, np.nan, 230.0])
+    np.testing.assert_array_equal(chunk.track_angle_deg[order], [359.5, np.nan, 10.0])
+    _, _, chunk = eng.buffer.pop_period(force=True)
+    assert chunk.ground_speed_mps.tolist() == [99.0] and chunk.track_angle_deg.tolist() == [45.0]
 
 
 def test_per_radar_buffer_limit_refuses_and_counts_the_excess():

@@ -9,6 +9,7 @@ gzip + json.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gzip
 import itertools
 import json
@@ -22,6 +23,7 @@ import pytest
 
 from radar_fusion import config, wire
 from radar_fusion.geo.coordinates import SystemPlane
+from radar_fusion.geo.units import M_PER_FT, MPS_PER_KT
 from radar_fusion.recording import read_recording
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.truth import load_truth
@@ -117,6 +119,8 @@ def plots_of(simulation: sim.Simulation, radar_id: str) -> sim.PlotColumns:
             "track_no",
             "kind",
             "roll_deg",
+            "ground_speed_mps",
+            "track_angle_deg",
             "target_index",
             "wild",
         )
@@ -359,6 +363,85 @@ def test_roll_reports_are_the_bank_of_the_true_turn(demo):
     assert abs(float(np.median(e[turning]))) < 0.5 and 0.7 < float(np.std(e[np.abs(e) < 4.0])) < 1.3
 
 
+def geodetic_velocity_of_truth(simulation: sim.Simulation, tgt: np.ndarray, t_s: np.ndarray, half_s: float = 0.5):
+    """Each target's ground speed (m/s) and true track angle (degrees) at t_s, from its
+    geodetic truth alone: the WGS-84 geodesic between its positions ``half_s`` either side
+    (the chord of an arc has the direction of the tangent at its middle), the distance on
+    the ellipsoid scaled to the aircraft's height, (r + h) / r with a 6,371 km Earth (a
+    GNSS ground speed is the antenna's, above the point under it); and whether the truth
+    is active from 1.5 s before to 0.5 s after."""
+    a, b = simulation.truth_at(tgt, t_s - half_s), simulation.truth_at(tgt, t_s + half_s)
+    az_deg, _, dist_m = GEOD.inv(a["lon_deg"], a["lat_deg"], b["lon_deg"], b["lat_deg"])
+    h_m = 0.5 * (a["alt_ft"] + b["alt_ft"]) * M_PER_FT
+    active = simulation.truth_at(tgt, t_s - 1.5)["active"] & simulation.truth_at(tgt, t_s + 0.5)["active"]
+    speed_mps = dist_m / (2.0 * half_s) * (6_371_000.0 + h_m) / 6_371_000.0
+    return speed_mps, np.mod(az_deg, 360.0), active
+
+
+def test_ground_speed_and_track_ride_with_the_roll_and_are_the_truths_velocity(demo):
+    """The Mode S plots with a roll angle (the BDS 5,0 read) and only they carry the
+    register's ground speed and true track angle, in its steps (2 kt, 90/512°, [0, 360)).
+    Against the geodetic truth (geodetic_velocity_of_truth, true north at the aircraft, not
+    the plane's y axis): in straight flight within 0.5 m/s and 0.2° of noise and the steps;
+    in turns, late by the register's age, U(0, 1.3 s): the track lags the truth's by
+    0.65 s of its heading rate on average."""
+    n_dap = n_straight = 0
+    e_gs, e_trk, e_turn, rate_turn = [], [], [], []
+    for radar in demo.scenario.radars:
+        p = plots_of(demo, radar.id)
+        has = np.isfinite(p.ground_speed_mps)
+        assert (np.isfinite(p.track_angle_deg) == has).all() and (np.isfinite(p.roll_deg) == has).all()
+        n_dap += int(has.sum())
+        gs, trk = p.ground_speed_mps[has], p.track_angle_deg[has]
+        assert np.allclose(gs / MPS_PER_KT / 2.0, np.round(gs / MPS_PER_KT / 2.0), rtol=0, atol=1e-9)
+        assert np.array_equal(trk * 512.0 / 90.0, np.round(trk * 512.0 / 90.0))
+        assert ((trk >= 0.0) & (trk < 360.0)).all()
+        tgt, t = p.target_index[has], p.t_s[has]
+        speed, track, active = geodetic_velocity_of_truth(demo, tgt, t)
+        # the heading rate over the register's ages (°/s), from the geodesics 1 s apart
+        _, before, _ = geodetic_velocity_of_truth(demo, tgt, t - 1.0)
+        rate = wrap180(track - before)
+        straight = active & (np.abs(rate) < 0.02)
+        n_straight += int(straight.sum())
+        e_gs.append((gs - speed)[straight])
+        e_trk.append(wrap180(trk - track)[straight])
+        turning = active & (np.abs(rate) > 0.5)
+        e_turn.append(wrap180(trk - track)[turning])
+        rate_turn.append(rate[turning])
+    assert n_dap > 300 and n_straight > 0.7 * n_dap
+    eg, et = np.concatenate(e_gs), np.concatenate(e_trk)
+    # noise 0.5 m/s and 0.2°, plus the steps' uniform rounding (1.03 m/s, 0.18°: 0.30 m/s, 0.05° RMS)
+    assert 0.45 < float(np.sqrt(np.mean(eg**2))) < 0.75 and abs(float(np.mean(eg))) < 0.1
+    assert 0.15 < float(np.sqrt(np.mean(et**2))) < 0.3 and abs(float(np.mean(et))) < 0.05
+    assert np.abs(eg).max() < 3.0 and np.abs(et).max() < 1.0
+    et_turn, r_turn = np.concatenate(e_turn), np.concatenate(rate_turn)
+    assert et_turn.size > 20
+    lag_s = -float(np.sum(et_turn * r_turn) / np.sum(r_turn**2))  # least squares: error = -lag x rate
+    assert 0.4 < lag_s < 0.9, lag_s
+
+
+def test_ground_speed_and_track_without_noise_or_age_are_the_truth_to_the_step(demo):
+    """With no noise and no age the register holds the truth's velocity at the plot's time,
+    rounded: within half a step (1 kt, 45/512°) of the geodetic truth (here from positions
+    0.05 s either side), but for a hair; and every other column of the simulation, the roll angles
+    too, is the same as with them (their draws come after all others)."""
+    rates = dataclasses.replace(
+        demo.scenario.rates, sigma_ground_speed_mps=0.0, sigma_track_angle_deg=0.0, dap_max_age_s=0.0
+    )
+    exact = sim.simulate(dataclasses.replace(demo.scenario, rates=rates))
+    for radar in demo.scenario.radars:
+        p, q = plots_of(demo, radar.id), plots_of(exact, radar.id)
+        for name in ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "kind", "roll_deg", "target_index"):
+            assert getattr(p, name).tobytes() == getattr(q, name).tobytes(), name
+        has = np.isfinite(q.ground_speed_mps)
+        assert (np.isfinite(p.ground_speed_mps) == has).all()
+        speed, track, active = geodetic_velocity_of_truth(exact, q.target_index[has], q.t_s[has], half_s=0.05)
+        assert active.mean() > 0.9
+        e_gs, e_trk = (q.ground_speed_mps[has] - speed)[active], wrap180(q.track_angle_deg[has] - track)[active]
+        assert (np.abs(e_gs) < MPS_PER_KT + 0.01).all()
+        assert (np.abs(e_trk) < 45.0 / 512.0 + 0.005).all()
+
+
 # --------------------------------------------------------------------------- messages
 
 
@@ -417,8 +500,9 @@ def test_vectorised_encoder_matches_wire_encode(demo):
             if cols.track_no[i] >= 0:
                 p["track_no"] = int(cols.track_no[i])
             p["kind"] = sim.KIND_NAMES[int(cols.kind[i])]
-            if np.isfinite(cols.roll_deg[i]):
-                p["roll_deg"] = float(cols.roll_deg[i])
+            for name in ("roll_deg", "ground_speed_mps", "track_angle_deg"):
+                if np.isfinite(getattr(cols, name)[i]):
+                    p[name] = float(getattr(cols, name)[i])
             plots.append(p)
         ref = wire.encode({"v": 1, "radar_id": cols.radar_id, "seq": cols.seq, "plots": plots})
         assert key == f"radar/{cols.radar_id}/plots"

@@ -65,6 +65,15 @@ def test_good_batch_decodes_to_columns():
         (plot(roll_deg=-90.5), "plot_out_of_range"),
         (plot(roll_deg=float("nan")), "plot_non_finite"),
         (plot(roll_deg="12"), "plot_schema"),
+        (plot(ground_speed_mps=-0.5), "plot_out_of_range"),
+        (plot(ground_speed_mps=1100.5), "plot_out_of_range"),
+        (plot(ground_speed_mps=float("nan")), "plot_non_finite"),
+        (plot(ground_speed_mps=float("inf")), "plot_non_finite"),
+        (plot(ground_speed_mps="230"), "plot_schema"),
+        (plot(track_angle_deg=360.0), "plot_out_of_range"),
+        (plot(track_angle_deg=-0.1), "plot_out_of_range"),
+        (plot(track_angle_deg=float("nan")), "plot_non_finite"),
+        (plot(track_angle_deg=True), "plot_schema"),
         ({"t": 1.7e9}, "plot_schema"),
         ("not a plot", "plot_schema"),
     ],
@@ -108,12 +117,42 @@ def test_roll_is_an_optional_last_plot_field_nan_where_absent():
     wing down) comes after the fields of v1 as first published; a sender that does not
     know it omits it (``plot()`` here) and its plots decode with roll NaN."""
     fields = list(wire.Plot.model_fields)
-    assert fields == ["t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg"]
+    assert fields[:9] == ["t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg"]
     assert not wire.Plot.model_fields["roll_deg"].is_required() and wire.Plot(**plot()).roll_deg is None
     d = wire.decode_plot_batch(batch([plot(roll_deg=-25.5), plot(), plot(roll_deg=None), plot(roll_deg=90)]))
     assert isinstance(d, wire.DecodedPlots) and len(d) == 4 and d.rejected == {}
     assert d.roll_deg[0] == -25.5 and math.isnan(d.roll_deg[1]) and math.isnan(d.roll_deg[2]) and d.roll_deg[3] == 90.0
     assert d.fl.tolist() == [350.0] * 4
+
+
+def test_ground_speed_and_track_are_optional_last_plot_fields_nan_where_absent():
+    """ground_speed_mps and track_angle_deg (v1 extensions: Mode S BDS 5,0, ICAO Doc 9871
+    table A-2-80; the track true, clockwise from north, [0, 360)) come after roll_deg, each
+    optional on its own; a sender that does not know them omits them and they decode NaN."""
+    fields = list(wire.Plot.model_fields)
+    assert fields[8:] == ["roll_deg", "ground_speed_mps", "track_angle_deg"]
+    for name in ("ground_speed_mps", "track_angle_deg"):
+        assert not wire.Plot.model_fields[name].is_required() and getattr(wire.Plot(**plot()), name) is None
+    d = wire.decode_plot_batch(
+        batch(
+            [
+                plot(ground_speed_mps=231.5, track_angle_deg=359.82421875),
+                plot(),
+                plot(ground_speed_mps=0, track_angle_deg=None),
+                plot(ground_speed_mps=None, track_angle_deg=0),
+                plot(ground_speed_mps=1100, roll_deg=3.0),
+            ]
+        )
+    )
+    assert isinstance(d, wire.DecodedPlots) and len(d) == 5 and d.rejected == {}
+    gs, trk = d.ground_speed_mps.tolist(), d.track_angle_deg.tolist()
+    assert gs[0] == 231.5 and math.isnan(gs[1]) and gs[2] == 0.0 and math.isnan(gs[3]) and gs[4] == 1100.0
+    assert trk[0] == 359.82421875 and math.isnan(trk[1]) and math.isnan(trk[2]) and trk[3] == 0.0
+    assert math.isnan(trk[4]) and d.roll_deg[4] == 3.0 and d.fl.tolist() == [350.0] * 5
+    # made without them (an older caller): NaN columns of the batch's length
+    older = wire.DecodedPlots(**{**vars(d), "ground_speed_mps": None, "track_angle_deg": None})
+    assert older.ground_speed_mps.shape == older.track_angle_deg.shape == (5,)
+    assert all(map(math.isnan, older.ground_speed_mps.tolist() + older.track_angle_deg.tolist()))
 
 
 def test_unknown_fields_are_ignored_for_forward_compatibility():
@@ -141,6 +180,11 @@ def test_schemas_in_repository_match_the_models():
 def test_a_plot_batch_validates_against_the_published_schema():
     schema = json.loads((ROOT / "schemas" / "PlotBatch.schema.json").read_text())
     jsonschema.validate(msgpack.unpackb(batch([plot(), plot(roll_deg=-12.5), plot(roll_deg=None)])), schema)
+    good = [plot(ground_speed_mps=231.5, track_angle_deg=359.9), plot(ground_speed_mps=None, track_angle_deg=0.0)]
+    jsonschema.validate(msgpack.unpackb(batch(good)), schema)
+    for bad in (plot(track_angle_deg=360.0), plot(ground_speed_mps=-1.0), plot(ground_speed_mps=1101.0)):
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(msgpack.unpackb(batch([bad])), schema)
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(msgpack.unpackb(batch([plot(azimuth_deg=400.0)])), schema)
     with pytest.raises(jsonschema.ValidationError):

@@ -39,7 +39,10 @@ EXAMPLES = settings(
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
     derandomize=True,
 )
-COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg")
+COLUMNS = (
+    "t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind",
+    "roll_deg", "ground_speed_mps", "track_angle_deg",
+)  # fmt: skip
 SEEN: Counter = Counter()  # what the generated plots exercised; printed at the end (-s)
 
 
@@ -173,6 +176,8 @@ VALID = {
     "track_no": st.integers(0, 2**32 - 1),
     "kind": st.sampled_from(wire.PLOT_KINDS),
     "roll_deg": valid_number(-90.0, 90.0),
+    "ground_speed_mps": st.one_of(valid_number(0.0, 1100.0), st.just(-0.0)),
+    "track_angle_deg": valid_number(0.0, 360.0, exclude_max=True),
 }
 # values near the edges and of every other type
 HOSTILE = {
@@ -185,6 +190,8 @@ HOSTILE = {
     "track_no": st.one_of(BIG_INTS, EXOTIC),
     "kind": st.one_of(st.sampled_from(["PSR", "ssr ", "", "mode_s", "psr\x00"]), EXOTIC),
     "roll_deg": st.one_of(edges(-90.0, 90.0), st.integers(-100, 100), EXOTIC),
+    "ground_speed_mps": st.one_of(edges(0.0, 1100.0), st.integers(-10, 1110), EXOTIC),
+    "track_angle_deg": st.one_of(edges(0.0, 360.0), st.floats(-720, 720), st.integers(-5, 365), EXOTIC),
 }
 REQUIRED = ("t", "range_m", "azimuth_deg")
 
@@ -283,6 +290,8 @@ def full_plot(**kw):
         "track_no": 17,
         "kind": "cmb",
         "roll_deg": -12.5,
+        "ground_speed_mps": 231.5,
+        "track_angle_deg": 272.8125,
     }
     p.update(kw)
     return p
@@ -313,13 +322,25 @@ def full_plot(**kw):
         ({"roll_deg": math.nextafter(90.0, math.inf)}, "plot_out_of_range"),
         ({"roll_deg": -91}, "plot_out_of_range"),
         ({"roll_deg": 91, "kind": "laser"}, "plot_out_of_range"),
+        ({"ground_speed_mps": math.nan}, "plot_non_finite"),
+        ({"ground_speed_mps": math.inf, "track_angle_deg": 400.0}, "plot_non_finite"),
+        ({"ground_speed_mps": -0.5}, "plot_out_of_range"),
+        ({"ground_speed_mps": math.nextafter(1100.0, math.inf)}, "plot_out_of_range"),
+        ({"ground_speed_mps": 1101}, "plot_out_of_range"),
+        ({"track_angle_deg": -math.inf}, "plot_non_finite"),
+        ({"track_angle_deg": 360.0}, "plot_out_of_range"),
+        ({"track_angle_deg": 360}, "plot_out_of_range"),
+        ({"track_angle_deg": math.nextafter(0.0, -math.inf)}, "plot_out_of_range"),
+        ({"track_angle_deg": -1, "kind": "laser"}, "plot_out_of_range"),
     ],
 )
 def test_faults_of_well_typed_plots_are_judged_by_the_columns(bad, reason):
     plot_list = [
         full_plot(),
         full_plot(**bad),
-        full_plot(azimuth_deg=0.0, fl=None, mode_s=None, kind=None, roll_deg=None),
+        full_plot(
+            azimuth_deg=0.0, fl=None, mode_s=None, kind=None, roll_deg=None, ground_speed_mps=None, track_angle_deg=None
+        ),
     ]
     c = validate_plot_columns(msgpack.unpackb(pack(plot_list), raw=False))
     assert c.by_model == 0 and c.rejected == {reason: 1}
@@ -340,6 +361,10 @@ def test_faults_of_well_typed_plots_are_judged_by_the_columns(bad, reason):
         {"roll_deg": "level"},
         {"roll_deg": False},
         {"roll_deg": b"\x00"},
+        {"ground_speed_mps": "231"},
+        {"ground_speed_mps": True},
+        {"track_angle_deg": [90.0]},
+        {"track_angle_deg": False},
     ],
 )
 def test_other_types_go_to_the_model_and_get_its_reason(bad):
@@ -360,8 +385,20 @@ def test_accepted_values_are_those_of_the_model():
             mode3a=0,
             track_no=2**32 - 1,
             roll_deg=90,
+            ground_speed_mps=1100,
+            track_angle_deg=math.nextafter(360.0, 0.0),
         ),
-        full_plot(range_m=-0.0, fl=None, mode3a=None, mode_s="00000a", track_no=None, kind="modes", roll_deg=-0.0),
+        full_plot(
+            range_m=-0.0,
+            fl=None,
+            mode3a=None,
+            mode_s="00000a",
+            track_no=None,
+            kind="modes",
+            roll_deg=-0.0,
+            ground_speed_mps=-0.0,
+            track_angle_deg=0,
+        ),
         {"t": 1.5, "range_m": 2_000_000.0, "azimuth_deg": 0, "unknown": [1, {"x": None}]},
     ]
     d = same_result(batch(plot_list))
@@ -371,6 +408,9 @@ def test_accepted_values_are_those_of_the_model():
     assert d.track_no.tolist() == [2**32 - 1, -1, -1] and d.kind.tolist() == [3, 4, 0]
     assert d.roll_deg[:2].tolist() == [90.0, 0.0] and math.copysign(1.0, d.roll_deg[1]) == -1.0
     assert math.isnan(d.roll_deg[2])
+    assert d.ground_speed_mps[:2].tolist() == [1100.0, 0.0] and math.copysign(1.0, d.ground_speed_mps[1]) == -1.0
+    assert d.track_angle_deg[:2].tolist() == [math.nextafter(360.0, 0.0), 0.0]
+    assert math.isnan(d.ground_speed_mps[2]) and math.isnan(d.track_angle_deg[2])
 
 
 def every_reader(payload: bytes) -> dict[str, wire.DecodedPlots | None]:
@@ -451,6 +491,89 @@ def test_a_bad_roll_is_refused_by_every_reader_and_spares_the_batch(roll, reason
         assert d.roll_deg[0] == 1.5 and math.isnan(d.roll_deg[1]) and (d.roll_deg[2:] == -1.5).all()
 
 
+def test_ground_speed_and_track_are_read_where_sent_and_nan_where_not_by_every_reader():
+    """ground_speed_mps and track_angle_deg (v1 extensions, Mode S BDS 5,0): each on its
+    own, a value, nil or no key; the closed bounds in range, an integer is a number."""
+
+    def no(*names):
+        return {k: v for k, v in full_plot().items() if k not in names}
+
+    plot_list = [
+        full_plot(ground_speed_mps=231.5, track_angle_deg=359.82421875),
+        full_plot(ground_speed_mps=None, track_angle_deg=None),
+        no("ground_speed_mps", "track_angle_deg"),
+        no("ground_speed_mps") | {"track_angle_deg": 0},
+        no("track_angle_deg") | {"ground_speed_mps": 1100},
+        full_plot(ground_speed_mps=0, track_angle_deg=-0.0, roll_deg=None, fl=None),
+    ]
+    rng = random.Random(6)
+    for payload in (batch(plot_list), pack_other_ways({"v": 1, "radar_id": "r1", "seq": 7, "plots": plot_list}, rng)):
+        out = every_reader(payload)
+        assert out["bytes"] is not None  # well-formed: the daemon's fast path reads it
+        d = out["model"]
+        assert isinstance(d, wire.DecodedPlots) and d.rejected == {}
+        assert d.ground_speed_mps.dtype == float and d.track_angle_deg.dtype == float
+        gs, trk = d.ground_speed_mps.tolist(), d.track_angle_deg.tolist()
+        assert gs[0] == 231.5 and math.isnan(gs[1]) and math.isnan(gs[2]) and math.isnan(gs[3])
+        assert gs[4:] == [1100.0, 0.0]
+        assert trk[0] == 359.82421875 and math.isnan(trk[1]) and math.isnan(trk[2]) and trk[3] == 0.0
+        assert math.isnan(trk[4]) and trk[5] == 0.0 and math.copysign(1.0, trk[5]) == -1.0
+        # each its own row: not the roll's, nor fl's
+        assert d.roll_deg[:5].tolist() == [-12.5] * 5 and math.isnan(d.roll_deg[5])
+        assert d.fl[:5].tolist() == [350.0] * 5 and math.isnan(d.fl[5])
+
+
+@pytest.mark.parametrize(
+    "name, value, reason",
+    [
+        ("ground_speed_mps", -0.5, "plot_out_of_range"),
+        ("ground_speed_mps", math.nextafter(0.0, -math.inf), "plot_out_of_range"),
+        ("ground_speed_mps", 1100.5, "plot_out_of_range"),
+        ("ground_speed_mps", 1101, "plot_out_of_range"),
+        ("ground_speed_mps", -1, "plot_out_of_range"),
+        ("ground_speed_mps", math.nan, "plot_non_finite"),
+        ("ground_speed_mps", math.inf, "plot_non_finite"),
+        ("ground_speed_mps", "231.5", "plot_schema"),
+        ("ground_speed_mps", True, "plot_schema"),
+        ("ground_speed_mps", [231.5], "plot_schema"),
+        ("track_angle_deg", 360.0, "plot_out_of_range"),
+        ("track_angle_deg", 360, "plot_out_of_range"),
+        ("track_angle_deg", 720.5, "plot_out_of_range"),
+        ("track_angle_deg", -0.1, "plot_out_of_range"),
+        ("track_angle_deg", math.nan, "plot_non_finite"),
+        ("track_angle_deg", -math.inf, "plot_non_finite"),
+        ("track_angle_deg", "north", "plot_schema"),
+        ("track_angle_deg", False, "plot_schema"),
+        ("track_angle_deg", {"deg": 90.0}, "plot_schema"),
+    ],
+)
+def test_a_bad_ground_speed_or_track_is_refused_by_every_reader_and_spares_the_batch(name, value, reason):
+    plot_list = [full_plot(**{name: 1.5}), full_plot(**{name: value}, azimuth_deg=7.5), full_plot(**{name: None})]
+    plot_list += [full_plot(**{name: 2.5}, azimuth_deg=float(i)) for i in range(30)]  # the columns judge
+    out = every_reader(batch(plot_list))
+    assert out["bytes"] is None  # handed back: the general path gives the reason
+    other = "track_angle_deg" if name == "ground_speed_mps" else "ground_speed_mps"
+    for reader, d in out.items():
+        if d is None:
+            continue
+        assert d.rejected == {reason: 1}, reader
+        assert len(d) == len(plot_list) - 1 and 7.5 not in d.azimuth_deg.tolist()
+        col = getattr(d, name)
+        assert col[0] == 1.5 and math.isnan(col[1]) and (col[2:] == 2.5).all()
+        assert (getattr(d, other) == full_plot()[other]).all()
+
+
+def test_a_batch_of_an_older_sender_without_ground_speed_or_track_decodes_with_them_nan():
+    plot_list = [
+        {k: v for k, v in full_plot(azimuth_deg=float(i)).items() if k not in ("ground_speed_mps", "track_angle_deg")}
+        for i in range(30)
+    ]
+    for d in every_reader(batch(plot_list)).values():
+        assert isinstance(d, wire.DecodedPlots) and d.rejected == {} and len(d) == 30
+        assert np.isnan(d.ground_speed_mps).all() and np.isnan(d.track_angle_deg).all()
+        assert (d.roll_deg == -12.5).all()
+
+
 def test_a_batch_of_an_older_sender_without_roll_decodes_with_roll_nan():
     plot_list = [{k: v for k, v in full_plot(azimuth_deg=float(i)).items() if k != "roll_deg"} for i in range(30)]
     for d in every_reader(batch(plot_list)).values():
@@ -491,6 +614,10 @@ def test_realistic_batches_decode_the_same_both_ways(simulated):
         ("track_no", 1.0),
         ("roll_deg", 95.0),
         ("roll_deg", "level"),
+        ("ground_speed_mps", -3.0),
+        ("ground_speed_mps", math.inf),
+        ("track_angle_deg", 360.0),
+        ("track_angle_deg", "north"),
     ]
     n_batches = n_plots = 0
     for _, key, payload in simulated.messages:
@@ -527,6 +654,9 @@ def test_realistic_batches_decode_the_same_both_ways(simulated):
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(t=math.nan)]}),
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(roll_deg=-90.5)]}),
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(roll_deg="3")]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(ground_speed_mps=1100.5)]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(track_angle_deg=360.0)]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(track_angle_deg=True)]}),
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), "x": {"k": 1}}]}),  # a map in an extra
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), "x": "é"}]}),  # non-ASCII text
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), 3: 1}]}),  # a key not a str

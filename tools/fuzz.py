@@ -42,7 +42,10 @@ import msgpack
 from radar_fusion import wire
 
 MAX_PAYLOAD_BYTES = 64 << 10
-PLOT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg")
+PLOT_FIELDS = (
+    "t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind",
+    "roll_deg", "ground_speed_mps", "track_angle_deg",
+)  # fmt: skip
 HOSTILE_VALUES: list[Any] = [
     None,
     True,
@@ -83,6 +86,8 @@ def good_plot(t_s: float, range_m: float = 120_000.0, azimuth_deg: float = 45.0)
         "track_no": 17,
         "kind": "cmb",
         "roll_deg": -12.5,
+        "ground_speed_mps": 231.5,
+        "track_angle_deg": 272.8125,
     }
 
 

@@ -330,6 +330,8 @@ def run_engine(
             track_no=np.full(A, -1, np.int64),
             kind=np.full(A, KIND_CODES["modes"], np.int8),
             roll_deg=np.full(A, np.nan),
+            ground_speed_mps=np.full(A, np.nan),
+            track_angle_deg=np.full(A, np.nan),
         )
         seqs[ri] += 1
         engine.ingest_plots(batch)

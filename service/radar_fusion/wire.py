@@ -70,12 +70,25 @@ class Plot(BaseModel):
     mode_s: str | None = Field(None, description="Mode S address, 6 hex digits", pattern=MODE_S_PATTERN)
     track_no: int | None = Field(None, description="the radar's own track number", ge=0, le=2**32 - 1)
     kind: Literal["psr", "ssr", "cmb", "modes"] | None = Field(None, description="report type")
-    # v1 extension: last, so that the fields before it keep their order
+    # v1 extensions: last, so that the fields before them keep their order
     roll_deg: float | None = Field(
         None,
         description="roll angle from Mode S BDS 5,0, degrees, positive right wing down (ICAO Doc 9871 table A-2-80)",
         ge=-90,
         le=90,
+    )
+    ground_speed_mps: float | None = Field(
+        None,
+        description="ground speed from Mode S BDS 5,0, m/s (ICAO Doc 9871 table A-2-80)",
+        ge=0,
+        le=1100,
+    )
+    track_angle_deg: float | None = Field(
+        None,
+        description="true track angle from Mode S BDS 5,0, degrees clockwise from true north "
+        "(ICAO Doc 9871 table A-2-80)",
+        ge=0,
+        lt=360,
     )
 
 
@@ -324,8 +337,10 @@ KIND_CODES = {None: 0, "psr": 1, "ssr": 2, "cmb": 3, "modes": 4}
 class DecodedPlots:
     """The accepted plots of one PlotBatch as columns (what the engine ingests).
 
-    Missing optional values are encoded as NaN (``fl``, ``roll_deg``) or −1 (``mode3a``,
-    ``mode_s``, ``track_no``); ``mode_s`` is the 24-bit address as an integer.
+    Missing optional values are encoded as NaN (``fl``, ``roll_deg``, ``ground_speed_mps``,
+    ``track_angle_deg``) or −1 (``mode3a``, ``mode_s``, ``track_no``); ``mode_s`` is the
+    24-bit address as an integer. ``ground_speed_mps`` and ``track_angle_deg`` may be left
+    out when made (None: NaN for every plot).
     """
 
     radar_id: str
@@ -339,7 +354,15 @@ class DecodedPlots:
     track_no: np.ndarray
     kind: np.ndarray
     roll_deg: np.ndarray
+    ground_speed_mps: np.ndarray = None  # type: ignore[assignment]
+    track_angle_deg: np.ndarray = None  # type: ignore[assignment]
     rejected: dict[str, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.ground_speed_mps is None:
+            self.ground_speed_mps = np.full(self.t_s.shape[0], np.nan)
+        if self.track_angle_deg is None:
+            self.track_angle_deg = np.full(self.t_s.shape[0], np.nan)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -453,6 +476,8 @@ def decode_plot_batch(
         track_no=c.track_no,
         kind=c.kind,
         roll_deg=c.roll_deg,
+        ground_speed_mps=c.ground_speed_mps,
+        track_angle_deg=c.track_angle_deg,
         rejected=c.rejected,
     )
 
@@ -498,6 +523,12 @@ def _decoded_by_model(radar_id: str, seq: int, plots: list[Any]) -> DecodedPlots
         track_no=np.fromiter((-1 if p.track_no is None else p.track_no for p in good), np.int64, n),
         kind=np.fromiter((KIND_CODES[p.kind] for p in good), np.int8, n),
         roll_deg=np.fromiter((math.nan if p.roll_deg is None else p.roll_deg for p in good), float, n),
+        ground_speed_mps=np.fromiter(
+            (math.nan if p.ground_speed_mps is None else p.ground_speed_mps for p in good), float, n
+        ),
+        track_angle_deg=np.fromiter(
+            (math.nan if p.track_angle_deg is None else p.track_angle_deg for p in good), float, n
+        ),
         rejected=rejected,
     )
 

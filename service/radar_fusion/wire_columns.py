@@ -63,9 +63,9 @@ def _closed_interval(name: str) -> tuple[float, float]:
     return lo, hi
 
 
-# the numeric fields, judged together as the rows of one (7, n) float64 array: the float
+# the numeric fields, judged together as the rows of one (9, n) float64 array: the float
 # fields' rows first, then the integer fields' (wire_bytes.py reads the bounds' rows by this order)
-_FLOAT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "roll_deg")
+_FLOAT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "roll_deg", "ground_speed_mps", "track_angle_deg")
 _INT_FIELDS = ("mode3a", "track_no")
 _NUMERIC = _FLOAT_FIELDS + _INT_FIELDS
 _N_FLOAT = len(_FLOAT_FIELDS)
@@ -127,6 +127,8 @@ class PlotColumns:
     track_no: np.ndarray
     kind: np.ndarray
     roll_deg: np.ndarray
+    ground_speed_mps: np.ndarray
+    track_angle_deg: np.ndarray
     rejected: dict[str, int]
     by_model: int = 0
 
@@ -149,6 +151,8 @@ def _plot_columns(
         track_no=ints["track_no"],
         kind=kind,
         roll_deg=floats["roll_deg"],
+        ground_speed_mps=floats["ground_speed_mps"],
+        track_angle_deg=floats["track_angle_deg"],
         rejected=rejected,
         by_model=by_model,
     )

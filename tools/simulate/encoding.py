@@ -26,7 +26,8 @@ def pack_plots(cols: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """msgpack-encode every plot as a map, vectorised over plots.
 
     Each plot is built from fixed-width byte blocks (key + value), one per field, and a
-    mask drops the blocks of absent fields (``fl`` and ``roll_deg`` NaN, ``mode3a``/``mode_s``/``track_no``
+    mask drops the blocks of absent fields (``fl`` and the Mode S BDS 5,0 ones, ``roll_deg``,
+    ``ground_speed_mps``, ``track_angle_deg``, NaN or not given; ``mode3a``/``mode_s``/``track_no``
     -1). Floats are float64 (0xcb), ``mode3a`` uint16 (0xcd), ``track_no`` uint32
     (0xce), strings fixstr: valid msgpack that decodes to the same values as
     :func:`wire.encode` of the same dict. Returns (bytes as uint8, offsets (n+1,)).
@@ -54,9 +55,10 @@ def pack_plots(cols: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     ms_ok = cols["mode_s"] >= 0
     tn_ok = cols["track_no"] >= 0
     is5 = cols["kind"] == KIND_MODES
-    roll = cols.get("roll_deg")
-    roll_ok = np.isfinite(roll) if roll is not None else np.zeros(n, bool)
-    count = 4 + fl_ok.astype(np.uint8) + m3_ok + ms_ok + tn_ok + roll_ok
+    # the optional float fields after kind (wire v1 extensions), in the model's order
+    extra = {k: cols[k] for k in ("roll_deg", "ground_speed_mps", "track_angle_deg") if cols.get(k) is not None}
+    extra_ok = {k: np.isfinite(v) for k, v in extra.items()}
+    count = 4 + fl_ok.astype(np.uint8) + m3_ok + ms_ok + tn_ok + sum(extra_ok.values(), np.zeros(n, np.uint8))
     blocks.append(((0x80 | count).astype(np.uint8).reshape(n, 1), None))
     block("t", 0xCB, f64(cols["t_s"]), None)
     block("range_m", 0xCB, f64(cols["range_m"]), None)
@@ -71,8 +73,8 @@ def pack_plots(cols: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     block("track_no", 0xCE, tn, tn_ok)
     block("kind", None, _KIND3[np.where(is5, 0, cols["kind"])], ~is5)
     block("kind", None, np.broadcast_to(np.frombuffer(msgpack.packb("modes"), np.uint8), (n, 6)), is5)
-    if roll is not None:
-        block("roll_deg", 0xCB, f64(np.where(roll_ok, roll, 0.0)), roll_ok)
+    for k, v in extra.items():
+        block(k, 0xCB, f64(np.where(extra_ok[k], v, 0.0)), extra_ok[k])
     data = np.concatenate([b for b, _ in blocks], axis=1)
     mask = np.concatenate(
         [np.ones(b.shape, bool) if p is None else np.broadcast_to(p[:, None], b.shape) for b, p in blocks], axis=1

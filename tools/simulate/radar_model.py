@@ -46,8 +46,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from radar_fusion import wire
-from radar_fusion.geo.coordinates import RadarSites, SystemPlane, geodetic_to_polar
-from radar_fusion.geo.units import M_PER_FT
+from radar_fusion.geo.coordinates import RadarSites, SystemPlane, gaussian_earth_radius_m, geodetic_to_polar
+from radar_fusion.geo.units import M_PER_FT, MPS_PER_KT
 from radar_fusion.tracking.coordinated_turn import bank_of_turn_deg
 
 from .scenario import TRANSPONDER_CODES, RadarSpec, Rates, Target
@@ -108,9 +108,10 @@ def _wild_offsets(rng: np.random.Generator, rates: Rates, n_scans: int, n: int):
 
 def _roll_reports(
     traj: Trajectories, tgt: np.ndarray, t_s: np.ndarray, mode_s: np.ndarray, rates: Rates, rng: np.random.Generator
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """The roll angle a Mode S plot reports (BDS 5,0), degrees, positive right wing down;
-    NaN on the plots that carry none (``rates.roll_prob`` of the Mode S ones).
+    NaN on the plots that carry none (``rates.roll_prob`` of the Mode S ones); and the rows
+    that carry one (:func:`_velocity_reports` gives them the register's other fields).
 
     The truth's roll is the bank of a coordinated turn at its turn rate, tan φ = v ψ̇ / g
     (ψ̇ the heading rate, clockwise positive, from the velocity 0.5 s either side), plus
@@ -120,7 +121,7 @@ def _roll_reports(
     out = np.full(t_s.shape[0], np.nan)
     carry = np.flatnonzero(mode_s & (rng.random(t_s.shape[0]) < rates.roll_prob))
     if not carry.size:
-        return out
+        return out, carry
     a = traj.state(tgt[carry], t_s[carry] - 0.5)
     b = traj.state(tgt[carry], t_s[carry] + 0.5)
     heading_rate_rad_s = np.angle(np.exp(1j * (np.arctan2(b.vx_mps, b.vy_mps) - np.arctan2(a.vx_mps, a.vy_mps))))
@@ -128,7 +129,46 @@ def _roll_reports(
     roll = bank_of_turn_deg(speed_mps, heading_rate_rad_s)
     roll += rng.normal(0.0, rates.sigma_roll_deg, carry.size)
     out[carry] = np.clip(np.round(roll * 256.0 / 45.0) * 45.0 / 256.0, -90.0, 90.0)
-    return out
+    return out, carry
+
+
+def _velocity_reports(
+    traj: Trajectories,
+    plane: SystemPlane,
+    tgt: np.ndarray,
+    t_s: np.ndarray,
+    carry: np.ndarray,
+    rates: Rates,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ground speed (m/s) and true track angle (degrees clockwise from true north,
+    [0, 360)) of the BDS 5,0 reads ``carry`` (the plots with a roll angle); NaN elsewhere.
+
+    The aircraft refreshes its register at most ``rates.dap_max_age_s`` before the read: the
+    truth's velocity at t − age, age ~ U(0, dap_max_age_s). The truth moves in the system
+    plane; its true track is the grid bearing atan2(vx, vy) plus the meridian convergence c
+    there (grid = true − c, :meth:`SystemPlane.grid_convergence_deg`), its ground speed the
+    plane speed over the point scale k, times (R + h) / R: the plane position is the point on
+    the ellipsoid under the aircraft, which at height h moves (R + h) / R as fast (R the
+    Gaussian radius; ``coordinates.ground_velocity_to_plane`` turns it back). Then
+    ``rates.sigma_ground_speed_mps`` and ``rates.sigma_track_angle_deg`` of noise, rounded
+    to the register's 2 kt and 90/512°. ``rng``: the roll's generator after its draws, so
+    the roll and every other draw of the seed stay as they were."""
+    speed_out, track_out = np.full(t_s.shape[0], np.nan), np.full(t_s.shape[0], np.nan)
+    if not carry.size:
+        return speed_out, track_out
+    age_s = rng.uniform(0.0, rates.dap_max_age_s, carry.size)
+    st = traj.state(tgt[carry], t_s[carry] - age_s)
+    lat, lon = plane.to_geodetic(st.x_m, st.y_m)
+    _, _, convergence_deg, k = plane.to_plane_and_factors(lat, lon)
+    radius_m = gaussian_earth_radius_m(lat)
+    speed = np.hypot(st.vx_mps, st.vy_mps) / k * (radius_m + st.alt_m) / radius_m
+    track = np.degrees(np.arctan2(st.vx_mps, st.vy_mps)) + convergence_deg
+    speed += rng.normal(0.0, rates.sigma_ground_speed_mps, carry.size)
+    track += rng.normal(0.0, rates.sigma_track_angle_deg, carry.size)
+    speed_out[carry] = np.clip(np.round(speed / MPS_PER_KT / 2.0), 0.0, 1023.0) * 2.0 * MPS_PER_KT
+    track_out[carry] = np.mod(np.round(track * 512.0 / 90.0), 2048.0) * 90.0 / 512.0
+    return speed_out, track_out
 
 
 class TargetTable:
@@ -241,7 +281,11 @@ def radar_plots(
         c["az"] + spec.azimuth_bias_deg + rng.normal(0.0, spec.sigma_azimuth_deg, m) + (d_az[step, tgt] if m else 0.0)
     )
     reported = detected & (range_m > 0.0) & (range_m <= spec.max_range_m)
-    roll_deg = _roll_reports(traj, tgt, c["t"], kind == KIND_MODES, rates, rng.spawn(1)[0])
+    # the Mode S BDS 5,0 reads: roll, then ground speed and track on the same plots, drawn
+    # from one spawned generator (the radar's own draws stay those of the seed)
+    dap_rng = rng.spawn(1)[0]
+    roll_deg, dap = _roll_reports(traj, tgt, c["t"], kind == KIND_MODES, rates, dap_rng)
+    ground_speed_mps, track_angle_deg = _velocity_reports(traj, plane, tgt, c["t"], dap, rates, dap_rng)
 
     # ---- false plots: Poisson per revolution, uniform over the coverage disc
     rev0 = math.floor(beam_angle(t_start) / 360.0)
@@ -268,6 +312,8 @@ def radar_plots(
         "target_index": np.concatenate([tgt[sel], np.full(int(f_keep.sum()), -1)]).astype(np.int64),
         "wild": np.concatenate([wild[sel], np.zeros(int(f_keep.sum()), bool)]),
         "roll_deg": np.concatenate([roll_deg[sel], np.full(int(f_keep.sum()), np.nan)]),
+        "ground_speed_mps": np.concatenate([ground_speed_mps[sel], np.full(int(f_keep.sum()), np.nan)]),
+        "track_angle_deg": np.concatenate([track_angle_deg[sel], np.full(int(f_keep.sum()), np.nan)]),
     }
     az = np.mod(out["azimuth_deg"], 360.0)
     out["azimuth_deg"] = np.where(az >= 360.0, 0.0, az)

@@ -48,6 +48,16 @@ class Rates:
     hour 22-25 % of each aircraft's plots carry one (every fourth scan)"""
     sigma_roll_deg: float = 1.0
     """noise of the reported roll angle, degrees (then rounded to the register's 45/256°)"""
+    sigma_ground_speed_mps: float = 0.5
+    """noise of the ground speed the plots with a roll angle also report (BDS 5,0), m/s (then
+    rounded to the register's 2 kt)"""
+    sigma_track_angle_deg: float = 0.2
+    """noise of the true track angle reported beside it, degrees (then rounded to the
+    register's 90/512°)"""
+    dap_max_age_s: float = 1.3
+    """the longest a BDS 5,0 report's ground speed and track are older than its plot: the
+    aircraft refreshes the register at least every 1.3 s (ICAO Doc 9871), the radar reads it
+    at any time in between, so the age is uniform in [0, dap_max_age_s]"""
     wild_errors: bool = True
     """False: the wild plots are drawn as usual but their gross errors are not applied, so the
     simulation is the clean twin of the one with them (the same noise, detections and false

@@ -36,10 +36,11 @@ class PlotColumns(wire.DecodedPlots):
     (:class:`wire.DecodedPlots`, so a batch goes to :meth:`Engine.ingest_plots` as it is,
     for benchmarks without msgpack), plus what only the simulator knows.
 
-    Missing values: ``fl`` and ``roll_deg`` NaN, ``mode3a``/``mode_s``/``track_no`` -1; ``kind`` uses
-    :data:`wire.KIND_CODES`; ``radar_index`` is the radar's row of ``Scenario.radars``,
-    ``t_pub_s`` the batch's publish time; ``target_index`` is the true target (row of
-    ``Scenario.targets``), -1 for false plots; ``wild`` marks gross errors.
+    Missing values: ``fl``, ``roll_deg``, ``ground_speed_mps`` and ``track_angle_deg`` NaN,
+    ``mode3a``/``mode_s``/``track_no`` -1; ``kind`` uses :data:`wire.KIND_CODES`;
+    ``radar_index`` is the radar's row of ``Scenario.radars``, ``t_pub_s`` the batch's
+    publish time; ``target_index`` is the true target (row of ``Scenario.targets``), -1 for
+    false plots; ``wild`` marks gross errors.
     """
 
     radar_index: int
@@ -105,7 +106,8 @@ class Simulation:
 
 
 _PLOT_COLUMNS = (
-    "t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg", "target_index", "wild",
+    "t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg",
+    "ground_speed_mps", "track_angle_deg", "target_index", "wild",
 )  # fmt: skip
 """The per-plot columns of a :class:`PlotColumns`."""
 
@@ -128,6 +130,8 @@ def _plot_columns(
         track_no=c["track_no"],
         kind=c["kind"],
         roll_deg=c["roll_deg"],
+        ground_speed_mps=c["ground_speed_mps"],
+        track_angle_deg=c["track_angle_deg"],
         target_index=c["target_index"],
         wild=c["wild"],
     )

@@ -2,7 +2,9 @@
 
 :class:`AsterixToWire` maps each SAC/SIC to a configured radar and turns datagrams into
 PlotBatch / RadarStatus messages, ready to publish or record (a plot whose I048/250 holds
-BDS 5,0 carries the aircraft's roll angle, ``roll_deg``, the IMM's turn evidence);
+BDS 5,0 carries the aircraft's roll angle, ``roll_deg``, the IMM's turn evidence, and its
+ground speed and true track angle, ``ground_speed_mps`` / ``track_angle_deg``, where the
+register has both);
 :func:`bds50_reference`
 gathers the aircraft's own BDS 5,0 velocity reports of a recording, to check tracks
 against.
@@ -123,10 +125,15 @@ class AsterixToWire:
                     self.counters.counts["statuses"] += 1
                     continue
                 fl = item.fl if item.fl is not None and -20 <= item.fl <= 1300 else None
-                roll_deg = None  # the aircraft's roll angle, when the radar read its BDS 5,0
+                # the aircraft's roll angle, ground speed and true track, when the radar read
+                # its BDS 5,0 (speed and track together: decode_bds50 gives both or neither)
+                roll_deg = ground_speed_mps = track_angle_deg = None
                 for register, mb in item.bds:
                     if register == 0x50:
                         roll_deg = bds50_roll_deg(mb)
+                        bds50 = decode_bds50(mb)
+                        ground_speed_mps = None if bds50 is None else bds50["ground_speed_mps"]
+                        track_angle_deg = None if bds50 is None else bds50["track_angle_deg"]
                 try:
                     plot = Plot(
                         t=t_s,
@@ -138,6 +145,8 @@ class AsterixToWire:
                         track_no=item.track_no,
                         kind=item.kind,
                         roll_deg=roll_deg,
+                        ground_speed_mps=ground_speed_mps,
+                        track_angle_deg=track_angle_deg,
                     )
                 except ValidationError:
                     self.counters.skip("invalid_plot")

@@ -193,6 +193,8 @@ class Admission:
                 batch.mode3a[idx],
                 batch.track_no[idx],
                 batch.roll_deg[idx],
+                batch.ground_speed_mps[idx],
+                batch.track_angle_deg[idx],
             ),
             i,
             t_min_s,

@@ -32,7 +32,10 @@ from ..wire_columns import MapRows, array_header, map_header
 # Columns a buffered plot carries (all numpy arrays of one length). Plots are buffered
 # as the radar measured them (polar); the engine gates and converts a whole period at
 # once when it closes, which costs one vectorised pass instead of one per batch.
-PLOT_COLUMNS = ("t_s", "range_m", "azimuth_deg", "fl", "radar", "mode_s", "mode3a", "track_no", "roll_deg")
+PLOT_COLUMNS = (
+    "t_s", "range_m", "azimuth_deg", "fl", "radar", "mode_s", "mode3a", "track_no",
+    "roll_deg", "ground_speed_mps", "track_angle_deg",
+)  # fmt: skip
 
 
 @dataclass
@@ -50,10 +53,18 @@ class PlotChunk:
     # Mode S BDS 5,0 roll angle, degrees, positive right wing down; float, NaN none
     # (None when made: none for every plot)
     roll_deg: np.ndarray = None  # type: ignore[assignment]
+    # Mode S BDS 5,0 ground speed, m/s, and true track angle, degrees clockwise from true
+    # north; float, NaN none (None when made: none for every plot)
+    ground_speed_mps: np.ndarray = None  # type: ignore[assignment]
+    track_angle_deg: np.ndarray = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         if self.roll_deg is None:
             self.roll_deg = np.full(self.t_s.shape[0], np.nan)
+        if self.ground_speed_mps is None:
+            self.ground_speed_mps = np.full(self.t_s.shape[0], np.nan)
+        if self.track_angle_deg is None:
+            self.track_angle_deg = np.full(self.t_s.shape[0], np.nan)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -69,7 +80,7 @@ class PlotChunk:
     @staticmethod
     def empty() -> PlotChunk:
         f, i = np.empty(0), np.empty(0, np.int64)
-        return PlotChunk(f, f, f, f, i, i, i, i, f)
+        return PlotChunk(f, f, f, f, i, i, i, i, f, f, f)
 
     def select(self, mask: np.ndarray) -> PlotChunk:
         return PlotChunk(*(getattr(self, name)[mask] for name in PLOT_COLUMNS))
