@@ -10,10 +10,11 @@ is measured against the analytic flight path."""
 from __future__ import annotations
 
 import numpy as np
+import pyproj
 
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
-from radar_fusion.geo.coordinates import geodetic_to_polar
+from radar_fusion.geo.coordinates import gaussian_earth_radius_m, geodetic_to_polar
 from radar_fusion.geo.units import M_PER_FL
 from radar_fusion.tracking.imm import IMMParams
 from radar_fusion.wire import DecodedPlots, TrackBatch
@@ -60,7 +61,7 @@ def straight_xy_m(t_s: np.ndarray) -> np.ndarray:
     return START_XY_M + np.stack([SPEED_MPS * tau, 0.6 * SPEED_MPS * tau], axis=1) * 0.8
 
 
-def plot_of(engine, radar, seq, t_s, truth, rng, noise, roll_deg=np.nan):
+def plot_of(engine, radar, seq, t_s, truth, rng, noise, roll_deg=np.nan, velocity=(np.nan, np.nan)):
     xy = truth(np.array([t_s]))
     lat, lon = engine.plane.to_geodetic(xy[:, 0], xy[:, 1])
     r_m, az_deg, _ = geodetic_to_polar(engine.sites, radar, lat, lon, np.array([FL * M_PER_FL]))
@@ -78,6 +79,8 @@ def plot_of(engine, radar, seq, t_s, truth, rng, noise, roll_deg=np.nan):
         np.array([-1]),
         np.zeros(1, np.int8),
         np.array([roll_deg]),
+        np.array([velocity[0]]),
+        np.array([velocity[1]]),
     )
 
 
@@ -107,19 +110,44 @@ def banked_roll_deg(t_s: float) -> float:
     return -BANK_DEG if TURN_START_S <= t_s - T0_S < BANK_END_S else 0.0
 
 
-def run(filter_name, truth, periods, seed=7, noise=1.0, roll_every=0, imm=None, roll_of=None):
+#: how long before the plot the aircraft had the velocity its register reports: half its
+#: refresh interval of at most 1.3 s (ICAO Doc 9871), the engine's velocity_age_s
+REPORT_AGE_S = 0.65
+
+
+def velocity_report(engine, truth, t_s: float) -> tuple[float, float]:
+    """The aircraft's BDS 5,0 ground speed (m/s) and true track angle (degrees) on ``truth``
+    at t_s, independently of the engine's conversion: the geodesic between the sub-points a
+    tenth of a second either side (pyproj.Geod), at FL's height ((R + h) / R, R the
+    Gaussian radius there)."""
+    xy = truth(np.array([t_s - 0.1, t_s + 0.1]))
+    lat, lon = engine.plane.to_geodetic(xy[:, 0], xy[:, 1])
+    az_deg, _, dist_m = pyproj.Geod(ellps="WGS84").inv(lon[0], lat[0], lon[1], lat[1])
+    radius_m = gaussian_earth_radius_m(lat.mean())
+    return float(dist_m / 0.2 * (radius_m + FL * M_PER_FL) / radius_m), float(az_deg % 360.0)
+
+
+def run(
+    filter_name, truth, periods, seed=7, noise=1.0, roll_every=0, imm=None, roll_of=None, velocity_every=0,
+    velocity_of=None,
+):  # fmt: skip
     """Radar a at 1.0 s and radar b at 3.0 s into each period; the same noise for either filter
     (``noise`` scales it, 0: exact plots). With ``roll_every`` k, radar a's plot carries the
     true roll angle of banked_xy_m (or ``roll_of(t_s)``) every k-th period, as a Mode S
-    radar reading BDS 5,0 does. Returns the engine and its period outputs."""
+    radar reading BDS 5,0 does; with ``velocity_every`` k, the true ground speed and track
+    angle REPORT_AGE_S before the plot (velocity_report, or ``velocity_of(engine, t_s)``)
+    every k-th period. Returns the
+    engine and its period outputs."""
     roll_of = banked_roll_deg if roll_of is None else roll_of
+    velocity_of = (lambda e, t_s: velocity_report(e, truth, t_s - REPORT_AGE_S)) if velocity_of is None else velocity_of
     eng = Engine(settings(filter_name, imm))
     rng = np.random.default_rng(seed)
     outputs = []
     for k in range(periods + 1):  # the last period's plots only move the watermarks past the one before
         t = T0_S + PERIOD_S * k
         roll = roll_of(t + 1.0) if roll_every and k % roll_every == 0 else np.nan
-        eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0, truth, rng, noise, roll))
+        velocity = velocity_of(eng, t + 1.0) if velocity_every and k % velocity_every == 0 else (np.nan, np.nan)
+        eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0, truth, rng, noise, roll, velocity))
         eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0, truth, rng, noise))
         outputs += eng.poll()
     return eng, outputs
@@ -260,3 +288,68 @@ def test_a_wrong_roll_is_set_aside():
             assert eng.counters["tracks_roll_set_aside"] == 1 and eng.tracks.roll_distrust.all()
             assert eng.counters["updates_roll"] <= 12 < eng.counters["plots_roll"]
         assert unchecked > 2.0 * none and rms < 1.8 * none
+
+
+def velocity_errors(outputs, truth) -> np.ndarray:
+    """Per output period with one track: time after T0 (s) and the track's velocity error
+    (m/s) against the truth's (central difference over ±0.1 s)."""
+    rows = []
+    for out in outputs:
+        batch = TrackBatch.model_validate(out.track_batch)
+        if batch.tracks and batch.tracks[0].vx_mps is not None:
+            tr = batch.tracks[0]
+            xy = truth(np.array([out.t_s - 0.1, out.t_s + 0.1]))
+            v = (xy[1] - xy[0]) / 0.2
+            rows.append((out.t_s - T0_S, float(np.hypot(tr.vx_mps - v[0], tr.vy_mps - v[1]))))
+    return np.array(rows)
+
+
+def test_velocity_reports_bring_the_track_onto_the_aircrafts_velocity_and_course():
+    """The airliner's 90° turn at a 25° bank with the roll on radar a's plot every other
+    period, and now also the aircraft's own ground speed and true track angle (BDS 5,0) on
+    the same plots: the engine counts them and updates with each; the velocity error and the
+    turn's position error fall well below the roll's alone (four seeds); ``velocity_dap =
+    false`` is as if none were sent; a report 90° off the aircraft's course (another
+    aircraft's, a misread register) is refused and counted, and changes nothing."""
+    periods = int((BANK_END_S + 40.0) / PERIOD_S)
+    cases = {
+        "velocity": dict(velocity_every=2),
+        "ignored": dict(velocity_every=2, imm={"velocity_dap": False}),
+        "roll only": {},
+        "wrong": dict(
+            velocity_every=2,
+            velocity_of=lambda e, t_s: (SPEED_MPS, (velocity_report(e, banked_xy_m, t_s)[1] + 90.0) % 360.0),
+        ),
+    }
+    turn_m, vel_mps, engines = {}, {}, {}
+    for name, kw in cases.items():
+        turn, vel = [], []
+        for seed in range(4):
+            eng, outputs = run("imm", banked_xy_m, periods, seed, roll_every=2, **kw)
+            s = track_series(outputs, banked_xy_m)
+            assert len(np.unique(s[:, 2])) == 1
+            in_turn = (s[:, 0] > TURN_START_S) & (s[:, 0] <= BANK_END_S + 12.0)
+            turn.append(float(np.sqrt(np.mean(s[in_turn, 1] ** 2))))
+            ve = velocity_errors(outputs, banked_xy_m)
+            # straight flight: the turn's entry and exit fall between two reports (8 s apart)
+            # and cost the same ~10-15 m/s with or without them
+            straight = (ve[:, 0] > 20.0) & ((ve[:, 0] < TURN_START_S - 4.0) | (ve[:, 0] > BANK_END_S + 8.0))
+            vel.append(float(np.sqrt(np.mean(ve[straight, 1] ** 2))))
+            engines[name] = eng
+        turn_m[name], vel_mps[name] = np.array(turn), np.array(vel)
+    print(f"\nturn RMS m: { ({k: v.round(1).tolist() for k, v in turn_m.items()}) }")
+    print(f"velocity RMS m/s: { ({k: v.round(2).tolist() for k, v in vel_mps.items()}) }")
+    reports = periods // 2 + 1
+    c = engines["velocity"].counters
+    assert c["plots_velocity"] == reports and reports - 2 <= c["updates_velocity"] <= reports
+    assert c["velocity_reports_refused"] == 0
+    assert engines["ignored"].counters["plots_velocity"] == 0 and engines["roll only"].counters["plots_velocity"] == 0
+    np.testing.assert_array_equal(turn_m["ignored"], turn_m["roll only"])
+    np.testing.assert_array_equal(vel_mps["ignored"], vel_mps["roll only"])
+    assert (vel_mps["velocity"] < 0.5 * vel_mps["roll only"]).all(), vel_mps
+    assert (turn_m["velocity"] < turn_m["roll only"]).all() and turn_m["velocity"].mean() < 0.8 * turn_m[
+        "roll only"
+    ].mean()
+    w = engines["wrong"].counters
+    assert w["updates_velocity"] == 0 and w["velocity_reports_refused"] >= reports - 2
+    np.testing.assert_array_equal(turn_m["wrong"], turn_m["roll only"])

@@ -555,6 +555,95 @@ def test_roll_evidence_bayes_factor_and_weight() -> None:
     assert np.all(want[np.isnan(roll)] == 0.0)
 
 
+def _velocity_case(imm: IMMFilter, n: int, seed: int):
+    """A random updated state and velocity reports near each track's velocity, some far off."""
+    rng = np.random.default_rng(seed)
+    st = _random_state(imm, n, rng)
+    v = st.x_models[:, 0][:, [1, 4]] + rng.normal(0.0, 8.0, (n, 2))
+    v[: max(n // 8, 1)] += 400.0  # far beyond every model: refused
+    a = rng.normal(size=(n, 2, 2)) * 1.5
+    R = a @ np.swapaxes(a, 1, 2) + 0.5 * np.eye(2)
+    age = rng.uniform(0.0, 2.5, n)
+    return st, v, R, age
+
+
+def test_velocity_update_matches_hand_computation() -> None:
+    """IMMFilter.velocity_update_rows against one Kalman update per track and model written
+    out with an explicit H (v(t − a) = v − a·acc), the Joseph form and scipy's normal
+    density for eq. 5-6, σ_a² acc accᵀ added to R; a report beyond the χ² gate under every
+    model leaves the track as it was; rows not named are not touched."""
+    params = IMMParams(velocity_age_sigma_s=0.4)
+    imm = IMMFilter(params)
+    n = 24
+    st, v, R, age = _velocity_case(imm, n, 3)
+    before = st.select(slice(None))
+    rows = np.arange(0, n, 2)  # every other track
+    x, P, used = imm.velocity_update_rows(st, rows, v[rows], R[rows], age[rows])
+    assert 0 < used.sum() < rows.size and not used[0]
+    np.testing.assert_array_equal(st.x_models[1::2], before.x_models[1::2])
+    for i, r in enumerate(rows):
+        if not used[i]:
+            np.testing.assert_array_equal(st.x_models[r], before.x_models[r])
+            np.testing.assert_array_equal(st.mu[r], before.mu[r])
+            continue
+        H = np.zeros((2, 6))
+        H[0, 1] = H[1, 4] = 1.0
+        H[0, 2] = H[1, 5] = -age[r]
+        post = np.empty(imm.n_models)
+        for j in range(imm.n_models):
+            xj, Pj = before.x_models[r, j], before.P_models[r, j]
+            acc = xj[[2, 5]]
+            Rt = R[r] + 0.4**2 * np.outer(acc, acc)
+            S = H @ Pj @ H.T + Rt
+            K = Pj @ H.T @ np.linalg.inv(S)
+            ImKH = np.eye(6) - K @ H
+            np.testing.assert_allclose(st.x_models[r, j], xj + K @ (v[r] - H @ xj), rtol=1e-9, atol=1e-8)
+            np.testing.assert_allclose(st.P_models[r, j], ImKH @ Pj @ ImKH.T + K @ Rt @ K.T, rtol=1e-7, atol=1e-8)
+            post[j] = before.mu[r, j] * multivariate_normal.pdf(v[r], H @ xj, S)
+        np.testing.assert_allclose(st.mu[r], post / post.sum(), rtol=1e-9, atol=1e-12)
+        xc = st.mu[r] @ st.x_models[r]  # eq. 7-8
+        e = st.x_models[r] - xc
+        Pc = np.einsum("j,jkl->kl", st.mu[r], st.P_models[r] + e[:, :, None] * e[:, None, :])
+        np.testing.assert_allclose(x[i], xc, rtol=1e-9, atol=1e-8)
+        np.testing.assert_allclose(P[i], Pc, rtol=1e-9, atol=1e-8)
+
+
+def test_position_then_velocity_equals_one_joint_update() -> None:
+    """The velocity after the position is sequential updating: with a report of age 0 (and
+    no age term) it equals one update of each model with the 4-D measurement [position,
+    velocity] of block-diagonal covariance, states and mode probabilities alike (eq. 5-6,
+    scipy's density of the joint innovation)."""
+    params = IMMParams(velocity_age_sigma_s=0.0)
+    imm = IMMFilter(params)
+    rng = np.random.default_rng(8)
+    n = 10
+    st = _random_state(imm, n, rng)
+    dt = rng.uniform(2.0, 6.0, n)
+    z = st.x_models[:, 0][:, [0, 3]] + rng.normal(0.0, 60.0, (n, 2))
+    Rz = np.broadcast_to(60.0**2 * np.eye(2), (n, 2, 2))
+    v = st.x_models[:, 0][:, [1, 4]] + rng.normal(0.0, 5.0, (n, 2))
+    Rv = np.broadcast_to(np.diag([1.0, 4.0]), (n, 2, 2))
+    pred = imm.predict(st, dt)
+    seq = imm.update(pred, z, Rz)
+    _, _, used = imm.velocity_update_rows(seq, np.arange(n), v, Rv, np.zeros(n))
+    assert used.all()
+    H = np.zeros((4, 6))
+    H[0, 0] = H[1, 3] = H[2, 1] = H[3, 4] = 1.0
+    Rj = np.zeros((4, 4))
+    Rj[:2, :2], Rj[2:, 2:] = Rz[0], Rv[0]
+    for r in range(n):
+        post = np.empty(imm.n_models)
+        for j in range(imm.n_models):
+            xj, Pj = pred.x_models[r, j], pred.P_models[r, j]
+            zj = np.concatenate([z[r], v[r]])
+            S = H @ Pj @ H.T + Rj
+            K = Pj @ H.T @ np.linalg.inv(S)
+            np.testing.assert_allclose(seq.x_models[r, j], xj + K @ (zj - H @ xj), rtol=1e-8, atol=1e-6)
+            np.testing.assert_allclose(seq.P_models[r, j], Pj - K @ S @ K.T, rtol=1e-6, atol=1e-6)
+            post[j] = pred.mu[r, j] * multivariate_normal.pdf(zj, H @ xj, S)
+        np.testing.assert_allclose(seq.mu[r], post / post.sum(), rtol=1e-7, atol=1e-12)
+
+
 def test_roll_of_a_fixed_rate_turn_is_its_bank_at_the_tracks_speed() -> None:
     """A fixed-rate model's roll is that of a coordinated turn at the track's speed:
     tan φ = v ω / g (3°/s at 150 m/s: 38.7°), so a report of that roll favours it."""

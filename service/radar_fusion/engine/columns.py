@@ -469,6 +469,10 @@ class ConvertedPlots:
     altitude_m: np.ndarray
     # Mode S BDS 5,0 roll angle, degrees (PlotChunk.roll_deg), NaN none
     roll_deg: np.ndarray
+    # Mode S BDS 5,0 ground speed (m/s) and true track angle (degrees), NaN none
+    # (PlotChunk.ground_speed_mps, .track_angle_deg)
+    ground_speed_mps: np.ndarray | None = None
+    track_angle_deg: np.ndarray | None = None
     # (n, 2, 2) the unknown height's part of a plot converted without any height
     # (geo.unknown_height.unknown_height_plots), zero for the others; not in cov_m2
     height_cov_m2: np.ndarray | None = None
@@ -503,6 +507,12 @@ class ClusterMeasurements:
     # mean Mode S roll angle (BDS 5,0) of the cluster's plots that carry one, degrees, NaN
     # none: evidence of the IMM's mode (imm.IMMFilter.roll_log_likelihoods)
     roll_deg: np.ndarray | None = None
+    # (K, 2) the aircraft's own velocity in the system plane, m/s, the mean of the cluster's
+    # Mode S BDS 5,0 reports (ground speed and true track angle), NaN none; (K,) how long
+    # before the cluster's time it held, s (the reports' age and the plots' times):
+    # imm.IMMFilter.velocity_update_rows
+    dap_v_mps: np.ndarray | None = None
+    dap_age_s: np.ndarray | None = None
     # (K, 2, 2) for a cluster of plots without any height, the unknown height's part of
     # its error (not in R_m2; the track's covariance floor), zero for the others
     height_cov_m2: np.ndarray | None = None

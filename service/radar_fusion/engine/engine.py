@@ -47,6 +47,7 @@ from ..geo.coordinates import (
     RadarSites,
     SystemPlane,
     flight_level_to_altitude_m,
+    ground_velocity_to_plane,
     polar_to_plane,
 )
 from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
@@ -357,6 +358,8 @@ class Engine:
             azimuth_deg,
             altitude_m,
             raw.roll_deg,
+            raw.ground_speed_mps,
+            raw.track_angle_deg,
             height_cov_m2,
         )
 
@@ -618,6 +621,7 @@ class Engine:
                 pvv_pad[res.cluster_track[joint]],
                 joint.size,
             )
+        dap_v_mps, dap_age_s = self._dap_velocity(plots, used, lab, t_c, n_clusters)
         roll_used = plots.roll_deg[used]
         self.counters["plots_roll"] += int(np.isfinite(roll_used).sum())
         mode_s = np.full(n_clusters, -1, np.int64)
@@ -641,9 +645,49 @@ class Engine:
             revisit_s=revisit_s,
             sources=sources,
             roll_deg=_mean_known(lab, roll_used, n_clusters),
+            dap_v_mps=dap_v_mps,
+            dap_age_s=dap_age_s,
             height_cov_m2=cluster_h_cov,
             far=far,
         )
+
+    def _dap_velocity(
+        self, plots: ConvertedPlots, used: np.ndarray, lab: np.ndarray, t_c: np.ndarray, n_clusters: int
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Per cluster, the aircraft's own velocity from the Mode S BDS 5,0 reports among its
+        plots (ground speed and true track angle), in the system plane, and how long before
+        the cluster's time it held (the report's mean age, ``velocity_age_s``, plus the
+        cluster's time less the plot's); NaN for a cluster without one. The reports of one
+        cluster (several radars reading one register within a scan) are averaged as vectors
+        at the cluster's position (geo.coordinates.ground_velocity_to_plane); (None, None)
+        without the IMM or with ``velocity_dap`` off."""
+        if self.imm is None or not self.imm.params.velocity_dap or plots.ground_speed_mps is None:
+            return None, None
+        assert plots.track_angle_deg is not None
+        idx = np.flatnonzero(used)
+        have = np.isfinite(plots.ground_speed_mps[idx]) & np.isfinite(plots.track_angle_deg[idx])
+        if not have.any():
+            return None, None
+        self.counters["plots_velocity"] += int(have.sum())
+        i, lb = idx[have], lab[have]
+        track_rad = np.radians(plots.track_angle_deg[i])
+        count = np.bincount(lb, minlength=n_clusters).astype(float)
+        east = np.bincount(lb, plots.ground_speed_mps[i] * np.sin(track_rad), n_clusters)
+        north = np.bincount(lb, plots.ground_speed_mps[i] * np.cos(track_rad), n_clusters)
+        lag = np.bincount(lb, t_c[lb] - plots.t_s[i], n_clusters)
+        alt = _mean_known(lb, plots.altitude_m[i], n_clusters)
+        k = np.flatnonzero(count > 0)
+        speed = np.hypot(east[k], north[k]) / count[k]
+        track_deg = np.degrees(np.arctan2(east[k], north[k]))
+        xy = (
+            np.bincount(lb, plots.x_m[i], n_clusters)[k] / count[k],
+            np.bincount(lb, plots.y_m[i], n_clusters)[k] / count[k],
+        )
+        v = np.full((n_clusters, 2), np.nan)
+        v[k, 0], v[k, 1] = ground_velocity_to_plane(self.plane, *xy, speed, track_deg, alt[k])
+        age = np.full(n_clusters, np.nan)
+        age[k] = self.imm.params.velocity_age_s + lag[k] / count[k]
+        return v, age
 
     def _beyond_any_manoeuvre(
         self, res: ClusterResult, used: np.ndarray, row_of_plot: np.ndarray, pred: Prediction, t_plot_s: np.ndarray
@@ -994,6 +1038,8 @@ class Engine:
             tr.initiated[rows[two]] = True
             self._imm_initiate(rows[two], x, P)
         tr.x[rows], tr.P[rows] = x_c, P_c
+        if cl.dap_v_mps is not None:
+            self._update_velocity(cl, matched, rows)
         alt_x, alt_P = self.alt_filter.predict(tr.alt_x[rows], tr.alt_P[rows], dt_s)
         tr.alt_x[rows], tr.alt_P[rows] = self.alt_filter.update(alt_x, alt_P, cl.fl[matched])
         self._floor_no_height(rows, cl.height_cov_m2, matched)
@@ -1006,6 +1052,31 @@ class Engine:
         tr.seen_by[rows] |= cl.sources[matched]
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
+
+    def _update_velocity(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> None:
+        """The tracks ``rows`` (just updated with their clusters ``matched``) whose cluster
+        carries the aircraft's own velocity (Mode S BDS 5,0, ``_dap_velocity``): the IMM's
+        second update with it (imm.IMMFilter.velocity_update_rows). Its covariance is the
+        ground speed's σ along the track and the track angle's across it (speed × σ, never
+        below the speed's σ: slow, the direction is as uncertain as the speed)."""
+        assert self.imm is not None and cl.dap_v_mps is not None and cl.dap_age_s is not None
+        has = np.isfinite(cl.dap_v_mps[matched, 0])
+        if not has.any():
+            return
+        p, tr = self.imm.params, self.tracks
+        r, k = rows[has], matched[has]
+        v = cl.dap_v_mps[k]
+        speed = np.hypot(v[:, 0], v[:, 1])
+        along = v / np.maximum(speed, 1e-9)[:, None]
+        across = np.stack([along[:, 1], -along[:, 0]], axis=1)
+        cross_var = np.maximum(speed * math.radians(p.velocity_track_sigma_deg), p.velocity_speed_sigma_mps) ** 2
+        R = p.velocity_speed_sigma_mps**2 * along[:, :, None] * along[:, None, :]
+        R += cross_var[:, None, None] * across[:, :, None] * across[:, None, :]
+        state = IMMState(tr.x_models, tr.P_models, tr.mu)
+        x, P, used = self.imm.velocity_update_rows(state, r, v, R, cl.dap_age_s[k])
+        tr.x[r], tr.P[r] = x, P
+        self.counters["updates_velocity"] += int(used.sum())
+        self.counters["velocity_reports_refused"] += int((~used).sum())
 
     def _check_roll(self, rows: np.ndarray, log_bf: np.ndarray) -> None:
         """The roll reports' check, per track: s ← memory · s + log BF, the Bayes factor by

@@ -681,6 +681,28 @@ def conformal_sphere_destination(
     return chi, lam
 
 
+def ground_velocity_to_plane(
+    plane: SystemPlane, x_m: Any, y_m: Any, speed_mps: Any, track_deg: Any, altitude_m: Any
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """An aircraft's own ground speed and true track angle (Mode S BDS 5,0: GNSS or
+    inertial, at the aircraft) at the plane position (x_m, y_m) and altitude -> its
+    velocity (vx, vy) in the system plane, m/s.
+
+    The track turns from true to grid bearing by the meridian convergence c there,
+    beta = track - c (:meth:`SystemPlane.grid_convergence_deg`); the speed scales by the
+    plane's point scale k and by R / (R + h): plot positions are on the ellipsoid under
+    the aircraft (the ground range of the spherical model above), which moves R / (R + h)
+    as fast as the aircraft at height h (0.17 % slower at FL350), R the Gaussian radius.
+    NaN altitude: taken as 0."""
+    lat, lon = plane.to_geodetic(x_m, y_m)
+    _, _, convergence_deg, k = plane.to_plane_and_factors(lat, lon)
+    radius_m = gaussian_earth_radius_m(lat)
+    h = np.nan_to_num(np.asarray(altitude_m, dtype=float), nan=0.0)
+    speed = np.asarray(speed_mps, dtype=float) * k * radius_m / (radius_m + h)
+    beta = np.radians(np.asarray(track_deg, dtype=float) - convergence_deg)
+    return speed * np.sin(beta), speed * np.cos(beta)
+
+
 def flight_level_to_altitude_m(fl: Any) -> np.ndarray:
     """Flight level (100 ft units) -> altitude in metres: alt_m = fl * 30.48.
 

@@ -60,6 +60,7 @@ __all__ = [
     "predict_kernel",
     "predict_update_kernel",
     "update_kernel",
+    "velocity_update_kernel",
 ]
 
 #: model families (``family`` argument): a Singer model, a coordinated turn of known rate,
@@ -844,3 +845,75 @@ def combine_kernel(xm: np.ndarray, Pm: np.ndarray, w: np.ndarray, out_x: np.ndar
         _gather_models(xm, Pm, w, rows, k0, nl, X, P, Wl)
         _combine(X, P, Wl, xc, Pc)
         _scatter_combined(xc, Pc, k0, nl, out_x, out_P)
+
+
+@_compiled
+def velocity_update_kernel(
+    xm: np.ndarray, Pm: np.ndarray, mu: np.ndarray, rows: np.ndarray, z: np.ndarray, R: np.ndarray,
+    age: np.ndarray, age_var: float, gate_chi2: float, out_x: np.ndarray, out_P: np.ndarray, used: np.ndarray,
+) -> None:  # fmt: skip
+    """imm.IMMFilter.velocity_update_rows, one track at a time, in place on the rows ``rows``
+    of xm (N, M, 6), Pm (N, M, 6, 6), mu (N, M): each model's Kalman update with the
+    velocity z (K, 2) of covariance R (K, 2, 2) measured age (K,) before the state's time
+    (H = [[0, 1, −a, 0, 0, 0], [0, 0, 0, 0, 1, −a]], S_j = H P_j Hᵀ + R + age_var acc_j
+    acc_jᵀ), eq. 5-6 with μ as the prior, unless the χ² d² exceeds ``gate_chi2`` under every
+    model (``used`` False: the row is left as it was); then eq. 7-8 into out_x (K, 6),
+    out_P (K, 6, 6)."""
+    k_n = rows.shape[0]
+    m = mu.shape[1]
+    PHt = np.empty((m, _D, 2))
+    Si = np.empty((m, 3))  # S⁻¹ as (00, 01, 11)
+    nu = np.empty((m, 2))
+    logw = np.empty(m)
+    g0, g1 = np.empty(_D), np.empty(_D)
+    for k in range(k_n):
+        r = rows[k]
+        a = age[k]
+        best = np.inf
+        for j in range(m):
+            for s in range(_D):
+                PHt[j, s, 0] = Pm[r, j, s, 1] - a * Pm[r, j, s, 2]
+                PHt[j, s, 1] = Pm[r, j, s, 4] - a * Pm[r, j, s, 5]
+            ax, ay = xm[r, j, 2], xm[r, j, 5]
+            s00 = PHt[j, 1, 0] - a * PHt[j, 2, 0] + R[k, 0, 0] + age_var * ax * ax
+            s01 = PHt[j, 1, 1] - a * PHt[j, 2, 1] + R[k, 0, 1] + age_var * ax * ay
+            s11 = PHt[j, 4, 1] - a * PHt[j, 5, 1] + R[k, 1, 1] + age_var * ay * ay
+            det = s00 * s11 - s01 * s01
+            Si[j, 0], Si[j, 1], Si[j, 2] = s11 / det, -s01 / det, s00 / det
+            nu[j, 0] = z[k, 0] - (xm[r, j, 1] - a * ax)
+            nu[j, 1] = z[k, 1] - (xm[r, j, 4] - a * ay)
+            d2 = nu[j, 0] * (Si[j, 0] * nu[j, 0] + Si[j, 1] * nu[j, 1]) + nu[j, 1] * (
+                Si[j, 1] * nu[j, 0] + Si[j, 2] * nu[j, 1]
+            )
+            logw[j] = math.log(max(mu[r, j], 1e-300)) - 0.5 * d2 - 0.5 * math.log(det)  # eq. 5-6
+            best = min(best, d2)
+        used[k] = best <= gate_chi2
+        if used[k]:
+            top = logw.max()
+            total = 0.0
+            for j in range(m):
+                logw[j] = math.exp(logw[j] - top)
+                total += logw[j]
+            for j in range(m):
+                mu[r, j] = logw[j] / total
+                # gain G = P Hᵀ S⁻¹ (6, 2); x += G ν; P −= G (P Hᵀ)ᵀ
+                for s in range(_D):
+                    g0[s] = PHt[j, s, 0] * Si[j, 0] + PHt[j, s, 1] * Si[j, 1]
+                    g1[s] = PHt[j, s, 0] * Si[j, 1] + PHt[j, s, 1] * Si[j, 2]
+                    xm[r, j, s] += g0[s] * nu[j, 0] + g1[s] * nu[j, 1]
+                for s in range(_D):
+                    for t in range(s, _D):
+                        v = Pm[r, j, s, t] - (g0[s] * PHt[j, t, 0] + g1[s] * PHt[j, t, 1])
+                        v2 = Pm[r, j, t, s] - (g0[t] * PHt[j, s, 0] + g1[t] * PHt[j, s, 1])
+                        Pm[r, j, s, t] = Pm[r, j, t, s] = 0.5 * (v + v2)
+        for s in range(_D):  # eq. 7
+            acc_s = 0.0
+            for j in range(m):
+                acc_s += mu[r, j] * xm[r, j, s]
+            out_x[k, s] = acc_s
+        for s in range(_D):  # eq. 8
+            for t in range(s, _D):
+                acc_st = 0.0
+                for j in range(m):
+                    acc_st += mu[r, j] * (Pm[r, j, s, t] + (xm[r, j, s] - out_x[k, s]) * (xm[r, j, t] - out_x[k, t]))
+                out_P[k, s, t] = out_P[k, t, s] = acc_st
