@@ -144,8 +144,9 @@ def _velocity_reports(
     """The ground speed (m/s) and true track angle (degrees clockwise from true north,
     [0, 360)) of the BDS 5,0 reads ``carry`` (the plots with a roll angle); NaN elsewhere.
 
-    The aircraft refreshes its register at most ``rates.dap_max_age_s`` before the read: the
-    truth's velocity at t − age, age ~ U(0, dap_max_age_s). The truth moves in the system
+    The register holds the aircraft's velocity of a moment before the read: the truth's
+    velocity at t − age, age uniform over ``rates.dap_age_s`` (the register's refresh and the
+    avionics' latency, measured on the Barcelona hour). The truth moves in the system
     plane; its true track is the grid bearing atan2(vx, vy) plus the meridian convergence c
     there (grid = true − c, :meth:`SystemPlane.grid_convergence_deg`), its ground speed the
     plane speed over the point scale k, times (R + h) / R: the plane position is the point on
@@ -157,7 +158,7 @@ def _velocity_reports(
     speed_out, track_out = np.full(t_s.shape[0], np.nan), np.full(t_s.shape[0], np.nan)
     if not carry.size:
         return speed_out, track_out
-    age_s = rng.uniform(0.0, rates.dap_max_age_s, carry.size)
+    age_s = rng.uniform(*rates.dap_age_s, carry.size)
     st = traj.state(tgt[carry], t_s[carry] - age_s)
     lat, lon = plane.to_geodetic(st.x_m, st.y_m)
     _, _, convergence_deg, k = plane.to_plane_and_factors(lat, lon)
