@@ -1053,16 +1053,17 @@ class Engine:
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
 
-    def _update_velocity(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> None:
+    def _update_velocity(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """The tracks ``rows`` (just updated with their clusters ``matched``) whose cluster
         carries the aircraft's own velocity (Mode S BDS 5,0, ``_dap_velocity``): the IMM's
         second update with it (imm.IMMFilter.velocity_update_rows). Its covariance is the
         ground speed's σ along the track and the track angle's across it (speed × σ, never
-        below the speed's σ: slow, the direction is as uncertain as the speed)."""
+        below the speed's σ: slow, the direction is as uncertain as the speed). Returns the
+        rows updated."""
         assert self.imm is not None and cl.dap_v_mps is not None and cl.dap_age_s is not None
         has = np.isfinite(cl.dap_v_mps[matched, 0])
         if not has.any():
-            return
+            return rows[:0]
         p, tr = self.imm.params, self.tracks
         r, k = rows[has], matched[has]
         v = cl.dap_v_mps[k]
@@ -1077,6 +1078,8 @@ class Engine:
         tr.x[r], tr.P[r] = x, P
         self.counters["updates_velocity"] += int(used.sum())
         self.counters["velocity_reports_refused"] += int((~used).sum())
+        updated: np.ndarray = r[used]
+        return updated
 
     def _check_roll(self, rows: np.ndarray, log_bf: np.ndarray) -> None:
         """The roll reports' check, per track: s ← memory · s + log BF, the Bayes factor by
@@ -1170,6 +1173,15 @@ class Engine:
         tr.z1_m[new], tr.R1_m2[new] = cl.z_m[new_cl], cl.R_m2[new_cl]
         tr.alt_x[new], tr.alt_P[new] = self.alt_filter.initiate(cl.fl[new_cl])
         self._floor_no_height(np.arange(new.start, new.stop), cl.height_cov_m2, new_cl)
+        if cl.dap_v_mps is not None:
+            # the aircraft's own velocity: known from the first plots, no two-point start needed;
+            # only where two radars agree on the position (one plot may be a wild one, and a
+            # track with a velocity gates the next plots tightly: the true ones would start
+            # another track beside it)
+            agree = np.bitwise_count(cl.sources[new_cl]) >= 2
+            used = self._update_velocity(cl, new_cl[agree], np.arange(new.start, new.stop, dtype=np.int64)[agree])
+            tr.initiated[used] = True
+            self.counters["tracks_initiated_with_velocity"] += int(used.size)
         tr.updates[new] = 1
         tr.first_t_s[new] = tr.last_update_t_s[new] = t_ref_s
         tr.mode_s[new] = cl.mode_s[new_cl]

@@ -163,7 +163,7 @@ _FIELDS = {
     "alt_x": ((2,), float, np.nan),
     "alt_P": ((2, 2), float, np.nan),
     "status": ((), np.int8, TENTATIVE),
-    "initiated": ((), bool, False),  # has a velocity from two-point initiation
+    "initiated": ((), bool, False),  # has a velocity: from two-point initiation, or its first plot's own
     "updates": ((), np.int64, 0),
     "first_t_s": ((), float, np.nan),
     "last_update_t_s": ((), float, np.nan),
@@ -217,7 +217,7 @@ class TrackTable:
     alt_x: NDArray[np.float64]  # (N, 2) [FL, FL/s], NaN before the first Mode C
     alt_P: NDArray[np.float64]  # (N, 2, 2)
     status: NDArray[np.int8]  # TENTATIVE / CONFIRMED / COASTING
-    initiated: NDArray[np.bool_]  # has a velocity from two-point initiation
+    initiated: NDArray[np.bool_]  # has a velocity: from two-point initiation, or its first plot's own
     updates: NDArray[np.int64]
     first_t_s: NDArray[np.float64]
     last_update_t_s: NDArray[np.float64]  # reference time of the period of the latest update
@@ -264,8 +264,10 @@ class TrackTable:
     @property
     def velocity_known(self) -> NDArray[np.bool_]:
         """Tracks of two updates or more: the two-point initiation (Shu §4) gave them a
-        velocity; a track of one update has only the wide prior."""
-        return self.updates >= 2
+        velocity; and tracks whose first plot carried the aircraft's own velocity (Mode S
+        BDS 5,0, ``initiated`` at once: engine._initiate). A track of one update otherwise
+        has only the wide prior."""
+        return (self.updates >= 2) | self.initiated
 
     @property
     def held_alternative(self) -> NDArray[np.bool_]:
