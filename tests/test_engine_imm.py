@@ -312,7 +312,7 @@ def test_velocity_reports_bring_the_track_onto_the_aircrafts_velocity_and_course
     false`` is as if none were sent; reports 90° off the aircraft's course (another
     aircraft's, a misread register) are refused and counted and change the turn by under 2 %
     (the first one, which starts the track, is taken: nothing contradicts it yet). Measured
-    when written: straight-flight velocity 0.63 against 2.1 m/s, the turn 25.3 against
+    when written: straight-flight velocity 0.64 against 2.1 m/s, the turn 25.3 against
     31.5 m (the reports 8 s apart: the turn's entry and exit still fall between two)."""
     periods = int((BANK_END_S + 40.0) / PERIOD_S)
     cases = {
