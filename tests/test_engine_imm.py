@@ -398,3 +398,30 @@ def test_a_track_whose_first_plot_carries_the_aircrafts_velocity_has_it_from_its
         err_mps = float(np.hypot(tr.vx_mps - truth_v[0], tr.vy_mps - truth_v[1]))
         assert err_mps < 3.0, (tr.updates, err_mps)
     assert len({tr.track_id for tr in dap}) == 1
+
+
+def test_a_first_velocity_the_positions_refute_is_dropped_at_the_second_update():
+    """A report of 0 m/s (a misread register, or a ground speed from an aircraft that is in
+    the air) on the first plots of a new aircraft flying at 187 m/s: the track starts with
+    it (nothing to check it against: engine._initiate), its R stays positive definite at a
+    standstill (no NaN anywhere), and at the second update the two positions, 750 m apart in
+    4 s, refute it (engine._birth_velocity_refuted): the track is initiated again from them
+    (Shu §4) and keeps its id; by the third output its speed is within 10 % of the truth's."""
+    truth_v = (straight_xy_m(np.array([T0_S + 0.1])) - straight_xy_m(np.array([T0_S - 0.1])))[0] / 0.2
+    eng = Engine(settings("imm"))
+    rng = np.random.default_rng(3)
+    outputs = []
+    for k in range(4):
+        t = T0_S + PERIOD_S * k
+        v = (0.0, 45.0) if k == 0 else (np.nan, np.nan)
+        eng.ingest_plots(plot_of(eng, 0, k + 1, t + 1.0, straight_xy_m, rng, 1.0, np.nan, v))
+        eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0, straight_xy_m, rng, 1.0))
+        outputs += eng.poll()
+    tracks = [TrackBatch.model_validate(o.track_batch).tracks[0] for o in outputs]
+    assert eng.counters["tracks_initiated_with_velocity"] == 1
+    assert eng.counters["tracks_birth_velocity_refuted"] == 1
+    assert len({tr.track_id for tr in tracks}) == 1
+    assert tracks[0].updates == 1 and abs(tracks[0].vx_mps) < 1.0 and np.isfinite(tracks[0].x_m)
+    speed = float(np.hypot(tracks[2].vx_mps, tracks[2].vy_mps))
+    assert abs(speed - float(np.hypot(*truth_v))) < 0.1 * float(np.hypot(*truth_v)), speed
+    assert np.isfinite(eng.tracks.x_models).all() and np.isfinite(eng.tracks.mu).all()

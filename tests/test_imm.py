@@ -608,6 +608,20 @@ def test_velocity_update_matches_hand_computation() -> None:
         np.testing.assert_allclose(P[i], Pc, rtol=1e-9, atol=1e-8)
 
 
+def test_velocity_update_leaves_a_track_with_a_nan_model_as_it_was() -> None:
+    """A track one of whose models holds NaN (degenerate input upstream) is not updated by a
+    velocity report (its rows unchanged, ``used`` False); the other tracks are."""
+    imm = IMMFilter()
+    st, v, R, age = _velocity_case(imm, 6, 5)
+    v[:] = st.x_models[:, 0][:, [1, 4]]  # every report near the track's velocity
+    st.x_models[2, 1, 4] = np.nan
+    before = st.select(slice(None))
+    _, _, used = imm.velocity_update_rows(st, np.arange(6), v, R, age)
+    assert not used[2] and used[[0, 1, 3, 4, 5]].all()
+    np.testing.assert_array_equal(st.mu[2], before.mu[2])
+    np.testing.assert_array_equal(st.P_models[2], before.P_models[2])
+
+
 def test_position_then_velocity_equals_one_joint_update() -> None:
     """The velocity after the position is sequential updating: with a report of age 0 (and
     no age term) it equals one update of each model with the 4-D measurement [position,

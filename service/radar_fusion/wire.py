@@ -111,8 +111,9 @@ class RadarStatus(_Message):
 
 
 class Track(BaseModel):
-    """One system track at the batch's reference time; a track of one update, whose velocity
-    is not known yet, at its measurement time ``t`` with ``vx_mps``/``vy_mps`` nil."""
+    """One system track at the batch's reference time; a track of one update whose velocity
+    is not known yet at its measurement time ``t`` with ``vx_mps``/``vy_mps`` nil (a track
+    that started with the aircraft's own velocity, Mode S BDS 5,0, has one from its first)."""
 
     model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True)
     track_id: int = Field(ge=0)
@@ -127,7 +128,8 @@ class Track(BaseModel):
     y_m: float = Field(description="system plane, north")
     vx_mps: float | None = Field(
         description="velocity east; nil while not known (a track of one update: confirmed at once by two radars "
-        "or a Mode S address, before a second update gives it a velocity)"
+        "or a Mode S address, before a second update gives it a velocity; unless the aircraft's own ground speed "
+        "and track, Mode S BDS 5,0, came with plots of two radars at its start)"
     )
     vy_mps: float | None = Field(description="velocity north; nil while not known (see vx_mps)")
     fl: float | None = None

@@ -114,7 +114,8 @@ class TrackColumns:
     # the IMM's manoeuvre-model probability per track (tracking.filter = "imm"), else None
     manoeuvre_prob: np.ndarray | None = None
     # Each track's own time (N,), s, where it differs from t_s: a track of one update has no
-    # velocity yet (x's velocity and acceleration are NaN, sent as nil) and is reported
+    # velocity yet (x's velocity and acceleration are NaN, sent as nil; unless it started
+    # with the aircraft's own, TrackTable.velocity_known) and is reported
     # where it was measured, at its measurement time, not extrapolated to t_s. None: every
     # track is at t_s.
     t_track_s: np.ndarray | None = None
@@ -229,7 +230,7 @@ class TrackColumns:
         rows.key("status").table(self.status, _STATUS_PACKED)
         rows.key("lat_deg").float64(lat).key("lon_deg").float64(lon)
         rows.key("x_m").float64(x[:, 0]).key("y_m").float64(x[:, 3])
-        # NaN velocity (one update: none yet) and acceleration are nil, as in to_message
+        # NaN velocity (one update: none yet, TrackTable.velocity_known) and acceleration are nil, as in to_message
         rows.key("vx_mps").float64(x[:, 1], nil=np.isnan(x[:, 1]))
         rows.key("vy_mps").float64(x[:, 4], nil=np.isnan(x[:, 4]))
         # as the filter has it, not rounded: a safety-nets process judges exactly what the

@@ -85,6 +85,7 @@ from ..tracking.track_management import (
     log_miss_probability,
     merge_same_address,
     position_m,
+    radar_count,
     velocity_mps,
 )
 from ..wire import DecodedPlots, RadarStatus
@@ -981,6 +982,8 @@ class Engine:
         P_c = np.empty((rows.size,) + tr.P.shape[1:])
         z_m, R_m2 = cl.z_m[matched], cl.R_m2[matched]
         init = tr.initiated[rows]
+        if self.imm is not None:
+            init &= ~self._birth_velocity_refuted(cl, matched, rows)
         again = None  # clusters that re-initiate their track from a held measurement (_hold_far)
         if cl.t0_s is not None:
             again = np.isfinite(cl.t0_s[matched])
@@ -1053,7 +1056,33 @@ class Engine:
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
 
-    def _update_velocity(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    def _birth_velocity_refuted(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """At the second update of a track that started with the aircraft's own velocity
+        (_initiate): is that velocity refuted by the two positions, (z₂ − z₁)/dt outside
+        the χ² gate of (R₁ + R₂)/dt² + its own covariance? Nothing checked the report when it
+        started the track (a misread register, a speed of 0 from an aircraft in the air); such
+        a track is initiated again from the two positions (Shu §4), as any other. (K,) bool."""
+        tr = self.tracks
+        out = np.zeros(rows.size, bool)
+        b = np.flatnonzero(tr.initiated[rows] & (tr.updates[rows] == 1))
+        if not b.size:
+            return out
+        r = rows[b]
+        dt_s = cl.t_s[matched[b]] - tr.t_state_s[r]
+        ok = dt_s > 0.0
+        if not ok.any():
+            return out
+        b, r, dt_s = b[ok], r[ok], dt_s[ok]
+        nu = (cl.z_m[matched[b]] - tr.z1_m[r]) / dt_s[:, None] - velocity_mps(tr.x[r])
+        C = (tr.R1_m2[r] + cl.R_m2[matched[b]]) / (dt_s**2)[:, None, None] + cov_vel(tr.P[r])
+        d2 = np.einsum("ki,kij,kj->k", nu, inv_2x2(C), nu)
+        out[b] = d2 > self.clustering.gate_chi2
+        self.counters["tracks_birth_velocity_refuted"] += int(out.sum())
+        return out
+
+    def _update_velocity(
+        self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray, birth: bool = False
+    ) -> np.ndarray:
         """The tracks ``rows`` (just updated with their clusters ``matched``) whose cluster
         carries the aircraft's own velocity (Mode S BDS 5,0, ``_dap_velocity``): the IMM's
         second update with it (imm.IMMFilter.velocity_update_rows). Its covariance is the
@@ -1068,11 +1097,15 @@ class Engine:
         r, k = rows[has], matched[has]
         v = cl.dap_v_mps[k]
         speed = np.hypot(v[:, 0], v[:, 1])
-        along = v / np.maximum(speed, 1e-9)[:, None]
+        # the track's direction; at a standstill (an aircraft on the ground, or opposite
+        # reports averaged) any unit vector: R is then σ² I
+        along = np.where(speed[:, None] > 1e-3, v / np.maximum(speed, 1e-3)[:, None], np.array([1.0, 0.0]))
         across = np.stack([along[:, 1], -along[:, 0]], axis=1)
         cross_var = np.maximum(speed * math.radians(p.velocity_track_sigma_deg), p.velocity_speed_sigma_mps) ** 2
         R = p.velocity_speed_sigma_mps**2 * along[:, :, None] * along[:, None, :]
         R += cross_var[:, None, None] * across[:, :, None] * across[:, None, :]
+        if birth:  # nothing to check a new track's report against: it starts less sure of it
+            R += p.velocity_birth_sigma_mps**2 * np.eye(2)
         state = IMMState(tr.x_models, tr.P_models, tr.mu)
         x, P, used = self.imm.velocity_update_rows(state, r, v, R, cl.dap_age_s[k])
         tr.x[r], tr.P[r] = x, P
@@ -1178,8 +1211,10 @@ class Engine:
             # only where two radars agree on the position (one plot may be a wild one, and a
             # track with a velocity gates the next plots tightly: the true ones would start
             # another track beside it)
-            agree = np.bitwise_count(cl.sources[new_cl]) >= 2
-            used = self._update_velocity(cl, new_cl[agree], np.arange(new.start, new.stop, dtype=np.int64)[agree])
+            agree = radar_count(cl.sources[new_cl]) >= 2
+            used = self._update_velocity(
+                cl, new_cl[agree], np.arange(new.start, new.stop, dtype=np.int64)[agree], birth=True
+            )
             tr.initiated[used] = True
             self.counters["tracks_initiated_with_velocity"] += int(used.size)
         tr.updates[new] = 1
@@ -1265,13 +1300,18 @@ class Engine:
         # to t_ref at zero speed. A Mode S address, or two radars beside a transponder reply,
         # confirm it at once (track_management.apply_life_cycle).
         young = np.flatnonzero(~tr.velocity_known)
+        # nor a vertical rate before its second update: a track started with the aircraft's
+        # own horizontal velocity (_initiate) has one, and only the altitude filter's prior rate
+        one = np.flatnonzero(tr.updates == 1)
+        if one.size:
+            alt_x = alt_x.copy()
+            alt_x[one, 1] = np.nan
         if young.size:
-            x, P, alt_x = x.copy(), P.copy(), alt_x.copy()
+            x, P = x.copy(), P.copy()
             x[young] = tr.x[young]
             x[young[:, None], [1, 2, 4, 5]] = np.nan
             P[young] = tr.P[young]
-            alt_x[young] = tr.alt_x[young]
-            alt_x[young, 1] = np.nan
+            alt_x[young, 0] = tr.alt_x[young, 0]
             t_track_s = np.full(len(tr), t_ref_s)
             t_track_s[young] = tr.t_state_s[young]
         manoeuvre_prob = None

@@ -870,6 +870,7 @@ def velocity_update_kernel(
         r = rows[k]
         a = age[k]
         best = np.inf
+        finite = True
         for j in range(m):
             for s in range(_D):
                 PHt[j, s, 0] = Pm[r, j, s, 1] - a * Pm[r, j, s, 2]
@@ -887,7 +888,8 @@ def velocity_update_kernel(
             )
             logw[j] = math.log(max(mu[r, j], 1e-300)) - 0.5 * d2 - 0.5 * math.log(det)  # eq. 5-6
             best = min(best, d2)
-        used[k] = best <= gate_chi2
+            finite = finite and math.isfinite(d2) and det > 0.0
+        used[k] = finite and best <= gate_chi2  # a model's NaN state: the track is left as it was
         if used[k]:
             top = logw.max()
             total = 0.0

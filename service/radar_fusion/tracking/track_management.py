@@ -84,7 +84,8 @@ class LifeCycle(BaseModel):
         ge=1,
         description="... from this many updates on. Default 1: confirmed in the period that starts it (issue 15 "
         "item 5), shown where and when it was measured with its velocity nil until the second update, the "
-        "two-point initiation (Shu §4), gives it one. On the bench's 50x3 (120 s) the first period then shows "
+        "two-point initiation (Shu §4), gives it one (or, with two radars' plots, the aircraft's own BDS 5,0 "
+        "velocity at once). On the bench's 50x3 (120 s) the first period then shows "
         "the aircraft two radars or an address agree on, instead of none: GOSPA over the run 713 -> 384 m, "
         "completeness 96.6 -> 100 %. 2 waits for the velocity, as before",
     )
@@ -163,7 +164,7 @@ _FIELDS = {
     "alt_x": ((2,), float, np.nan),
     "alt_P": ((2, 2), float, np.nan),
     "status": ((), np.int8, TENTATIVE),
-    "initiated": ((), bool, False),  # has a velocity: from two-point initiation, or its first plot's own
+    "initiated": ((), bool, False),  # has a velocity: two-point initiation, or BDS 5,0 at its start
     "updates": ((), np.int64, 0),
     "first_t_s": ((), float, np.nan),
     "last_update_t_s": ((), float, np.nan),
@@ -217,7 +218,7 @@ class TrackTable:
     alt_x: NDArray[np.float64]  # (N, 2) [FL, FL/s], NaN before the first Mode C
     alt_P: NDArray[np.float64]  # (N, 2, 2)
     status: NDArray[np.int8]  # TENTATIVE / CONFIRMED / COASTING
-    initiated: NDArray[np.bool_]  # has a velocity: from two-point initiation, or its first plot's own
+    initiated: NDArray[np.bool_]  # has a velocity: two-point initiation, or BDS 5,0 at its start
     updates: NDArray[np.int64]
     first_t_s: NDArray[np.float64]
     last_update_t_s: NDArray[np.float64]  # reference time of the period of the latest update
@@ -264,9 +265,9 @@ class TrackTable:
     @property
     def velocity_known(self) -> NDArray[np.bool_]:
         """Tracks of two updates or more: the two-point initiation (Shu §4) gave them a
-        velocity; and tracks whose first plot carried the aircraft's own velocity (Mode S
-        BDS 5,0, ``initiated`` at once: engine._initiate). A track of one update otherwise
-        has only the wide prior."""
+        velocity; and tracks whose first cluster, of two radars' plots, carried the
+        aircraft's own velocity (Mode S BDS 5,0, ``initiated`` at once: engine._initiate).
+        A track of one update otherwise has only the wide prior."""
         return (self.updates >= 2) | self.initiated
 
     @property
