@@ -498,8 +498,6 @@ class IMMFilter:
             np.array([m.sigma_m_mps2 for m in singer] + [0.0] * nt),
             self._omega_all,
             np.array([0.0] * ns + [m.q_m2_s3 for m in turns]),
-            self._q_keys,
-            np.array([singer_filter._Q_POWER[ij] for ij in singer_filter._Q_KEYS], dtype=np.int64),
             singer_filter._H2_SERIES,
             np.ascontiguousarray(singer_filter._Q_SERIES_MATRIX),
             singer_filter._SERIES_SWITCH_AT,

@@ -46,6 +46,7 @@ import math
 
 import numpy as np
 
+from . import singer_filter
 from .compiled import compiled as _compiled
 from .coordinated_turn import MIN_TURN_SPEED_MPS
 
@@ -75,6 +76,9 @@ BANK = 2
 TERMS = 10
 
 _D = 6  # the state [x, vx, ax, y, vy, ay]
+#: of the Singer series' 30 terms (singer_filter._SERIES_TERMS), the kernels sum the first 20:
+#: below the switch (αT < 0.5) the 20th adds under 2e-20 of the first, far below round-off
+_SERIES_USED = 20
 
 
 @_compiled
@@ -85,53 +89,73 @@ def _horner(coeffs: np.ndarray, x: float) -> float:
     return acc
 
 
+#: the order of the q_ij in a Singer model's ``TERMS`` and each one's power of T (q_ij =
+#: 2ασ_m² T^p g_ij(αT)): singer_filter._Q_KEYS and _Q_POWER, written out in
+#: :func:`_singer_terms`
+_SINGER_Q_ORDER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+_SINGER_Q_POWERS = (5, 4, 3, 3, 2, 1)
+if (
+    tuple(singer_filter._Q_KEYS) != _SINGER_Q_ORDER
+    or tuple(singer_filter._Q_POWER[ij] for ij in _SINGER_Q_ORDER) != _SINGER_Q_POWERS
+):
+    raise ImportError("singer_filter's q_ij order or powers changed: update imm_kernels._singer_terms")
+
+
 @_compiled
 def _singer_terms(
     dt: float,
     alpha: float,
     sigma: float,
-    q_keys: np.ndarray,
-    q_power: np.ndarray,
     h2_series: np.ndarray,
     q_series: np.ndarray,
     switch: float,
     out: np.ndarray,
+    k: int,
+    j: int,
 ) -> None:
-    """A Singer model's ``TERMS`` over dt (singer_filter._transition_terms and
-    _process_noise_terms, Shu eq. 12 and §4 with the misprints fixed): T, Φ02 = T² h2(αT),
-    Φ12 = T h1(αT), Φ22 = e^{−αT}, then q_ij = 2ασ_m² T^p g_ij(αT), each g_ij by its
-    Taylor series below αT = ``switch`` (where the closed form cancels) and in closed form
-    above, the same split and the same series coefficients as singer_filter.py."""
+    """A Singer model's ``TERMS`` over dt into out[k, j] (singer_filter._transition_terms
+    and _process_noise_terms, Shu eq. 12 and §4 with the misprints fixed): T, Φ02 =
+    T² h2(αT), Φ12 = T h1(αT), Φ22 = e^{−αT}, then q_ij = 2ασ_m² T^p g_ij(αT) in
+    ``_SINGER_Q_ORDER``, each g_ij by its Taylor series below αT = ``switch`` (where the
+    closed form cancels) and in closed form above, the same split and the same series
+    coefficients as singer_filter.py (its first ``_SERIES_USED``).  Written out term by
+    term: with a loop over the q_ij and their powers it took 2.5× as long."""
     x = alpha * dt
-    small = x < switch
-    h2 = _horner(h2_series, x) if small else (x - 1.0 + math.exp(-x)) / (x * x)
-    h1 = -math.expm1(-x) / x if x > 0.0 else 1.0
-    out[0] = dt
-    out[1] = dt * dt * h2
-    out[2] = dt * h1
-    out[3] = math.exp(-x)
-    q_c = 2.0 * alpha * sigma * sigma
     e1 = math.exp(-x)
-    e2 = math.exp(-2.0 * x)
-    for k in range(6):
-        i, j, p = q_keys[k, 0], q_keys[k, 1], q_power[k]
-        if small:
-            g = _horner(q_series[:, k], x)
-        else:  # singer_filter._q_closed
-            if i == 0 and j == 0:
-                num = 1.0 - e2 + 2.0 * x + 2.0 * x**3 / 3.0 - 2.0 * x**2 - 4.0 * x * e1
-            elif i == 0 and j == 1:
-                num = 1.0 + e2 - 2.0 * e1 + 2.0 * x * e1 - 2.0 * x + x**2
-            elif i == 0 and j == 2:
-                num = 1.0 - e2 - 2.0 * x * e1
-            elif i == 1 and j == 1:
-                num = 4.0 * e1 - 3.0 - e2 + 2.0 * x
-            elif i == 1 and j == 2:
-                num = 1.0 + e2 - 2.0 * e1
-            else:
-                num = 1.0 - e2
-            g = num / (2.0 * x**p)
-        out[4 + k] = q_c * g * dt**p
+    out[k, j, 0] = dt
+    out[k, j, 2] = dt * (-math.expm1(-x) / x if x > 0.0 else 1.0)  # T h1(αT)
+    out[k, j, 3] = e1
+    if x < switch:
+        # the seven series by Horner's rule in one loop: seven independent chains that the
+        # CPU runs side by side
+        h2 = g0 = g1 = g2 = g3 = g4 = g5 = 0.0
+        for n in range(_SERIES_USED - 1, -1, -1):
+            h2 = h2 * x + h2_series[n]
+            g0 = g0 * x + q_series[n, 0]
+            g1 = g1 * x + q_series[n, 1]
+            g2 = g2 * x + q_series[n, 2]
+            g3 = g3 * x + q_series[n, 3]
+            g4 = g4 * x + q_series[n, 4]
+            g5 = g5 * x + q_series[n, 5]
+    else:  # the closed forms (singer_filter._q_closed)
+        x2 = x * x
+        e2 = e1 * e1
+        h2 = (x - 1.0 + e1) / x2
+        g0 = (1.0 - e2 + 2.0 * x + 2.0 * x2 * x / 3.0 - 2.0 * x2 - 4.0 * x * e1) / (2.0 * x2 * x2 * x)
+        g1 = (1.0 + e2 - 2.0 * e1 + 2.0 * x * e1 - 2.0 * x + x2) / (2.0 * x2 * x2)
+        g2 = (1.0 - e2 - 2.0 * x * e1) / (2.0 * x2 * x)
+        g3 = (4.0 * e1 - 3.0 - e2 + 2.0 * x) / (2.0 * x2 * x)
+        g4 = (1.0 + e2 - 2.0 * e1) / (2.0 * x2)
+        g5 = (1.0 - e2) / (2.0 * x)
+    t2 = dt * dt
+    out[k, j, 1] = t2 * h2
+    q_c = 2.0 * alpha * sigma * sigma
+    out[k, j, 4] = q_c * g0 * t2 * t2 * dt
+    out[k, j, 5] = q_c * g1 * t2 * t2
+    out[k, j, 6] = q_c * g2 * t2 * dt
+    out[k, j, 7] = q_c * g3 * t2 * dt
+    out[k, j, 8] = q_c * g4 * t2
+    out[k, j, 9] = q_c * g5 * dt
 
 
 @_compiled
@@ -176,8 +200,6 @@ def model_terms_kernel(
     sigma: np.ndarray,
     omega: np.ndarray,
     turn_q: np.ndarray,
-    q_keys: np.ndarray,
-    q_power: np.ndarray,
     h2_series: np.ndarray,
     q_series: np.ndarray,
     switch: float,
@@ -189,12 +211,13 @@ def model_terms_kernel(
     for k in range(dt.shape[0]):
         for j in range(family.shape[0]):
             if family[j] == SINGER:
-                _singer_terms(dt[k], alpha[j], sigma[j], q_keys, q_power, h2_series, q_series, switch, out[k, j])
+                _singer_terms(dt[k], alpha[j], sigma[j], h2_series, q_series, switch, out, k, j)
             elif family[j] == CT:
                 _turn_terms(dt[k], omega[j], turn_q[j], out[k, j])
             else:
-                out[k, j, :] = 0.0
                 out[k, j, 0] = turn_q[j]
+                for q in range(1, TERMS):
+                    out[k, j, q] = 0.0
 
 
 #: the packed upper triangle of a symmetric 6×6 matrix: entry q is (_UT[q, 0], _UT[q, 1])
