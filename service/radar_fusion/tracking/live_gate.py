@@ -650,9 +650,12 @@ def _decide_in_order(
       plots is its own neighbour), and each plot kept aside within half ``threshold``
       noise units of the arc (a wild plot among them bends the fit and stays off it):
       if it passes, the aircraft is turning, or has ended a turn, and the plots kept
-      aside enter the window before it. With two or more kept aside, each is also left
-      out in turn (a wild plot among them bends every arc: the turn's good plots after it
-      were refused until the re-lock); the one left out is dropped. A turn's first plot
+      aside enter the window before it. Each kept aside is also left out in turn (a wild
+      plot among them bends every arc: the turn's good plots after it were refused until
+      the re-lock), a single one too, which leaves the arc through the window alone (a
+      turn the window already shows, the plot after a wild one 24 s on at a 12 s radar:
+      the line missed it, the arc through the wild one too; issue 15 item 7, the 1,000×10
+      wild twin's worst aircraft); the one left out is dropped. A turn's first plot
       at an 8-12 s radar is off the line by as much as a small wild plot and is lost,
       but not the next ones,
       and not the plots after the turn, which a window bent by the turn refused (both
@@ -699,10 +702,10 @@ def _decide_in_order(
             if not ok and held >= 1 and max_accel_mps2 > 0.0:
                 m = min(count[row], arc_plots)
                 _copy_newest(row, m, head, w, win_t, win_x, win_y, both_t, both_x, both_y)
-                # all the plots kept aside (left = -1), then, with two or more, each left out in
-                # turn: a wild plot among them is off any arc and would keep the turn's good
-                # plots out until the re-lock
-                for left in range(-1, held if held >= 2 else 0):
+                # all the plots kept aside (left = -1), then each left out in turn (one alone
+                # too: the window's own arc): a wild plot among them is off any arc and would
+                # keep the turn's good plots out until the re-lock
+                for left in range(-1, held):
                     n_arc = m
                     for j in range(held):
                         if j != left:
