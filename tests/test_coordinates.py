@@ -530,6 +530,11 @@ def test_to_geodetic_matches_proj_inverse():
         assert np.all((lon >= -180.0) & (lon < 180.0))
     lat1, lon1 = SystemPlane(41.3, 2.1).to_geodetic(12_000.0, -3_000.0)
     assert isinstance(lat1, np.ndarray) and lat1.shape == () and lon1.shape == ()
+    # a diverged position (inf or NaN) has no latitude or longitude, never a finite one
+    lat2, lon2 = SystemPlane(45.0, 15.0).to_geodetic([np.inf, 0.0, np.nan, 1e3], [0.0, -np.inf, 0.0, 1e3])
+    assert np.isnan(lat2[:3]).all() and np.isnan(lon2[:3]).all() and np.isfinite([lat2[3], lon2[3]]).all()
+    # just west of the antimeridian: -180, not +180
+    assert SystemPlane(0.0, -180.0).to_geodetic(-1.6e-9, 0.0)[1] == -180.0
 
 
 # --------------------------------------------------------------------------- plots without height

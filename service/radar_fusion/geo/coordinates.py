@@ -187,6 +187,9 @@ class SystemPlane:
         longitudes every period, and the Mode S velocities' convergence)."""
         x = np.asarray(x_m, dtype=float)
         y = np.asarray(y_m, dtype=float)
+        bad = ~(np.isfinite(x) & np.isfinite(y))  # a diverged position has no place on the earth: NaN
+        if bad.any():
+            x, y = np.where(bad, 0.0, x), np.where(bad, 0.0, y)
         chi, lam = self.to_conformal_sphere(x, y)
         lon = np.mod(self.center_lon_deg + np.degrees(lam / self._gauss_c) + 180.0, 360.0) - 180.0
         num = (np.tan(0.5 * chi + 0.25 * math.pi) / self._gauss_k) ** (1.0 / self._gauss_c)
@@ -199,7 +202,9 @@ class SystemPlane:
             phi = new
             if done:
                 break
-        return np.asarray(np.degrees(phi), dtype=float), np.asarray(lon, dtype=float)
+        lon = np.where(lon >= 180.0, lon - 360.0, lon)  # the mod rounds a hair west of -180 up to 180
+        lat_deg = np.where(bad, np.nan, np.degrees(phi))
+        return np.asarray(lat_deg, dtype=float), np.asarray(np.where(bad, np.nan, lon), dtype=float)
 
     def from_conformal_sphere(self, chi_rad: Any, lam_rad: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(conformal latitude, longitude from the centre) on the Gauss conformal sphere ->

@@ -99,6 +99,9 @@ if (
     or tuple(singer_filter._Q_POWER[ij] for ij in _SINGER_Q_ORDER) != _SINGER_Q_POWERS
 ):
     raise ImportError("singer_filter's q_ij order or powers changed: update imm_kernels._singer_terms")
+if singer_filter._SERIES_TERMS < _SERIES_USED or singer_filter._SERIES_SWITCH_AT > 0.5:
+    # the kernels read the series' first _SERIES_USED terms unchecked, enough below αT = 0.5
+    raise ImportError("singer_filter's series are shorter or its switch higher: update imm_kernels._SERIES_USED")
 
 
 @_compiled
