@@ -425,3 +425,64 @@ def test_a_first_velocity_the_positions_refute_is_dropped_at_the_second_update()
     speed = float(np.hypot(tracks[2].vx_mps, tracks[2].vy_mps))
     assert abs(speed - float(np.hypot(*truth_v))) < 0.1 * float(np.hypot(*truth_v)), speed
     assert np.isfinite(eng.tracks.x_models).all() and np.isfinite(eng.tracks.mu).all()
+
+
+def test_the_velocity_of_a_plot_whose_position_the_live_gate_refused_still_updates_the_track():
+    """The airliner's 25° turn, radar a's plot carrying the aircraft's own velocity every
+    period; in the turn, every third of radar a's plots is 5 km off in range (a reflection:
+    the reply and its BDS 5,0 register are the aircraft's, the position is not). The live
+    gate refuses those plots; their velocity still updates the track
+    (``velocity_from_refused_plots``), counted apart, and in the periods after them the
+    track's velocity is closer to the aircraft's than with the plots dropped whole (four
+    seeds). Without the option, nothing of them is used."""
+    periods = int((BANK_END_S + 20.0) / PERIOD_S)
+    radar = {"sigma_range_m": SIGMA_RANGE_M, "sigma_azimuth_deg": SIGMA_AZIMUTH_DEG, "rotation_period_s": 4.0}
+
+    def wild(k: int) -> bool:
+        return TURN_START_S + 8.0 <= PERIOD_S * k <= BANK_END_S - 8.0 and k % 3 == 0
+
+    def one(seed: int, use: bool) -> tuple[Engine, np.ndarray]:
+        eng = Engine(
+            settings_from_dict(
+                {
+                    "system": {"center_lat": 46.0, "center_lon": 8.0, "period_s": PERIOD_S, "allowed_lateness_s": 1.0},
+                    "radars": [
+                        {"id": "a", "lat": 46.3, "lon": 7.6, **radar},
+                        {"id": "b", "lat": 45.7, "lon": 8.5, **radar},
+                    ],
+                    "tracking": {"filter": "imm", "imm": {"velocity_from_refused_plots": use}},
+                }
+            )
+        )
+        rng = np.random.default_rng(seed)
+        outputs = []
+        for k in range(periods + 1):
+            t = T0_S + PERIOD_S * k
+            v = velocity_report(eng, banked_xy_m, t + 1.0 - REPORT_AGE_S)
+            a = plot_of(eng, 0, k + 1, t + 1.0, banked_xy_m, rng, 1.0, banked_roll_deg(t + 1.0), v)
+            if wild(k):
+                a.range_m[:] += 5000.0
+            eng.ingest_plots(a)
+            eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0, banked_xy_m, rng, 1.0))
+            outputs += eng.poll()
+        ve = velocity_errors(outputs, banked_xy_m)
+        # the periods whose radar a plot was refused: their output comes one period on
+        after = np.isin(np.round(ve[:, 0] / PERIOD_S).astype(int) - 1, [k for k in range(periods + 1) if wild(k)])
+        return eng, ve[after, 1]
+
+    n_wild = sum(wild(k) for k in range(periods + 1))
+    with_v, without_v = [], []
+    for seed in range(4):
+        eng, err = one(seed, True)
+        c = eng.counters
+        assert c["plots_wild"] >= n_wild - 1 and c["plots_velocity_refused_position"] == c["plots_wild"]
+        assert c["updates_velocity_refused_position"] >= n_wild - 1
+        with_v.append(float(np.sqrt(np.mean(err**2))))
+        eng, err = one(seed, False)
+        assert eng.counters["plots_velocity_refused_position"] == 0
+        assert eng.counters["updates_velocity_refused_position"] == 0
+        without_v.append(float(np.sqrt(np.mean(err**2))))
+    print(f"\nvelocity RMS after a refused plot, m/s: with its velocity {np.round(with_v, 2)}", end="")
+    print(f", without {np.round(without_v, 2)}")
+    assert (np.array(with_v) < np.array(without_v)).all()
+    assert np.mean(with_v) < 0.7 * np.mean(without_v)

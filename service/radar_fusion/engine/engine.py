@@ -161,6 +161,8 @@ class Engine:
         self.radars = self.admission.radars
         self.registration = RadarRegistration(settings.registration, self.plane, self.sites)
         self._reg_applied = self.registration.correction()
+        # the period's Mode S plots the live gate refused that carry a velocity (_gate)
+        self._refused_velocity: PlotChunk | None = None
         self._reg_next_t_s = -math.inf
         self.clock = ClockCheck(len(self.radar_ids))
         self.tracks = TrackTable(self.imm.n_models if self.imm is not None else 0)
@@ -231,6 +233,8 @@ class Engine:
             self._refuse_impossible_pairs(clusters)
             self._hold_far(clusters)
             changed = np.concatenate([self._update(clusters, t_ref_s), self._initiate(clusters, t_ref_s)])
+        if self._refused_velocity is not None:
+            changed = np.union1d(changed, self._update_velocity_of_refused())
         self.track_t_s = t_ref_s
         out = self._predict_changed(pred, changed, t_ref_s)
         out, merged = self._merge_identities(out)
@@ -287,6 +291,7 @@ class Engine:
                         self.radars[int(r)].wild += int(n)
                     keep = np.ones(len(raw), bool)
                     keep[wild] = False
+                    self._refused_velocity = self._refused_with_velocity(raw, ~keep)
                     raw = raw.select(keep)
         # registration (registration.py): each radar's estimated biases removed first
         self._reg_applied = self.registration.correction()
@@ -1096,14 +1101,7 @@ class Engine:
         p, tr = self.imm.params, self.tracks
         r, k = rows[has], matched[has]
         v = cl.dap_v_mps[k]
-        speed = np.hypot(v[:, 0], v[:, 1])
-        # the track's direction; at a standstill (an aircraft on the ground, or opposite
-        # reports averaged) any unit vector: R is then σ² I
-        along = np.where(speed[:, None] > 1e-3, v / np.maximum(speed, 1e-3)[:, None], np.array([1.0, 0.0]))
-        across = np.stack([along[:, 1], -along[:, 0]], axis=1)
-        cross_var = np.maximum(speed * math.radians(p.velocity_track_sigma_deg), p.velocity_speed_sigma_mps) ** 2
-        R = p.velocity_speed_sigma_mps**2 * along[:, :, None] * along[:, None, :]
-        R += cross_var[:, None, None] * across[:, :, None] * across[:, None, :]
+        R = self._velocity_R(v)
         if birth:  # nothing to check a new track's report against: it starts less sure of it
             R += p.velocity_birth_sigma_mps**2 * np.eye(2)
         state = IMMState(tr.x_models, tr.P_models, tr.mu)
@@ -1112,6 +1110,81 @@ class Engine:
         self.counters["updates_velocity"] += int(used.sum())
         self.counters["velocity_reports_refused"] += int((~used).sum())
         updated: np.ndarray = r[used]
+        return updated
+
+    def _velocity_R(self, v: np.ndarray) -> np.ndarray:
+        """The covariance (n, 2, 2) of velocity reports v (n, 2): the ground speed's σ along
+        the track, the track angle's across it (speed × σ, never below the speed's σ: slow,
+        the direction is as uncertain as the speed)."""
+        assert self.imm is not None
+        p = self.imm.params
+        speed = np.hypot(v[:, 0], v[:, 1])
+        # the track's direction; at a standstill (an aircraft on the ground, or opposite
+        # reports averaged) any unit vector: R is then σ² I
+        along = np.where(speed[:, None] > 1e-3, v / np.maximum(speed, 1e-3)[:, None], np.array([1.0, 0.0]))
+        across = np.stack([along[:, 1], -along[:, 0]], axis=1)
+        cross_var = np.maximum(speed * math.radians(p.velocity_track_sigma_deg), p.velocity_speed_sigma_mps) ** 2
+        R: np.ndarray = p.velocity_speed_sigma_mps**2 * along[:, :, None] * along[:, None, :]
+        R += cross_var[:, None, None] * across[:, :, None] * across[:, None, :]
+        return R
+
+    def _refused_with_velocity(self, raw: PlotChunk, refused: np.ndarray) -> PlotChunk | None:
+        """Of the plots ``refused`` by the live gate, the Mode S ones that carry the aircraft's
+        own velocity (``velocity_from_refused_plots``): kept for :meth:`_update_velocity_of_refused`."""
+        if (
+            self.imm is None
+            or not self.imm.params.velocity_dap
+            or not self.imm.params.velocity_from_refused_plots
+            or raw.ground_speed_mps is None
+        ):
+            return None
+        keep = refused & (raw.mode_s >= 0) & np.isfinite(raw.ground_speed_mps) & np.isfinite(raw.track_angle_deg)
+        return raw.select(keep) if keep.any() else None
+
+    def _update_velocity_of_refused(self) -> np.ndarray:
+        """The velocity of the period's Mode S plots whose position the live gate refused,
+        for the one live track of each address whose velocity is known (the reply is the
+        aircraft's; only the plot's position is off): the IMM's velocity update
+        (imm.IMMFilter.velocity_update_rows) at the track's own time, the report
+        ``velocity_age_s`` old at its plot's time, so ``velocity_age_s`` + (the track's time −
+        the plot's) before the state (negative: after it; the state's acceleration carries
+        it). One report a track, its latest. Converted at the track's position
+        (geo.coordinates.ground_velocity_to_plane). Returns the rows updated."""
+        assert self.imm is not None
+        chunk, self._refused_velocity = self._refused_velocity, None
+        tr = self.tracks
+        if chunk is None or not len(tr):
+            return np.empty(0, np.int64)
+        self.counters["plots_velocity_refused_position"] += len(chunk)
+        # each plot's track: the one live track of its address (an address two tracks carry,
+        # to be merged this period, is skipped)
+        order = np.argsort(tr.mode_s, kind="stable")
+        sorted_ms = tr.mode_s[order]
+        at = np.minimum(np.searchsorted(sorted_ms, chunk.mode_s), len(tr) - 1)
+        after = np.minimum(at + 1, len(tr) - 1)
+        alone = (sorted_ms[at] == chunk.mode_s) & ((at == after) | (sorted_ms[after] != chunk.mode_s))
+        track_row = np.where(alone, order[at], -1)
+        ok = np.flatnonzero(track_row >= 0)
+        ok = ok[tr.velocity_known[track_row[ok]]]
+        if not ok.size:
+            return np.empty(0, np.int64)
+        ok = ok[np.argsort(chunk.t_s[ok], kind="stable")][::-1]  # latest first
+        _, first = np.unique(track_row[ok], return_index=True)  # each track's latest report
+        i = ok[first]
+        rows = track_row[i]
+        alt_m = flight_level_to_altitude_m(chunk.fl[i])
+        assert chunk.ground_speed_mps is not None and chunk.track_angle_deg is not None
+        vx, vy = ground_velocity_to_plane(
+            self.plane, tr.x[rows, 0], tr.x[rows, 3], chunk.ground_speed_mps[i], chunk.track_angle_deg[i], alt_m
+        )
+        v = np.stack([vx, vy], axis=1)
+        age_s = self.imm.params.velocity_age_s + (tr.t_state_s[rows] - chunk.t_s[i])
+        state = IMMState(tr.x_models, tr.P_models, tr.mu)
+        x, P, used = self.imm.velocity_update_rows(state, rows, v, self._velocity_R(v), age_s)
+        tr.x[rows], tr.P[rows] = x, P
+        self.counters["updates_velocity_refused_position"] += int(used.sum())
+        self.counters["velocity_reports_refused"] += int((~used).sum())
+        updated: np.ndarray = rows[used]
         return updated
 
     def _check_roll(self, rows: np.ndarray, log_bf: np.ndarray) -> None:

@@ -333,6 +333,14 @@ class IMMParams(BaseModel):
         "The aircraft's own GNSS/inertial velocity, good to a metre a second, against the 8-15 m/s a track "
         "derives from positions; in a turn it shows the new course at the first report. False: positions alone",
     )
+    velocity_from_refused_plots: bool = Field(
+        True,
+        description="also take the velocity of a Mode S plot whose position the live wild-plot gate refused, "
+        "for the live track of its address (with velocity_dap): the reply is the aircraft's, only the plot's "
+        "position is off (a reflection, a split plot), and its BDS 5,0 register reads as on any other plot. "
+        "Measured on the 1,000x10 wild twin (seed 2): the worst aircraft's coast through a refused plot in a "
+        "turn. False: a refused plot is dropped whole",
+    )
     velocity_speed_sigma_mps: float = Field(
         0.7,
         gt=0,
