@@ -81,14 +81,6 @@ _D = 6  # the state [x, vx, ax, y, vy, ay]
 _SERIES_USED = 20
 
 
-@_compiled
-def _horner(coeffs: np.ndarray, x: float) -> float:
-    acc = 0.0
-    for i in range(coeffs.shape[0] - 1, -1, -1):
-        acc = acc * x + coeffs[i]
-    return acc
-
-
 #: the order of the q_ij in a Singer model's ``TERMS`` and each one's power of T (q_ij =
 #: 2ασ_m² T^p g_ij(αT)): singer_filter._Q_KEYS and _Q_POWER, written out in
 #: :func:`_singer_terms`
