@@ -1098,18 +1098,28 @@ class Engine:
         has = np.isfinite(cl.dap_v_mps[matched, 0])
         if not has.any():
             return rows[:0]
-        p, tr = self.imm.params, self.tracks
+        p = self.imm.params
         r, k = rows[has], matched[has]
         v = cl.dap_v_mps[k]
         R = self._velocity_R(v)
         if birth:  # nothing to check a new track's report against: it starts less sure of it
             R += p.velocity_birth_sigma_mps**2 * np.eye(2)
+        return self._velocity_update_rows(r, v, R, cl.dap_age_s[k], "updates_velocity")
+
+    def _velocity_update_rows(
+        self, rows: np.ndarray, v: np.ndarray, R: np.ndarray, age_s: np.ndarray, counter: str
+    ) -> np.ndarray:
+        """The IMM's velocity update of the tracks ``rows`` with reports v, R, ``age_s`` old
+        (imm.IMMFilter.velocity_update_rows) and their combined x, P; the reports used counted
+        under ``counter``, the others as refused. Returns the rows updated."""
+        assert self.imm is not None
+        tr = self.tracks
         state = IMMState(tr.x_models, tr.P_models, tr.mu)
-        x, P, used = self.imm.velocity_update_rows(state, r, v, R, cl.dap_age_s[k])
-        tr.x[r], tr.P[r] = x, P
-        self.counters["updates_velocity"] += int(used.sum())
+        x, P, used = self.imm.velocity_update_rows(state, rows, v, R, age_s)
+        tr.x[rows], tr.P[rows] = x, P
+        self.counters[counter] += int(used.sum())
         self.counters["velocity_reports_refused"] += int((~used).sum())
-        updated: np.ndarray = r[used]
+        updated: np.ndarray = rows[used]
         return updated
 
     def _velocity_R(self, v: np.ndarray) -> np.ndarray:
@@ -1131,20 +1141,16 @@ class Engine:
     def _refused_with_velocity(self, raw: PlotChunk, refused: np.ndarray) -> PlotChunk | None:
         """Of the plots ``refused`` by the live gate, the Mode S ones that carry the aircraft's
         own velocity (``velocity_from_refused_plots``): kept for :meth:`_update_velocity_of_refused`."""
-        if (
-            self.imm is None
-            or not self.imm.params.velocity_dap
-            or not self.imm.params.velocity_from_refused_plots
-            or raw.ground_speed_mps is None
-        ):
+        if self.imm is None or not self.imm.params.velocity_dap or not self.imm.params.velocity_from_refused_plots:
             return None
         keep = refused & (raw.mode_s >= 0) & np.isfinite(raw.ground_speed_mps) & np.isfinite(raw.track_angle_deg)
         return raw.select(keep) if keep.any() else None
 
     def _update_velocity_of_refused(self) -> np.ndarray:
         """The velocity of the period's Mode S plots whose position the live gate refused,
-        for the one live track of each address whose velocity is known (the reply is the
-        aircraft's; only the plot's position is off): the IMM's velocity update
+        for the live track of each address whose velocity is known (the older of two, as
+        association.address_pairs takes; the reply is the aircraft's, only the plot's
+        position is off): the IMM's velocity update
         (imm.IMMFilter.velocity_update_rows) at the track's own time, the report
         ``velocity_age_s`` old at its plot's time, so ``velocity_age_s`` + (the track's time −
         the plot's) before the state (negative: after it; the state's acceleration carries
@@ -1156,36 +1162,19 @@ class Engine:
         if chunk is None or not len(tr):
             return np.empty(0, np.int64)
         self.counters["plots_velocity_refused_position"] += len(chunk)
-        # each plot's track: the one live track of its address (an address two tracks carry,
-        # to be merged this period, is skipped)
-        order = np.argsort(tr.mode_s, kind="stable")
-        sorted_ms = tr.mode_s[order]
-        at = np.minimum(np.searchsorted(sorted_ms, chunk.mode_s), len(tr) - 1)
-        after = np.minimum(at + 1, len(tr) - 1)
-        alone = (sorted_ms[at] == chunk.mode_s) & ((at == after) | (sorted_ms[after] != chunk.mode_s))
-        track_row = np.where(alone, order[at], -1)
-        ok = np.flatnonzero(track_row >= 0)
-        ok = ok[tr.velocity_known[track_row[ok]]]
-        if not ok.size:
+        p, t = association.address_pairs(chunk.mode_s, np.ones(len(chunk), bool), tr.mode_s, tr.velocity_known)
+        if not p.size:
             return np.empty(0, np.int64)
-        ok = ok[np.argsort(chunk.t_s[ok], kind="stable")][::-1]  # latest first
-        _, first = np.unique(track_row[ok], return_index=True)  # each track's latest report
-        i = ok[first]
-        rows = track_row[i]
+        latest = np.argsort(chunk.t_s[p], kind="stable")[::-1]
+        _, first = np.unique(t[latest], return_index=True)  # each track's latest report
+        i, rows = p[latest[first]], t[latest[first]]
         alt_m = flight_level_to_altitude_m(chunk.fl[i])
-        assert chunk.ground_speed_mps is not None and chunk.track_angle_deg is not None
         vx, vy = ground_velocity_to_plane(
             self.plane, tr.x[rows, 0], tr.x[rows, 3], chunk.ground_speed_mps[i], chunk.track_angle_deg[i], alt_m
         )
         v = np.stack([vx, vy], axis=1)
         age_s = self.imm.params.velocity_age_s + (tr.t_state_s[rows] - chunk.t_s[i])
-        state = IMMState(tr.x_models, tr.P_models, tr.mu)
-        x, P, used = self.imm.velocity_update_rows(state, rows, v, self._velocity_R(v), age_s)
-        tr.x[rows], tr.P[rows] = x, P
-        self.counters["updates_velocity_refused_position"] += int(used.sum())
-        self.counters["velocity_reports_refused"] += int((~used).sum())
-        updated: np.ndarray = rows[used]
-        return updated
+        return self._velocity_update_rows(rows, v, self._velocity_R(v), age_s, "updates_velocity_refused_position")
 
     def _check_roll(self, rows: np.ndarray, log_bf: np.ndarray) -> None:
         """The roll reports' check, per track: s ← memory · s + log BF, the Bayes factor by

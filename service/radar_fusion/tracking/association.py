@@ -178,6 +178,17 @@ def identity_pairs(
     refuses a corrupted or duplicated address far away. With two live tracks on one
     address (until the engine merges them), the older (its row comes first) is taken.
     """
+    p, t = address_pairs(plot_ms, plot_ok, track_ms, track_ok)
+    ok = within_reach(plot_xy[p], plot_cov[p], plot_t[p], last_xy[t], last_cov[t], last_t[t], max_speed_mps)
+    return p[ok], t[ok]
+
+
+def address_pairs(
+    plot_ms: np.ndarray, plot_ok: np.ndarray, track_ms: np.ndarray, track_ok: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(plot, track) pairs of one Mode S address among the plots and tracks ``*_ok``, with
+    no gate; with two such tracks on one address (until the engine merges them), the older
+    (its row comes first) is taken."""
     has = np.flatnonzero(plot_ok & (plot_ms >= 0))
     rows = np.flatnonzero(track_ok & (track_ms >= 0))
     empty = np.empty(0, dtype=np.intp)
@@ -187,9 +198,7 @@ def identity_pairs(
     keys = track_ms[order]
     at = np.minimum(np.searchsorted(keys, plot_ms[has]), keys.size - 1)
     hit = keys[at] == plot_ms[has]
-    p, t = has[hit], order[at[hit]]
-    ok = within_reach(plot_xy[p], plot_cov[p], plot_t[p], last_xy[t], last_cov[t], last_t[t], max_speed_mps)
-    return p[ok].astype(np.intp), t[ok].astype(np.intp)
+    return has[hit].astype(np.intp), order[at[hit]].astype(np.intp)
 
 
 def within_reach(
