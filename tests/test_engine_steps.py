@@ -475,11 +475,53 @@ def test_two_first_plots_of_one_address_the_next_plots_choose_the_first_position
         eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0))
         outs += eng.poll()
     outs += _heartbeats(eng, T0 + 4.0 * (first + 2) + 3.9)
-    assert eng.counters["tracks_first_replaced"] == 1
+    # a's point chosen: nearer the next plots (engine._choose_first), or paired with them
+    # where they are too far from the kept one for the aircraft to have flown (_hold_far)
+    assert eng.counters["tracks_first_replaced"] + eng.counters["tracks_far_reinitiated"] == 1
     got = _first_outputs({round((o.t_s - T0) / 4.0) - 1: o for o in outs})  # by period (its end's time)
     assert got[0][0] > 3_500.0  # period 0 shows the kept plot: one plot cannot tell
     assert got[first][0] < 50.0 and got[first][1] < 15.0, got
     assert got[first + 1][0] < 50.0 and got[first + 1][1] < 15.0, got
+
+
+@pytest.mark.parametrize(
+    ("wild_along_m", "wild_across_m", "counter"),
+    [(0.0, 3_000.0, "tracks_far_reinitiated"), (1_500.0, 0.0, "tracks_first_replaced")],
+)
+def test_a_good_first_plot_survives_a_wild_second_of_its_radar(wild_along_m, wild_across_m, counter):
+    """Radar a alone (b silent): its first plot of the aircraft is good, its next scan's is
+    wild, too far from the first for the aircraft to have flown there (a second one-plot
+    track on the address, merged keeping the later), and the third is good again. The first
+    plot is held beside the wild one (track_management.merge_same_address) and the third
+    plot pairs with it: the track starts from the two good plots in the third period.
+
+    * 3 km across the track: the third plot is out of reach of the wild one too; it joins
+      the track by reaching the held one (association.reach_either) and is paired with it
+      (engine._hold_far). Before, it started a third one-plot track, merged again: no
+      velocity until the fourth plot, the aircraft 1.4 km on by then.
+    * 1.5 km ahead: the third plot is within reach of both and nearer the held one
+      (engine._choose_first). Before, the first plot was dropped and the two-point velocity
+      of the wild and the third plot was 375 m/s off.
+
+    Noise-free plots: the two good points give the velocity exactly (Shu §4)."""
+    eng = Engine(settings())
+    along = V_MPS / np.hypot(*V_MPS)
+    across = np.array([-along[1], along[0]])
+    outs = []
+    for k in range(5):
+        t = T0 + 4.0 * k + 1.0
+        xy = truth_xy(t) + (wild_along_m * along + wild_across_m * across if k == 1 else 0.0)
+        eng.ingest_plots(_plot_at(eng, 0, k + 1, t, xy))
+        eng.ingest_status(RadarStatus(radar_id="b", t=T0 + 4.0 * k + 3.9, kind="heartbeat"))
+        eng.ingest_status(RadarStatus(radar_id="a", t=T0 + 4.0 * k + 3.9, kind="heartbeat"))
+        outs += eng.poll()
+    ids = {int(i) for o in outs for i in o.track_columns.track_id}
+    assert len(ids) == 1
+    assert eng.counters["tracks_merged"] == 1 and eng.counters[counter] == 1
+    got = _first_outputs({round((o.t_s - T0) / 4.0) - 1: o for o in outs})
+    assert got[1][0] > 1_000.0  # the wild plot shown: one plot cannot tell
+    for k in (2, 3):
+        assert got[k][0] < 50.0 and got[k][1] < 15.0, got
 
 
 # ------------------------------------------------------------------ re-acquisition

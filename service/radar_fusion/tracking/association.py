@@ -164,6 +164,7 @@ def identity_pairs(
     last_cov: np.ndarray,
     last_t: np.ndarray,
     max_speed_mps: float,
+    alt: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(plot, track) pairs of one Mode S address, inside a sanity gate from the maximum speed.
 
@@ -177,10 +178,36 @@ def identity_pairs(
     of the track's last measured position (its state at its own time t_last), which
     refuses a corrupted or duplicated address far away. With two live tracks on one
     address (until the engine merges them), the older (its row comes first) is taken.
+    ``alt``: a second measured position per track (positions, covariances, times; NaN time:
+    none) that the plot may be within reach of instead (:func:`reach_either`).
     """
     p, t = address_pairs(plot_ms, plot_ok, track_ms, track_ok)
-    ok = within_reach(plot_xy[p], plot_cov[p], plot_t[p], last_xy[t], last_cov[t], last_t[t], max_speed_mps)
+    ok = reach_either(plot_xy[p], plot_cov[p], plot_t[p], (last_xy, last_cov, last_t), alt, t, max_speed_mps)
     return p[ok], t[ok]
+
+
+def reach_either(
+    plot_xy: np.ndarray,
+    plot_cov: np.ndarray,
+    plot_t: np.ndarray,
+    last: tuple[np.ndarray, np.ndarray, np.ndarray],
+    alt: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+    track: np.ndarray,
+    max_speed_mps: float,
+) -> np.ndarray:
+    """:func:`within_reach` of each plot from its track's (``track``) last measured position
+    or from its alternative one (``alt``, where its time is finite): a track of one plot
+    that holds a contradicting plot of the same address beside it
+    (track_management.merge_same_address) does not know which of the two is the wild one."""
+    lx, lc, lt = last
+    ok = within_reach(plot_xy, plot_cov, plot_t, lx[track], lc[track], lt[track], max_speed_mps)
+    if alt is not None:
+        ax, ac, at = alt
+        has = np.isfinite(at[track]) & ~ok
+        if has.any():
+            i, ti = np.flatnonzero(has), track[has]
+            ok[i] = within_reach(plot_xy[i], plot_cov[i], plot_t[i], ax[ti], ac[ti], at[ti], max_speed_mps)
+    return ok
 
 
 def address_pairs(
@@ -585,6 +612,7 @@ def gated_pairs(
     last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     velocity_known: np.ndarray | None = None,
     models: tuple[np.ndarray, np.ndarray] | None = None,
+    alt: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Steps 1-3 of clustering.py: candidate (plot, track) pairs, each plot aligned to
     t_ref with the track's velocity, kept when inside the Mahalanobis gate (and the
@@ -603,7 +631,9 @@ def gated_pairs(
     (one update: its velocity is the wide prior, so its χ² gate reaches kilometres) takes
     a plot only where the aircraft could have flown from its one measured position
     (:func:`within_reach`): two clutter plots of two radars must not confirm a track by
-    falling within each other's prior, nor make it fly at Mach 5.
+    falling within each other's prior, nor make it fly at Mach 5. ``alt``: a second measured
+    position per track (NaN time: none) that serves as well as the last one for that reach
+    and for :func:`identity_pairs` (:func:`reach_either`).
 
     ``models``: the IMM's model-conditioned predicted positions (N, M, 2) and covariances
     (N, M, 2, 2) (imm.py, "Gating"). With them, the gate and the assignment cost take the
@@ -649,11 +679,8 @@ def gated_pairs(
     if last is not None and velocity_known is not None:
         young = ~np.asarray(velocity_known, bool)[pair_track]
         if young.any():
-            lx, lc, lt = last
             pp, pt = pair_plot[young], pair_track[young]
-            gated[young] &= within_reach(
-                plot_xy[pp], plot_cov[pp], plot_t[pp], lx[pt], lc[pt], lt[pt], params.max_speed_mps
-            )
+            gated[young] &= reach_either(plot_xy[pp], plot_cov[pp], plot_t[pp], last, alt, pt, params.max_speed_mps)
     pair_plot = pair_plot[gated]
     pair_track = pair_track[gated]
     pair_xy = pair_xy[gated]
@@ -662,7 +689,7 @@ def gated_pairs(
     d2_gate = d2_gate[gated]
     if last is not None and params.identity_association:
         id_plot, id_track = identity_pairs(
-            plot_ms, plot_ok, plot_xy, plot_cov, plot_t, track_ms, track_ok, *last, params.max_speed_mps
+            plot_ms, plot_ok, plot_xy, plot_cov, plot_t, track_ms, track_ok, *last, params.max_speed_mps, alt
         )
         # a plot of a live track's address is offered to that track only (identity_pairs
         # gives a plot at most one track: its address's)

@@ -511,7 +511,8 @@ def merge_same_address(
     not kept: those plots could not reach it and started the younger tracks). When the
     state kept is a single measurement, the latest other member's of the same period and no
     later than it is held beside it (``held_*``, at or before the state's time) for the next
-    measurement to choose from. It is
+    measurement to choose from; without one, the latest one-plot member of an earlier period
+    from the same radars (that radar's previous scan). It is
     confirmed when any member was. The other rows are removed. Rows of ``outputs``
     (arrays row-aligned with the table) are copied the same way but not removed: the
     caller drops them with the returned mask. Returns (keep mask over the table's former
@@ -559,6 +560,20 @@ def merge_same_address(
                 & (table.first_t_s[members] == table.first_t_s[newest])
                 & (table.t_state_s[members] <= table.t_state_s[newest])
             ]
+            if not others.size:
+                # Else a one-plot member of an earlier period, of the kept one's own radars: one
+                # radar's plot and its next scan's that contradict each other, where one is an
+                # isolated wild plot (a run of them would have given both the same error). The
+                # aircraft's next plot chooses, or pairs with it when too far from the kept one
+                # (engine._hold_far): a good first plot and a wild second were lost, and the
+                # track flew the wild plot's two-point velocity, 300-400 m/s off, for 10-20 s
+                # (issue 15 item 7, 3 % wild plots).
+                others = members[
+                    (members != newest)
+                    & ~velocity_known[members]
+                    & (table.t_state_s[members] < table.t_state_s[newest])
+                    & (table.update_sources[members] == table.update_sources[newest])
+                ]
             if others.size:
                 i = others[np.argmax(table.t_state_s[others])]
                 alt = (table.z1_m[i].copy(), table.R1_m2[i].copy(), table.t_state_s[i], table.update_sources[i])
