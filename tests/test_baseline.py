@@ -213,3 +213,125 @@ def test_pcrb_in_turns_is_taken_at_the_times_the_truth_turns(turn_rate_dps):
     else:
         assert f["pcrb_turning_points"] == 0 and math.isnan(f["pcrb_turning_pos_rms_m"])
         assert f["pcrb_straight_pos_rms_m"] == pytest.approx(f["pcrb_pos_rms_m"], rel=1e-12)
+
+
+def _singer_van_loan(dt_s: float, alpha_per_s: float, sigma_m_mps2: float) -> tuple[np.ndarray, np.ndarray]:
+    """Φ and Q of Singer's model per axis (position, velocity, acceleration; acceleration
+    noise of spectral density 2 α σ_m²) by Van Loan's matrix exponential: independent of
+    singer_filter's closed forms."""
+    from scipy.linalg import expm
+
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -alpha_per_s]])
+    G = np.zeros((3, 3))
+    G[2, 2] = 2.0 * alpha_per_s * sigma_m_mps2**2
+    M = expm(np.block([[-A, G], [np.zeros((3, 3)), A.T]]) * dt_s)
+    phi = M[3:, 3:].T
+    return phi, phi @ M[:3, 3:]
+
+
+@pytest.mark.parametrize("turn_rate_dps", [0.0, 2.0])
+def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurements(turn_rate_dps):
+    """The bound with the aircraft's own velocity reports (BDS 5,0) recomputed for one
+    straight-flying aircraft seen by two radars: a covariance-only Kalman filter over its
+    plots in time order, Φ and Q by Van Loan, each plot's position with its converted
+    covariance, then, where the plot carries one, its velocity report (its age unknown: the
+    simulator's mean a) as v − a·acc with the report's noise along the track (speed σ and the
+    2 kt step) and across it (speed × the track angle's σ and the 90/512° step), and the
+    age's spread times the acceleration, v ω across the track in a turn of rate ω (nothing
+    flying straight), predicted to every
+    settled period time: the same RMS as measurement_floor's, with and without the reports;
+    the reports bring it well below the plots' own bound."""
+    import dataclasses
+
+    from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
+    from radar_fusion.geo.units import M_PER_FT
+    from radar_fusion.tools.simulate.scenario import Leg
+    from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
+
+    scenario = sm.scenario_for_benchmark(1, 2, 90.0, 2)
+    tg = scenario.targets[0]
+    scenario = dataclasses.replace(
+        scenario,
+        targets=[dataclasses.replace(tg, plan=dataclasses.replace(tg.plan, legs=(Leg(200.0, turn_rate_dps),)))],
+        rates=dataclasses.replace(scenario.rates, roll_prob=0.5),
+    )
+    sim = sm.simulate(scenario, encode=False)
+    settings = config.settings_from_dict(tomllib.loads(sm.config_toml(scenario)))
+    settle_s = 20.0
+    f = compare.measurement_floor(sim, settings, settle_s=settle_s)
+    assert f["pcrb_velocity_reports"] > 5
+
+    cols = [c for c in sim.plot_columns if len(c)]
+    cat = lambda name: np.concatenate([getattr(c, name) for c in cols])
+    radar = np.concatenate([np.full(len(c), c.radar_index) for c in cols])
+    keep = (cat("target_index") == 0) & ~cat("wild")
+    t, gs = cat("t_s")[keep], cat("ground_speed_mps")[keep]
+    age_s = float(np.mean(scenario.rates.dap_age_s))
+    _x, _y, cov, _g, valid = polar_to_plane(
+        sim.plane,
+        sim.sites,
+        radar[keep],
+        cat("range_m")[keep],
+        cat("azimuth_deg")[keep],
+        flight_level_to_altitude_m(cat("fl")[keep]),
+        assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT,
+        return_valid=True,
+    )
+    assert valid.all()
+    order = np.argsort(t, kind="stable")
+    t, gs, cov = t[order], gs[order], cov[order]
+    assert np.all(np.diff(t) < 60.0)  # no gap: one track throughout
+    imm, rates = settings.tracking.imm, scenario.rates
+    alpha, sigma_m = imm.quiet_alpha_per_s, imm.quiet_sigma_m_mps2
+
+    def bound(with_velocity: bool) -> float:
+        pos = [0, 3]
+        P = np.zeros((6, 6))
+        P[np.ix_(pos, pos)] = cov[0]
+        P[1, 1] = P[4, 4] = unknown_velocity_var_m2ps2(settings.clustering.max_speed_mps)
+        P[2, 2] = P[5, 5] = sigma_m**2
+        history = []
+
+        def update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> np.ndarray:
+            K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+            return (np.eye(6) - K @ H) @ P
+
+        def predict(P: np.ndarray, dt_s: float) -> np.ndarray:
+            phi, q = _singer_van_loan(dt_s, alpha, sigma_m)
+            F, Q = np.kron(np.eye(2), phi), np.kron(np.eye(2), q)
+            return F @ P @ F.T + Q
+
+        for i in range(t.size):
+            if i:
+                P = predict(P, t[i] - t[i - 1])
+                P = update(P, np.eye(6)[pos], cov[i])
+            if with_velocity and np.isfinite(gs[i]):
+                H = np.zeros((2, 6))
+                H[0, 1] = H[1, 4] = 1.0
+                H[0, 2] = H[1, 5] = -age_s
+                v = sim.truth_at(np.array([0]), np.array([t[i] - age_s]))
+                u = np.array([v["vx_mps"][0], v["vy_mps"][0]])
+                speed = float(np.hypot(*u))
+                u /= speed
+                w = np.array([u[1], -u[0]])
+                var_u = rates.sigma_ground_speed_mps**2 + (2.0 * 1852.0 / 3600.0) ** 2 / 12.0
+                var_w = (speed * np.radians(1.0)) ** 2 * (rates.sigma_track_angle_deg**2 + (90.0 / 512.0) ** 2 / 12.0)
+                lo, hi = scenario.rates.dap_age_s
+                var_w += (hi - lo) ** 2 / 12.0 * (speed * np.radians(turn_rate_dps)) ** 2
+                P = update(P, H, var_u * np.outer(u, u) + var_w * np.outer(w, w))
+            history.append(P)
+        period = settings.system.period_s
+        q = np.arange(math.ceil(scenario.start_t_s / period), math.floor((scenario.start_t_s + 90.0) / period) + 1)
+        q = q * period
+        q = q[q >= t[0] + settle_s]
+        total = 0.0
+        for tq in q:
+            j = np.searchsorted(t, tq, side="right") - 1
+            Pq = predict(history[j], tq - t[j])
+            total += Pq[0, 0] + Pq[3, 3]
+        return math.sqrt(total / q.size)
+
+    # (measurement_floor takes the acceleration from the truth's velocity 1 s apart: a chord)
+    assert f["pcrb_pos_rms_m"] == pytest.approx(bound(False), rel=1e-6)
+    assert f["pcrb_velocity_pos_rms_m"] == pytest.approx(bound(True), rel=1e-5)
+    assert f["pcrb_velocity_pos_rms_m"] < 0.8 * f["pcrb_pos_rms_m"]

@@ -169,6 +169,13 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     as ``evaluate`` splits them),
     comparable with the settled straight-flight RMS; and over the times in turns,
     comparable with the settled turning RMS.
+
+    The same bound with the aircraft's own velocity too (``pcrb_velocity_*``): each plot's
+    Mode S BDS 5,0 ground speed and track, where the simulator gave one, as a second update
+    at the plot's time (its age unknown, as to the engine: see below). The engine takes
+    those reports (imm.IMMFilter.velocity_update_rows), so this is the bound of everything
+    it is given; the plots' alone undercounts it (straight flight came out at 0.58-0.77× that
+    one). Reports on wild plots are left out with their plots.
     """
     import numpy as np
 
@@ -186,8 +193,10 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     cat = lambda name: np.concatenate([getattr(c, name) for c in cols])
     radar = np.concatenate([np.full(len(c), c.radar_index) for c in cols])
     t, rng, az, fl, tgt, wild = (cat(k) for k in ("t_s", "range_m", "azimuth_deg", "fl", "target_index", "wild"))
+    gs_mps = cat("ground_speed_mps")
     keep = (tgt >= 0) & ~wild
     t, rng, az, fl, tgt, radar = t[keep], rng[keep], az[keep], fl[keep], tgt[keep], radar[keep]
+    gs_mps = gs_mps[keep]
     x, y, cov, _g, valid = polar_to_plane(
         sim.plane,
         sim.sites,
@@ -199,6 +208,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         return_valid=True,
     )
     t, x, y, cov, tgt = t[valid], x[valid], y[valid], cov[valid], tgt[valid]
+    gs_mps = gs_mps[valid]
     truth = sim.truth_at(tgt, t)
     err2 = (x - truth["x_m"]) ** 2 + (y - truth["y_m"]) ** 2
     out = {
@@ -214,14 +224,42 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     else:
         alpha, sigma_m = trk.alpha_per_s, trk.sigma_m_mps2
     order = np.lexsort((t, tgt))
-    t, cov, tgt = t[order], cov[order], tgt[order]
+    t, cov, tgt, gs_mps = t[order], cov[order], tgt[order], gs_mps[order]
     n = t.size
+    # The aircraft's own velocity (Mode S BDS 5,0) on the plots that carry it: the truth's
+    # velocity an age τ before the plot, τ uniform over the simulator's dap_age_s and not
+    # known to any tracker (nothing on the wire says it). To first order v(t − τ) = v(t) −
+    # τ̄ a(t) − (τ − τ̄) a(t) (as the engine's update, imm.IMMFilter.velocity_update_rows):
+    # H picks v − τ̄ a, and the unknown part of the age adds var(τ) a aᵀ to the report's
+    # noise (a the truth's acceleration: a bound told the turn); the noise itself is the
+    # simulator's with the register's rounding (2 kt and 90/512°, uniform: step²/12) along
+    # and across the track.
+    rates = sim.scenario.rates
+    age_lo_s, age_hi_s = rates.dap_age_s
+    age_mean_s, age_var_s2 = 0.5 * (age_lo_s + age_hi_s), (age_hi_s - age_lo_s) ** 2 / 12.0
+    has_v = np.isfinite(gs_mps)
+    Hv = np.zeros((int(has_v.sum()), 2, 6))
+    Hv[:, 0, 1] = Hv[:, 1, 4] = 1.0
+    Hv[:, 0, 2] = Hv[:, 1, 5] = -age_mean_s
+    tv = sim.truth_at(tgt[has_v], t[has_v] - age_mean_s)
+    t_early, t_late = (sim.truth_at(tgt[has_v], t[has_v] - age_mean_s + d) for d in (-0.5, 0.5))
+    acc = np.stack([t_late["vx_mps"] - t_early["vx_mps"], t_late["vy_mps"] - t_early["vy_mps"]], axis=1)  # /1 s
+    speed = np.maximum(np.hypot(tv["vx_mps"], tv["vy_mps"]), 1e-3)
+    along = np.stack([tv["vx_mps"], tv["vy_mps"]], axis=1) / speed[:, None]
+    across = np.stack([along[:, 1], -along[:, 0]], axis=1)
+    kt_mps = 1852.0 / 3600.0
+    var_along = rates.sigma_ground_speed_mps**2 + (2.0 * kt_mps) ** 2 / 12.0
+    var_across = speed**2 * np.radians(np.hypot(rates.sigma_track_angle_deg, (90.0 / 512.0) / math.sqrt(12.0))) ** 2
+    Rv = along[:, :, None] * along[:, None, :] * var_along
+    Rv += var_across[:, None, None] * across[:, :, None] * across[:, None, :]
+    Rv += age_var_s2 * acc[:, :, None] * acc[:, None, :]
+    v_row = np.full(n, -1)
+    v_row[has_v] = np.arange(int(has_v.sum()))
     first = np.r_[True, tgt[1:] != tgt[:-1]]
     start = np.flatnonzero(first)
     rank = np.arange(n) - np.repeat(start, np.diff(np.r_[start, n]))
     H = np.zeros((2, 6))
     H[0, 0] = H[1, 3] = 1.0
-    P = np.zeros((n, 6, 6))
 
     def prior(i: np.ndarray) -> np.ndarray:
         p0 = np.zeros((i.size, 6, 6))
@@ -230,33 +268,53 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         p0[:, 2, 2] = p0[:, 5, 5] = sigma_m**2
         return p0
 
-    for r in range(int(rank.max()) + 1):
-        idx = np.flatnonzero(rank == r)
-        if r == 0:
-            P[idx] = prior(idx)
-            continue
-        # after a gap longer than a track survives (the aircraft left coverage), the next
-        # plot starts a new track: the bound restarts from the one-plot prior
-        restart = t[idx] - t[idx - 1] > gap_s
-        P[idx[restart]] = prior(idx[restart])
-        idx = idx[~restart]
-        dt = t[idx] - t[idx - 1]
-        F = singer_transition(dt, alpha)
-        Pp = F @ P[idx - 1] @ np.swapaxes(F, 1, 2) + singer_process_noise(dt, alpha, sigma_m)
-        S = Pp[:, [0, 0, 3, 3], [0, 3, 0, 3]].reshape(-1, 2, 2) + cov[idx]
-        K = Pp @ H.T @ np.linalg.inv(S)
-        IKH = np.eye(6) - K @ H
-        # Joseph form: stays symmetric positive semi-definite in floating point
-        P[idx] = IKH @ Pp @ np.swapaxes(IKH, 1, 2) + K @ cov[idx] @ np.swapaxes(K, 1, 2)
+    def joseph(Pp: np.ndarray, Hm: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Covariance update in Joseph form: stays symmetric positive semi-definite in floating point."""
+        S = Hm @ Pp @ np.swapaxes(Hm, -1, -2) + R
+        K = Pp @ np.swapaxes(Hm, -1, -2) @ np.linalg.inv(S)
+        IKH = np.eye(6) - K @ Hm
+        out: np.ndarray = IKH @ Pp @ np.swapaxes(IKH, 1, 2) + K @ R @ np.swapaxes(K, 1, 2)
+        return out
+
+    def recursion(with_velocity: bool) -> np.ndarray:
+        P = np.zeros((n, 6, 6))
+
+        def velocity_update(i: np.ndarray) -> None:
+            if with_velocity:
+                j = i[v_row[i] >= 0]
+                P[j] = joseph(P[j], Hv[v_row[j]], Rv[v_row[j]])
+
+        for r in range(int(rank.max()) + 1):
+            idx = np.flatnonzero(rank == r)
+            if r == 0:
+                P[idx] = prior(idx)
+                velocity_update(idx)
+                continue
+            # after a gap longer than a track survives (the aircraft left coverage), the next
+            # plot starts a new track: the bound restarts from the one-plot prior
+            restart = t[idx] - t[idx - 1] > gap_s
+            P[idx[restart]] = prior(idx[restart])
+            velocity_update(idx[restart])
+            idx = idx[~restart]
+            dt = t[idx] - t[idx - 1]
+            F = singer_transition(dt, alpha)
+            Pp = F @ P[idx - 1] @ np.swapaxes(F, 1, 2) + singer_process_noise(dt, alpha, sigma_m)
+            P[idx] = joseph(Pp, H, cov[idx])
+            velocity_update(idx)
+        return P
+
+    P = recursion(with_velocity=False)
+    Pv = recursion(with_velocity=True) if has_v.any() else None
     # evaluation at the period times
     period_s = float(settings.system.period_s)
     sc = sim.scenario
     times = np.arange(math.ceil(sc.start_t_s / period_s), math.floor((sc.start_t_s + sc.duration_s) / period_s) + 1)
     times = times * period_s
     tr = sim.truth
-    var_sum, count = 0.0, 0
-    straight_sum, straight_count = 0.0, 0
-    turning_sum, turning_count = 0.0, 0
+    bounds = [P] if Pv is None else [P, Pv]
+    var_sum, count = np.zeros(2), 0
+    straight_sum, straight_count = np.zeros(2), 0
+    turning_sum, turning_count = np.zeros(2), 0
     for k, s in enumerate(start.tolist()):
         e = start[k + 1] if k + 1 < start.size else n
         target = int(tgt[s])
@@ -285,19 +343,26 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
             continue
         dt = q - t[j]
         F = singer_transition(dt, alpha)
-        Pq = F @ P[j] @ np.swapaxes(F, 1, 2) + singer_process_noise(dt, alpha, sigma_m)
-        v = Pq[:, 0, 0] + Pq[:, 3, 3]
-        var_sum += float(np.sum(v))
+        Qq = singer_process_noise(dt, alpha, sigma_m)
+        for b, Pb in enumerate(bounds):
+            Pq = F @ Pb[j] @ np.swapaxes(F, 1, 2) + Qq
+            v = Pq[:, 0, 0] + Pq[:, 3, 3]
+            var_sum[b] += float(np.sum(v))
+            straight_sum[b] += float(np.sum(v[straight]))
+            turning_sum[b] += float(np.sum(v[turning]))
         count += q.size
-        straight_sum += float(np.sum(v[straight]))
         straight_count += int(straight.sum())
-        turning_sum += float(np.sum(v[turning]))
         turning_count += int(turning.sum())
-    out["pcrb_pos_rms_m"] = math.sqrt(var_sum / count) if count else math.nan
+    rms = lambda total, c: [math.sqrt(x / c) if c else math.nan for x in total]
+    out["pcrb_pos_rms_m"], out["pcrb_velocity_pos_rms_m"] = rms(var_sum, count)
     out["pcrb_points"] = count
-    out["pcrb_straight_pos_rms_m"] = math.sqrt(straight_sum / straight_count) if straight_count else math.nan
-    out["pcrb_turning_pos_rms_m"] = math.sqrt(turning_sum / turning_count) if turning_count else math.nan
+    out["pcrb_straight_pos_rms_m"], out["pcrb_velocity_straight_pos_rms_m"] = rms(straight_sum, straight_count)
+    out["pcrb_turning_pos_rms_m"], out["pcrb_velocity_turning_pos_rms_m"] = rms(turning_sum, turning_count)
     out["pcrb_turning_points"] = turning_count
+    out["pcrb_velocity_reports"] = int(has_v.sum())
+    if Pv is None:  # no plot carries a velocity: the second bound is the first
+        for key in ("pcrb_velocity_pos_rms_m", "pcrb_velocity_straight_pos_rms_m", "pcrb_velocity_turning_pos_rms_m"):
+            out[key] = out[key.replace("_velocity", "")]
     return out
 
 
