@@ -689,7 +689,7 @@ def summary_table(rows: list[dict[str, Any]], header: list[str]) -> str:
         "ours/SS",
         "pos RMS ours / SS / best radar m",
         "GOSPA ours / SS m (settled)",
-        "PCRB m",
+        "PCRB m (plots / with velocity reports)",
     ]
     lines = [
         f"_{header[0].split(';')[0]}; {header[1]}_",
@@ -733,7 +733,12 @@ def summary_table(rows: list[dict[str, Any]], header: list[str]) -> str:
                         ]
                     )
                     + ")",
-                    _f(row["sim"]["pcrb_pos_rms_m"]),
+                    _f(row["sim"]["pcrb_pos_rms_m"])
+                    + (
+                        f" / {_f(row['sim']['pcrb_velocity_pos_rms_m'])}"
+                        if "pcrb_velocity_pos_rms_m" in row["sim"]
+                        else ""
+                    ),
                 ]
             )
             + " |"
