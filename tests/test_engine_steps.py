@@ -524,6 +524,32 @@ def test_a_good_first_plot_survives_a_wild_second_of_its_radar(wild_along_m, wil
         assert got[k][0] < 50.0 and got[k][1] < 15.0, got
 
 
+def test_a_held_first_plot_past_its_window_is_not_reached_through():
+    """As above (3 km across), but the third plot comes late in its period, 10.5 s after the
+    held first plot, past the 10 s it is kept (``far_hold_scans`` 2.5 × the 4 s revisit):
+    the third plot does not join through it (association.reach_either checks each plot's
+    own time), so it is not held as a far plot against the wild state while the good first
+    one expires (the review's case: the track then paired with the wild plot, 142 m and
+    285 m/s off). It starts a one-plot track that the merge takes, and the fourth and fifth
+    plots give the velocity."""
+    eng = Engine(settings())
+    along = V_MPS / np.hypot(*V_MPS)
+    across = np.array([-along[1], along[0]])
+    outs = []
+    for k in range(6):
+        t = T0 + 4.0 * k + (3.5 if k == 2 else 1.0)
+        xy = truth_xy(t) + (3_000.0 * across if k == 1 else 0.0)
+        eng.ingest_plots(_plot_at(eng, 0, k + 1, t, xy))
+        eng.ingest_status(RadarStatus(radar_id="b", t=T0 + 4.0 * k + 3.9, kind="heartbeat"))
+        eng.ingest_status(RadarStatus(radar_id="a", t=T0 + 4.0 * k + 3.9, kind="heartbeat"))
+        outs += eng.poll()
+    assert len({int(i) for o in outs for i in o.track_columns.track_id}) == 1
+    assert eng.counters["plots_far_held"] == 0 and eng.counters["plots_far_dropped"] == 0
+    got = _first_outputs({round((o.t_s - T0) / 4.0) - 1: o for o in outs})
+    for k in (3, 4):
+        assert got[k][0] < 50.0 and got[k][1] < 15.0, got
+
+
 # ------------------------------------------------------------------ re-acquisition
 def _ids_by_period(gap_periods, offset_m=0.0, reacquire_s=None):
     """The aircraft is seen for 6 periods, unseen for ``gap_periods`` (heartbeats only),

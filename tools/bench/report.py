@@ -664,8 +664,9 @@ COMPARE_NOTES = [
     "settled times and over straight flight alone (truth turn rate < 0.3°/s). Truth flying exactly straight "
     "accelerates less than the model allows, so a tracker can come out at or a little below it there. "
     "With the aircraft's velocity reports: the same bound with each Mode S plot's BDS 5,0 ground speed and "
-    "track too (the simulator's noise and rounding, its age known); issue 15's straight-flight goal is "
-    "judged against this one, the bound of everything the engine is given.",
+    "track too (the simulator's noise and rounding; each report's age unknown but for its mean and "
+    "spread); issue 15's straight-flight goal is judged against this one, the bound of everything the "
+    "engine is given.",
     "ADS-B truth: each flight's fixes (stale repeats dropped) smoothed by a robust cubic smoothing spline "
     "per axis in a local plane (tools/smoothing.py: Huber then bisquare reweighting, lam from a 40 m fix error "
     "and 5 m²/s³ white acceleration); the radars are simulated from that path and the truth velocity is its "

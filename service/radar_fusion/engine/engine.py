@@ -464,27 +464,29 @@ class Engine:
             track_last_t_s=tr.t_state_s,
             track_velocity_known=tr.velocity_known,
             track_models=self._gate_models(pred),
-            track_alt=self._alternatives(t_ref_s),
+            track_alt=self._alternatives(),
         )
         self.counters["plots_redundant"] += int(res.redundant.sum())
         self.counters["plots_unused"] += int(((res.labels < 0) & ~res.redundant).sum())
         return res
 
-    def _alternatives(self, t_ref_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """The measurement a one-plot track holds beside its own (``held_*`` at or before its
-        state's time, track_management.merge_same_address, not older than ``far_hold_scans``
-        of its revisit time for the period ending at ``t_ref_s``), or None when no track holds one: the aircraft's
-        next plot joins the track when within reach of either, since one of the two is wild
-        (association.reach_either); :meth:`_hold_far` then pairs it with the one it reaches."""
+    def _alternatives(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The measurement a one-plot track holds beside its own from its own radars' previous
+        scan (``held_*`` at or before its state's time, of the state's radars:
+        track_management.merge_same_address), with the time after it within which it is kept
+        (``far_hold_scans`` revisit times, as :meth:`_hold_far` keeps it); None when no track
+        holds one. The aircraft's next plot joins the track when within reach of either, since
+        one of the two is wild (association.reach_either); :meth:`_hold_far` then pairs it with
+        the one it reaches. Alternatives of other radars (two one-plot tracks of one period) are
+        left out: their next plots choose only when they reach the state, as before."""
         tr = self.tracks
         if not self.clustering.far_hold or not len(tr):
             return None
-        alt = tr.held_alternative & ~tr.velocity_known
-        # the period's plots are at most period_s before t_ref_s (_hold_far checks each one's own time)
-        alt &= t_ref_s - self.settings.system.period_s - tr.held_t_s <= self.clustering.far_hold_scans * tr.revisit_s
+        alt = tr.held_alternative & ~tr.velocity_known & (tr.held_sources == tr.update_sources)
         if not alt.any():
             return None
-        return tr.held_z_m, np.nan_to_num(tr.held_R_m2), np.where(alt, tr.held_t_s, np.nan)
+        window_s = self.clustering.far_hold_scans * tr.revisit_s
+        return tr.held_z_m, np.nan_to_num(tr.held_R_m2), np.where(alt, tr.held_t_s, np.nan), window_s
 
     # ------------------------------------------------------------------ fuse
     def _fuse(self, plots: ConvertedPlots, res: ClusterResult, pred: Prediction, t_ref_s: float) -> ClusterMeasurements:
@@ -890,10 +892,17 @@ class Engine:
         pair = hf & ~self._beyond_reach(
             tr.held_z_m[rf], np.nan_to_num(tr.held_R_m2[rf]), tr.held_t_s[rf], cl.z_m[kf], cl.R_m2[kf], cl.t_s[kf]
         )
-        # An alternative first measurement (held at or before the state's time) pairs too,
-        # whatever its radars: the cluster reached it, not the state (_alternatives). A rule
-        # that wanted another radar's word for it (against one radar's wild run, one constant
-        # error) lost a good first plot whose own radar's next scan was an isolated wild one.
+        # A first measurement's alternative (held at or before the state's time) and a far
+        # cluster of its own radars only agree as one radar's run of wild plots would (one
+        # constant error for several scans): that is no other radar's word against the first.
+        # Unless the state is of those radars too, their next scan (_alternatives): a run
+        # would have given it the same error, so the state is the isolated wild plot.
+        alternative = tr.held_alternative[rf]
+        pair &= (
+            ~alternative
+            | ((cl.sources[kf] & ~tr.held_sources[rf]) != 0)
+            | (tr.update_sources[rf] == tr.held_sources[rf])
+        )
         if pair.any():
             rp = rf[pair]
             self._initiate_from_held(cl, kf[pair], rp)

@@ -164,7 +164,7 @@ def identity_pairs(
     last_cov: np.ndarray,
     last_t: np.ndarray,
     max_speed_mps: float,
-    alt: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    alt: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(plot, track) pairs of one Mode S address, inside a sanity gate from the maximum speed.
 
@@ -178,8 +178,9 @@ def identity_pairs(
     of the track's last measured position (its state at its own time t_last), which
     refuses a corrupted or duplicated address far away. With two live tracks on one
     address (until the engine merges them), the older (its row comes first) is taken.
-    ``alt``: a second measured position per track (positions, covariances, times; NaN time:
-    none) that the plot may be within reach of instead (:func:`reach_either`).
+    ``alt``: a second measured position per track (positions, covariances, times, NaN time:
+    none; and how long after its time it serves) that the plot may be within reach of
+    instead (:func:`reach_either`).
     """
     p, t = address_pairs(plot_ms, plot_ok, track_ms, track_ok)
     ok = reach_either(plot_xy[p], plot_cov[p], plot_t[p], (last_xy, last_cov, last_t), alt, t, max_speed_mps)
@@ -191,19 +192,20 @@ def reach_either(
     plot_cov: np.ndarray,
     plot_t: np.ndarray,
     last: tuple[np.ndarray, np.ndarray, np.ndarray],
-    alt: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+    alt: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None,
     track: np.ndarray,
     max_speed_mps: float,
 ) -> np.ndarray:
     """:func:`within_reach` of each plot from its track's (``track``) last measured position
-    or from its alternative one (``alt``, where its time is finite): a track of one plot
-    that holds a contradicting plot of the same address beside it
+    or from its alternative one (``alt``: positions, covariances, times and how long after
+    its time each serves; where its time is finite and the plot within that time): a track
+    of one plot that holds a contradicting plot of the same address beside it
     (track_management.merge_same_address) does not know which of the two is the wild one."""
     lx, lc, lt = last
     ok = within_reach(plot_xy, plot_cov, plot_t, lx[track], lc[track], lt[track], max_speed_mps)
     if alt is not None:
-        ax, ac, at = alt
-        has = np.isfinite(at[track]) & ~ok
+        ax, ac, at, window_s = alt
+        has = np.isfinite(at[track]) & ~ok & (plot_t - at[track] <= window_s[track])
         if has.any():
             i, ti = np.flatnonzero(has), track[has]
             ok[i] = within_reach(plot_xy[i], plot_cov[i], plot_t[i], ax[ti], ac[ti], at[ti], max_speed_mps)
@@ -612,7 +614,7 @@ def gated_pairs(
     last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     velocity_known: np.ndarray | None = None,
     models: tuple[np.ndarray, np.ndarray] | None = None,
-    alt: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    alt: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Steps 1-3 of clustering.py: candidate (plot, track) pairs, each plot aligned to
     t_ref with the track's velocity, kept when inside the Mahalanobis gate (and the
@@ -632,8 +634,8 @@ def gated_pairs(
     a plot only where the aircraft could have flown from its one measured position
     (:func:`within_reach`): two clutter plots of two radars must not confirm a track by
     falling within each other's prior, nor make it fly at Mach 5. ``alt``: a second measured
-    position per track (NaN time: none) that serves as well as the last one for that reach
-    and for :func:`identity_pairs` (:func:`reach_either`).
+    position per track (NaN time: none; with how long after its time it serves) that serves
+    as well as the last one for that reach and for :func:`identity_pairs` (:func:`reach_either`).
 
     ``models``: the IMM's model-conditioned predicted positions (N, M, 2) and covariances
     (N, M, 2, 2) (imm.py, "Gating"). With them, the gate and the assignment cost take the

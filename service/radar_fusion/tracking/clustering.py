@@ -581,7 +581,7 @@ def cluster_plots(
     track_last_t_s: np.ndarray | None = None,
     track_velocity_known: np.ndarray | None = None,
     track_models: tuple[np.ndarray, np.ndarray] | None = None,
-    track_alt: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    track_alt: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> ClusterResult:
     """Align one period's plots to ``t_ref_s`` and cluster them (see the module docstring).
 
@@ -599,8 +599,8 @@ def cluster_plots(
     (N, M, 2, 2); a plot is in a track's gate when it is in any model's
     (association.gated_pairs).
     ``track_alt``: with ``track_last_*``, a second measured position per track, its
-    covariance and time (NaN: none), that the sanity gate accepts as well
-    (association.reach_either).
+    covariance, time (NaN: none) and how long after that time it serves, that the sanity
+    gate accepts as well (association.reach_either).
     """
     params = ClusteringParams() if params is None else params
     plot_xy = np.asarray(plot_xy_m, dtype=float).reshape(-1, 2)

@@ -551,8 +551,9 @@ def merge_same_address(
             # their first measurements contradict each other (else they had been one
             # cluster), and one plot cannot tell which is wild. The latest of the others is
             # held beside the kept one; the aircraft's next measurement chooses between them
-            # (engine._choose_first). Not one of an earlier period: the plots that started
-            # the kept one could not reach it (above). Not one later than the kept one: it
+            # (engine._choose_first). One of an earlier period only from the kept one's own
+            # radars (below): the plots that started the kept one could not reach it. Not one
+            # later than the kept one: it
             # had fewer radars (the vote above), and a held measurement later than its
             # track's state is a far one (engine._hold_far).
             others = members[
