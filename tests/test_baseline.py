@@ -27,6 +27,23 @@ def _small_case(n_aircraft: int = 8, n_radars: int = 3, duration_s: float = 48.0
     return scenario, sim, settings
 
 
+def _steady_flight(n_aircraft, n_radars, duration_s, seed, turn_rate_dps, roll_prob=None):
+    """The benchmark scenario with every aircraft on one leg at ``turn_rate_dps`` (0: straight)
+    for the whole run, and optionally the share of Mode S plots with a BDS 5,0 (``roll_prob``):
+    (scenario, simulation, settings)."""
+    import dataclasses
+
+    from radar_fusion.tools.simulate.scenario import Leg
+
+    scenario = sm.scenario_for_benchmark(n_aircraft, n_radars, duration_s, seed)
+    legs = (Leg(duration_s + 60.0, turn_rate_dps),)
+    targets = [dataclasses.replace(tg, plan=dataclasses.replace(tg.plan, legs=legs)) for tg in scenario.targets]
+    rates = scenario.rates if roll_prob is None else dataclasses.replace(scenario.rates, roll_prob=roll_prob)
+    scenario = dataclasses.replace(scenario, targets=targets, rates=rates)
+    sim = sm.simulate(scenario, encode=False)
+    return scenario, sim, config.settings_from_dict(tomllib.loads(sm.config_toml(scenario)))
+
+
 @pytest.fixture(scope="module")
 def case():
     return _small_case(n_aircraft=6, duration_s=40.0)
@@ -192,18 +209,7 @@ def test_pcrb_in_turns_is_taken_at_the_times_the_truth_turns(turn_rate_dps):
     straight flight: with every aircraft turning at 2°/s all the time, every settled time is
     a turning one (the turning bound is the whole one, no straight time); flying straight,
     there is no turning time."""
-    import dataclasses
-
-    from radar_fusion.tools.simulate.scenario import Leg
-
-    scenario = sm.scenario_for_benchmark(6, 3, 60.0, 5)
-    targets = []
-    for tg in scenario.targets:
-        plan = dataclasses.replace(tg.plan, legs=(Leg(scenario.duration_s + 60.0, turn_rate_dps),))
-        targets.append(dataclasses.replace(tg, plan=plan))
-    scenario = dataclasses.replace(scenario, targets=targets)
-    sim = sm.simulate(scenario, encode=False)
-    settings = config.settings_from_dict(tomllib.loads(sm.config_toml(scenario)))
+    _scenario, sim, settings = _steady_flight(6, 3, 60.0, 5, turn_rate_dps)
     f = compare.measurement_floor(sim, settings, settle_s=20.0)
     assert f["pcrb_points"] > 20
     if turn_rate_dps:
@@ -241,22 +247,11 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
     flying straight), predicted to every
     settled period time: the same RMS as measurement_floor's, with and without the reports;
     the reports bring it well below the plots' own bound."""
-    import dataclasses
-
     from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
     from radar_fusion.geo.units import M_PER_FT
-    from radar_fusion.tools.simulate.scenario import Leg
     from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
 
-    scenario = sm.scenario_for_benchmark(1, 2, 90.0, 2)
-    tg = scenario.targets[0]
-    scenario = dataclasses.replace(
-        scenario,
-        targets=[dataclasses.replace(tg, plan=dataclasses.replace(tg.plan, legs=(Leg(200.0, turn_rate_dps),)))],
-        rates=dataclasses.replace(scenario.rates, roll_prob=0.5),
-    )
-    sim = sm.simulate(scenario, encode=False)
-    settings = config.settings_from_dict(tomllib.loads(sm.config_toml(scenario)))
+    scenario, sim, settings = _steady_flight(1, 2, 90.0, 2, turn_rate_dps, roll_prob=0.5)
     settle_s = 20.0
     f = compare.measurement_floor(sim, settings, settle_s=settle_s)
     assert f["pcrb_velocity_reports"] > 5
@@ -347,19 +342,9 @@ def test_the_bounds_velocity_report_model_matches_the_simulated_reports(turn_rat
     them), converted to the plane as the engine converts them
     (ground_velocity_to_plane). The residuals' mean is near zero and their variance along and
     across the track within 15 % of the model's."""
-    import dataclasses
-
     from radar_fusion.geo.coordinates import flight_level_to_altitude_m, ground_velocity_to_plane
-    from radar_fusion.tools.simulate.scenario import Leg
 
-    scenario = sm.scenario_for_benchmark(1, 2, 1500.0, 2)
-    tg = scenario.targets[0]
-    scenario = dataclasses.replace(
-        scenario,
-        targets=[dataclasses.replace(tg, plan=dataclasses.replace(tg.plan, legs=(Leg(1600.0, turn_rate_dps),)))],
-        rates=dataclasses.replace(scenario.rates, roll_prob=1.0),
-    )
-    sim = sm.simulate(scenario, encode=False)
+    scenario, sim, _settings = _steady_flight(1, 2, 1500.0, 2, turn_rate_dps, roll_prob=1.0)
     p = sim.all_plots()
     has = np.isfinite(p.ground_speed_mps) & (p.target_index == 0)
     assert has.sum() > 100

@@ -280,8 +280,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         P = np.zeros((n, 6, 6))
 
         def velocity_update(i: np.ndarray) -> None:
-            if with_velocity:
-                j = i[v_row[i] >= 0]
+            j = i[v_row[i] >= 0] if with_velocity else i[:0]
+            if j.size:
                 P[j] = joseph(P[j], Hv[v_row[j]], Rv[v_row[j]])
 
         for r in range(int(rank.max()) + 1):
@@ -303,15 +303,14 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
             velocity_update(idx)
         return P
 
-    P = recursion(with_velocity=False)
-    Pv = recursion(with_velocity=True) if has_v.any() else None
+    # the plots' bound and the bound with the velocity reports (the same where none carries one)
+    bounds = [recursion(with_velocity=False), recursion(with_velocity=True)]
     # evaluation at the period times
     period_s = float(settings.system.period_s)
     sc = sim.scenario
     times = np.arange(math.ceil(sc.start_t_s / period_s), math.floor((sc.start_t_s + sc.duration_s) / period_s) + 1)
     times = times * period_s
     tr = sim.truth
-    bounds = [P] if Pv is None else [P, Pv]
     var_sum, count = np.zeros(2), 0
     straight_sum, straight_count = np.zeros(2), 0
     turning_sum, turning_count = np.zeros(2), 0
@@ -360,9 +359,6 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     out["pcrb_turning_pos_rms_m"], out["pcrb_velocity_turning_pos_rms_m"] = rms(turning_sum, turning_count)
     out["pcrb_turning_points"] = turning_count
     out["pcrb_velocity_reports"] = int(has_v.sum())
-    if Pv is None:  # no plot carries a velocity: the second bound is the first
-        for key in ("pcrb_velocity_pos_rms_m", "pcrb_velocity_straight_pos_rms_m", "pcrb_velocity_turning_pos_rms_m"):
-            out[key] = out[key.replace("_velocity", "")]
     return out
 
 

@@ -482,7 +482,7 @@ class Engine:
         tr = self.tracks
         if not self.clustering.far_hold or not len(tr):
             return None
-        alt = tr.held_alternative & ~tr.velocity_known & (tr.held_sources == tr.update_sources)
+        alt = tr.held_alternative & ~tr.velocity_known & tr.held_own_radars
         if not alt.any():
             return None
         window_s = self.clustering.far_hold_scans * tr.revisit_s
@@ -898,11 +898,7 @@ class Engine:
         # Unless the state is of those radars too, their next scan (_alternatives): a run
         # would have given it the same error, so the state is the isolated wild plot.
         alternative = tr.held_alternative[rf]
-        pair &= (
-            ~alternative
-            | ((cl.sources[kf] & ~tr.held_sources[rf]) != 0)
-            | (tr.update_sources[rf] == tr.held_sources[rf])
-        )
+        pair &= ~alternative | ((cl.sources[kf] & ~tr.held_sources[rf]) != 0) | tr.held_own_radars[rf]
         if pair.any():
             rp = rf[pair]
             self._initiate_from_held(cl, kf[pair], rp)

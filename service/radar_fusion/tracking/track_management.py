@@ -277,6 +277,12 @@ class TrackTable:
         (engine._hold_far). False where none is held."""
         return np.asarray(self.held_t_s <= self.t_state_s)
 
+    @property
+    def held_own_radars(self) -> NDArray[np.bool_]:
+        """Tracks whose held measurement came from the radars of their state's latest update:
+        for an alternative, that radar's previous scan (merge_same_address)."""
+        return np.asarray(self.held_sources == self.update_sources)
+
     def _set_view(self, name: str) -> None:
         view = self._buffers[name][: self.n]
         self._views[name] = view
