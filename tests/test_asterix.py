@@ -236,6 +236,80 @@ def test_the_bridge_sends_each_bds50_field_as_the_register_has_it(monkeypatch):
     assert min(seen.values()) > 300
 
 
+def test_the_bridge_sends_bds60_heading_and_airspeed_as_the_register_has_them():
+    """CAT048 records built with libasterix, their I048/250 holding BDS 6,0 words written
+    out by hand from ICAO Doc 9871 table A-2-96 (bit 1 the MSB of the 56-bit MB field):
+    heading status bit 1, sign bit 2, bits 3-12 of 90/512° (two's complement), magnetic
+    north; IAS status bit 13, bits 14-23 of 1 kt. Each field only where its status bit is
+    set; an airspeed of 0 kt is none; the register beside BDS 5,0 leaves its fields alone."""
+    from types import SimpleNamespace
+
+    from radar_fusion.asterix.decode import CAT048
+
+    # bits 1-23: 1 | 1 | 1000000000 (−512: −90°) | 1 | 0011111010 (250 kt)
+    west_250kt = 0xE009F4_00000000
+    # 1 | 0 | 0100000000 (256: 45°) | 0 (IAS not available) | 1111111111 (ignored)
+    northeast_no_ias = 0x9007FE_00000000
+    # 0 (heading not available) | 0 | 1111111111 (ignored) | 1 | 0000000000 (0 kt: none)
+    no_heading_0kt = 0x3FF800_00000000
+    # 1 | 0 | 0000000000 (0°) | 1 | 1111111111 (1023 kt, the most)
+    north_1023kt = 0x800FFE_00000000
+    # only Mach (status bit 24): neither field
+    mach_only = 0x000001_00000000
+    bds50 = mb_field([(12, 1, 1), (14, 10, 256), (24, 1, 1), (25, 10, 200)])  # 45°, 400 kt
+    words = [
+        [(0x60, west_250kt)],
+        [(0x60, northeast_no_ias)],
+        [(0x60, no_heading_0kt)],
+        [(0x60, north_1023kt)],
+        [(0x60, mach_only)],
+        [(0x50, bds50), (0x60, west_250kt)],
+        [(0x50, bds50)],
+        [],
+    ]
+    want = [  # (magnetic_heading_deg, indicated_airspeed_mps), by hand
+        (270.0, 250 * 1852 / 3600),
+        (45.0, None),
+        (None, None),
+        (0.0, 1023 * 1852 / 3600),
+        (None, None),
+        (270.0, 250 * 1852 / 3600),
+        (None, None),
+        (None, None),
+    ]
+    records = []
+    for k, regs in enumerate(words):
+        items = {
+            "010": (("SAC", 1), ("SIC", 2)),
+            "140": 3600.0 + k,
+            "020": ((("TYP", 5), ("SIM", 0), ("RDP", 0), ("SPI", 0), ("RAB", 0), None),),
+            "040": (("RHO", 10.0 + k), ("THETA", 45.0)),
+            "220": 0x4CA123,
+        }
+        if regs:
+            items["250"] = [(("MBDATA", mb), ("BDS1", reg >> 4), ("BDS2", reg & 0xF)) for reg, mb in regs]
+        records.append(CAT048.cv_record.create(items))
+    block = CAT048.create(records).unparse().to_bytes()
+    bridge = AsterixToWire([SimpleNamespace(id="r1", sac=1, sic=2)], DAY)
+    (m,) = bridge.datagram(block)
+    assert m.key == "radar/r1/plots" and bridge.counters.skipped == Counter()
+    plots = m.message.plots
+    assert len(plots) == len(want)
+    got = [(p.magnetic_heading_deg, p.indicated_airspeed_mps) for p in plots]
+    assert got[0][1] == pytest.approx(128.6111, abs=1e-4) and got[3][1] == pytest.approx(526.2767, abs=1e-4)
+    assert got == [(h, None if ias is None else pytest.approx(ias, rel=1e-15)) for h, ias in want]
+    # BDS 5,0 is read as before, beside BDS 6,0 or not
+    assert [(p.ground_speed_mps, p.track_angle_deg) for p in plots[5:7]] == [(400 * MPS_PER_KT, 45.0)] * 2
+    assert all(p.ground_speed_mps is None for p in plots[:5] + plots[7:])
+    # on the wire: the same values, NaN none, by every reader
+    decoded = decode_plot_batch(m.payload)
+    assert decoded.rejected == {} and len(decoded) == len(want)
+    nan = [math.nan if x is None else x for p in plots for x in (p.magnetic_heading_deg, p.indicated_airspeed_mps)]
+    np.testing.assert_array_equal(
+        np.stack([decoded.magnetic_heading_deg, decoded.indicated_airspeed_mps], 1).ravel(), nan
+    )
+
+
 def test_croatia_pcap_decodes_and_flows():
     items, counters = decode_file(need(CROATIA))
     assert counters.counts["cat048_records"] == 128

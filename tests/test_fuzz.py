@@ -69,7 +69,7 @@ def check_decoded(d) -> None:
     n = len(d)
     for col in (
         d.range_m, d.azimuth_deg, d.fl, d.mode3a, d.mode_s, d.track_no, d.kind,
-        d.roll_deg, d.ground_speed_mps, d.track_angle_deg,
+        d.roll_deg, d.ground_speed_mps, d.track_angle_deg, d.magnetic_heading_deg, d.indicated_airspeed_mps,
     ):  # fmt: skip
         assert col.shape == (n,)
     assert np.isfinite(d.t_s).all() and np.isfinite(d.range_m).all() and np.isfinite(d.azimuth_deg).all()
@@ -79,6 +79,9 @@ def check_decoded(d) -> None:
     assert (np.isnan(d.roll_deg) | ((d.roll_deg >= -90) & (d.roll_deg <= 90))).all()
     assert (np.isnan(d.ground_speed_mps) | ((d.ground_speed_mps >= 0) & (d.ground_speed_mps <= 1100))).all()
     assert (np.isnan(d.track_angle_deg) | ((d.track_angle_deg >= 0) & (d.track_angle_deg < 360))).all()
+    hdg, ias = d.magnetic_heading_deg, d.indicated_airspeed_mps
+    assert (np.isnan(hdg) | ((hdg >= 0) & (hdg < 360))).all()
+    assert (np.isnan(ias) | ((ias > 0) & (ias <= 526.3))).all()
     assert ((d.mode3a >= -1) & (d.mode3a <= 0o7777)).all() and ((d.mode_s >= -1) & (d.mode_s < 1 << 24)).all()
 
 
@@ -196,6 +199,8 @@ BAD_PLOTS = [
     *[({"roll_deg": v}, "plot_non_finite") for v in (math.nan, math.inf)],
     *[({"ground_speed_mps": v}, "plot_non_finite") for v in (math.nan, math.inf)],
     *[({"track_angle_deg": v}, "plot_non_finite") for v in (math.nan, -math.inf)],
+    *[({"magnetic_heading_deg": v}, "plot_non_finite") for v in (math.nan, math.inf)],
+    *[({"indicated_airspeed_mps": v}, "plot_non_finite") for v in (math.nan, -math.inf)],
     *[({"range_m": v}, "plot_out_of_range") for v in (-1.0, -1e9, 2e6 + 1)],
     *[({"azimuth_deg": v}, "plot_out_of_range") for v in (360.0, 720.0, -0.001, -360.0)],
     *[({"t": v}, "plot_out_of_range") for v in (0.0, -T0, 1e10, 1e300)],
@@ -203,6 +208,8 @@ BAD_PLOTS = [
     *[({"roll_deg": v}, "plot_out_of_range") for v in (95.0, -90.5, 181)],
     *[({"ground_speed_mps": v}, "plot_out_of_range") for v in (-0.5, -1, 1100.5, 2000)],
     *[({"track_angle_deg": v}, "plot_out_of_range") for v in (360.0, 360, -0.1, 720.0)],
+    *[({"magnetic_heading_deg": v}, "plot_out_of_range") for v in (360.0, 360, -0.1, -180)],
+    *[({"indicated_airspeed_mps": v}, "plot_out_of_range") for v in (0.0, 0, -0.0, -5.0, 526.4, 1023)],
     *[({"mode3a": v}, "plot_out_of_range") for v in (-1, 0o10000, 2**64 - 1)],
     *[({"mode_s": v}, "plot_out_of_range") for v in ("XYZ123", "4CA1F", "4CA1F3F", "")],
     *[({"track_no": v}, "plot_out_of_range") for v in (-1, 2**32)],
@@ -214,6 +221,8 @@ BAD_PLOTS = [
     *[({"roll_deg": v}, "plot_schema") for v in ("12.5", True, [1.0])],
     *[({"ground_speed_mps": v}, "plot_schema") for v in ("231", False, {"kt": 450})],
     *[({"track_angle_deg": v}, "plot_schema") for v in ("090", True, [90.0])],
+    *[({"magnetic_heading_deg": v}, "plot_schema") for v in ("270", False, {"deg": 270.0})],
+    *[({"indicated_airspeed_mps": v}, "plot_schema") for v in ("128.6", True, [128.6])],
     ({"kind": "laser"}, "plot_schema"),
     ({"kind": 1}, "plot_schema"),
 ]

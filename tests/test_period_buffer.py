@@ -163,6 +163,30 @@ def test_mode_s_bds50_columns_ride_with_their_plots_into_the_period():
     assert chunk.ground_speed_mps.tolist() == [99.0] and chunk.track_angle_deg.tolist() == [45.0]
 
 
+def test_mode_s_bds60_columns_ride_with_their_plots_into_the_period():
+    """A plot's magnetic heading and indicated airspeed (BDS 6,0; NaN none) stay with it
+    through admission (a plot refused beyond the radar's range: the rows picked), the
+    buffer (batches concatenated, split at the period's end) into the closed period's
+    PlotChunk; a batch made without them (an older caller) rides along with NaN."""
+    eng = Engine(settings())
+    p = plots("a", 1, [T0 + 3.0, T0 + 1.0, T0 + 2.0, T0 + 5.0])
+    p.range_m[2] = 250_000.0  # beyond max_range_m: refused
+    p.magnetic_heading_deg = np.array([270.0, np.nan, 12.5, 0.0])
+    p.indicated_airspeed_mps = np.array([128.6, 77.0, 99.0, np.nan])
+    p.ground_speed_mps = np.array([230.0, np.nan, np.nan, 99.0])
+    assert eng.ingest_plots(p) == 3 and eng.rejected["plot_beyond_max_range"] == 1
+    assert eng.ingest_plots(plots("a", 2, T0 + 3.5)) == 1  # without them: NaN
+    _, _, chunk = eng.buffer.pop_period(force=True)
+    order = np.argsort(chunk.t_s)
+    assert chunk.t_s[order].tolist() == [T0 + 1.0, T0 + 3.0, T0 + 3.5]
+    np.testing.assert_array_equal(chunk.magnetic_heading_deg[order], [np.nan, 270.0, np.nan])
+    np.testing.assert_array_equal(chunk.indicated_airspeed_mps[order], [77.0, 128.6, np.nan])
+    np.testing.assert_array_equal(chunk.ground_speed_mps[order], [np.nan, 230.0, np.nan])
+    _, _, chunk = eng.buffer.pop_period(force=True)
+    assert chunk.magnetic_heading_deg.tolist() == [0.0] and np.isnan(chunk.indicated_airspeed_mps).all()
+    assert chunk.ground_speed_mps.tolist() == [99.0]
+
+
 def test_per_radar_buffer_limit_refuses_and_counts_the_excess():
     """Bounded memory: radar b holds the periods open, radar a floods; beyond its limit a's
     plots are refused as buffer_full (the earliest kept), and b's plots still get in."""

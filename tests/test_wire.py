@@ -8,9 +8,11 @@ from pathlib import Path
 
 import jsonschema
 import msgpack
+import numpy as np
 import pytest
 
 from radar_fusion import wire
+from radar_fusion.geo.units import MPS_PER_KT
 from radar_fusion.schemas import schema_documents
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,6 +76,15 @@ def test_good_batch_decodes_to_columns():
         (plot(track_angle_deg=-0.1), "plot_out_of_range"),
         (plot(track_angle_deg=float("nan")), "plot_non_finite"),
         (plot(track_angle_deg=True), "plot_schema"),
+        (plot(magnetic_heading_deg=360.0), "plot_out_of_range"),
+        (plot(magnetic_heading_deg=-0.1), "plot_out_of_range"),
+        (plot(magnetic_heading_deg=float("nan")), "plot_non_finite"),
+        (plot(magnetic_heading_deg="270"), "plot_schema"),
+        (plot(indicated_airspeed_mps=0.0), "plot_out_of_range"),
+        (plot(indicated_airspeed_mps=-1.0), "plot_out_of_range"),
+        (plot(indicated_airspeed_mps=526.4), "plot_out_of_range"),
+        (plot(indicated_airspeed_mps=float("inf")), "plot_non_finite"),
+        (plot(indicated_airspeed_mps=True), "plot_schema"),
         ({"t": 1.7e9}, "plot_schema"),
         ("not a plot", "plot_schema"),
     ],
@@ -130,7 +141,7 @@ def test_ground_speed_and_track_are_optional_last_plot_fields_nan_where_absent()
     table A-2-80; the track true, clockwise from north, [0, 360)) come after roll_deg, each
     optional on its own; a sender that does not know them omits them and they decode NaN."""
     fields = list(wire.Plot.model_fields)
-    assert fields[8:] == ["roll_deg", "ground_speed_mps", "track_angle_deg"]
+    assert fields[8:11] == ["roll_deg", "ground_speed_mps", "track_angle_deg"]
     for name in ("ground_speed_mps", "track_angle_deg"):
         assert not wire.Plot.model_fields[name].is_required() and getattr(wire.Plot(**plot()), name) is None
     d = wire.decode_plot_batch(
@@ -153,6 +164,45 @@ def test_ground_speed_and_track_are_optional_last_plot_fields_nan_where_absent()
     older = wire.DecodedPlots(**{**vars(d), "ground_speed_mps": None, "track_angle_deg": None})
     assert older.ground_speed_mps.shape == older.track_angle_deg.shape == (5,)
     assert all(map(math.isnan, older.ground_speed_mps.tolist() + older.track_angle_deg.tolist()))
+
+
+def test_heading_and_airspeed_are_optional_last_plot_fields_nan_where_absent():
+    """magnetic_heading_deg and indicated_airspeed_mps (v1 extensions: Mode S BDS 6,0, ICAO
+    Doc 9871 table A-2-96; the heading magnetic, clockwise from north, [0, 360); the
+    airspeed (0, 526.3] m/s, the register's 10 bits of 1 kt) come after track_angle_deg,
+    each optional on its own; a sender that does not know them omits them and they decode
+    NaN."""
+    fields = list(wire.Plot.model_fields)
+    assert fields[8:] == [
+        "roll_deg",
+        "ground_speed_mps",
+        "track_angle_deg",
+        "magnetic_heading_deg",
+        "indicated_airspeed_mps",
+    ]
+    for name in ("magnetic_heading_deg", "indicated_airspeed_mps"):
+        assert not wire.Plot.model_fields[name].is_required() and getattr(wire.Plot(**plot()), name) is None
+    max_ias_mps = 1023 * MPS_PER_KT
+    plots = [
+        plot(magnetic_heading_deg=359.82421875, indicated_airspeed_mps=250 * MPS_PER_KT),
+        plot(),
+        plot(magnetic_heading_deg=0, indicated_airspeed_mps=None),
+        plot(magnetic_heading_deg=None, indicated_airspeed_mps=max_ias_mps),
+        plot(indicated_airspeed_mps=1, ground_speed_mps=231.5, track_angle_deg=90.0),
+    ]
+    payload = batch(plots * 10)
+    for d in (wire.decode_plot_batch(payload), wire.decode_plot_batch_by_model(payload)):  # the bytes, the model
+        assert isinstance(d, wire.DecodedPlots) and len(d) == 50 and d.rejected == {}
+        hdg, ias = d.magnetic_heading_deg.tolist()[-5:], d.indicated_airspeed_mps.tolist()[-5:]
+        assert hdg[0] == 359.82421875 and math.isnan(hdg[1]) and hdg[2] == 0.0 and math.isnan(hdg[3])
+        assert math.isnan(hdg[4])
+        assert ias[0] == 250 * MPS_PER_KT and math.isnan(ias[1]) and math.isnan(ias[2]) and ias[3] == max_ias_mps
+        assert ias[4] == 1.0 and d.ground_speed_mps[-1] == 231.5 and d.track_angle_deg[-1] == 90.0
+        assert math.isnan(d.ground_speed_mps[0]) and d.fl.tolist() == [350.0] * 50
+    # made without them (an older caller): NaN columns of the batch's length
+    older = wire.DecodedPlots(**{**vars(d), "magnetic_heading_deg": None, "indicated_airspeed_mps": None})
+    assert older.magnetic_heading_deg.shape == older.indicated_airspeed_mps.shape == (50,)
+    assert np.isnan(older.magnetic_heading_deg).all() and np.isnan(older.indicated_airspeed_mps).all()
 
 
 def test_unknown_fields_are_ignored_for_forward_compatibility():
@@ -182,7 +232,17 @@ def test_a_plot_batch_validates_against_the_published_schema():
     jsonschema.validate(msgpack.unpackb(batch([plot(), plot(roll_deg=-12.5), plot(roll_deg=None)])), schema)
     good = [plot(ground_speed_mps=231.5, track_angle_deg=359.9), plot(ground_speed_mps=None, track_angle_deg=0.0)]
     jsonschema.validate(msgpack.unpackb(batch(good)), schema)
-    for bad in (plot(track_angle_deg=360.0), plot(ground_speed_mps=-1.0), plot(ground_speed_mps=1101.0)):
+    good = [plot(magnetic_heading_deg=359.9, indicated_airspeed_mps=526.3), plot(magnetic_heading_deg=0.0)]
+    jsonschema.validate(msgpack.unpackb(batch(good + [plot(indicated_airspeed_mps=0.1)])), schema)
+    for bad in (
+        plot(track_angle_deg=360.0),
+        plot(ground_speed_mps=-1.0),
+        plot(ground_speed_mps=1101.0),
+        plot(magnetic_heading_deg=360.0),
+        plot(magnetic_heading_deg=-1.0),
+        plot(indicated_airspeed_mps=0.0),
+        plot(indicated_airspeed_mps=526.4),
+    ):
         with pytest.raises(jsonschema.ValidationError):
             jsonschema.validate(msgpack.unpackb(batch([bad])), schema)
     with pytest.raises(jsonschema.ValidationError):

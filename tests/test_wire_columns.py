@@ -41,7 +41,7 @@ EXAMPLES = settings(
 )
 COLUMNS = (
     "t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind",
-    "roll_deg", "ground_speed_mps", "track_angle_deg",
+    "roll_deg", "ground_speed_mps", "track_angle_deg", "magnetic_heading_deg", "indicated_airspeed_mps",
 )  # fmt: skip
 SEEN: Counter = Counter()  # what the generated plots exercised; printed at the end (-s)
 
@@ -178,6 +178,8 @@ VALID = {
     "roll_deg": valid_number(-90.0, 90.0),
     "ground_speed_mps": st.one_of(valid_number(0.0, 1100.0), st.just(-0.0)),
     "track_angle_deg": valid_number(0.0, 360.0, exclude_max=True),
+    "magnetic_heading_deg": valid_number(0.0, 360.0, exclude_max=True),
+    "indicated_airspeed_mps": st.one_of(st.floats(0.0, 526.3, exclude_min=True), st.integers(1, 526)),
 }
 # values near the edges and of every other type
 HOSTILE = {
@@ -192,6 +194,8 @@ HOSTILE = {
     "roll_deg": st.one_of(edges(-90.0, 90.0), st.integers(-100, 100), EXOTIC),
     "ground_speed_mps": st.one_of(edges(0.0, 1100.0), st.integers(-10, 1110), EXOTIC),
     "track_angle_deg": st.one_of(edges(0.0, 360.0), st.floats(-720, 720), st.integers(-5, 365), EXOTIC),
+    "magnetic_heading_deg": st.one_of(edges(0.0, 360.0), st.floats(-720, 720), st.integers(-5, 365), EXOTIC),
+    "indicated_airspeed_mps": st.one_of(edges(0.0, 526.3), st.integers(-10, 540), EXOTIC),
 }
 REQUIRED = ("t", "range_m", "azimuth_deg")
 
@@ -292,6 +296,8 @@ def full_plot(**kw):
         "roll_deg": -12.5,
         "ground_speed_mps": 231.5,
         "track_angle_deg": 272.8125,
+        "magnetic_heading_deg": 268.59375,
+        "indicated_airspeed_mps": 128.6,
     }
     p.update(kw)
     return p
@@ -332,6 +338,16 @@ def full_plot(**kw):
         ({"track_angle_deg": 360}, "plot_out_of_range"),
         ({"track_angle_deg": math.nextafter(0.0, -math.inf)}, "plot_out_of_range"),
         ({"track_angle_deg": -1, "kind": "laser"}, "plot_out_of_range"),
+        ({"magnetic_heading_deg": math.nan}, "plot_non_finite"),
+        ({"magnetic_heading_deg": 360.0}, "plot_out_of_range"),
+        ({"magnetic_heading_deg": math.nextafter(0.0, -math.inf)}, "plot_out_of_range"),
+        ({"magnetic_heading_deg": -90, "kind": "laser"}, "plot_out_of_range"),
+        ({"indicated_airspeed_mps": -math.inf}, "plot_non_finite"),
+        ({"indicated_airspeed_mps": 0.0}, "plot_out_of_range"),
+        ({"indicated_airspeed_mps": -0.0}, "plot_out_of_range"),
+        ({"indicated_airspeed_mps": 0}, "plot_out_of_range"),
+        ({"indicated_airspeed_mps": math.nextafter(526.3, math.inf)}, "plot_out_of_range"),
+        ({"indicated_airspeed_mps": 527, "magnetic_heading_deg": 400.0}, "plot_out_of_range"),
     ],
 )
 def test_faults_of_well_typed_plots_are_judged_by_the_columns(bad, reason):
@@ -339,7 +355,15 @@ def test_faults_of_well_typed_plots_are_judged_by_the_columns(bad, reason):
         full_plot(),
         full_plot(**bad),
         full_plot(
-            azimuth_deg=0.0, fl=None, mode_s=None, kind=None, roll_deg=None, ground_speed_mps=None, track_angle_deg=None
+            azimuth_deg=0.0,
+            fl=None,
+            mode_s=None,
+            kind=None,
+            roll_deg=None,
+            ground_speed_mps=None,
+            track_angle_deg=None,
+            magnetic_heading_deg=None,
+            indicated_airspeed_mps=None,
         ),
     ]
     c = validate_plot_columns(msgpack.unpackb(pack(plot_list), raw=False))
@@ -365,6 +389,10 @@ def test_faults_of_well_typed_plots_are_judged_by_the_columns(bad, reason):
         {"ground_speed_mps": True},
         {"track_angle_deg": [90.0]},
         {"track_angle_deg": False},
+        {"magnetic_heading_deg": "270"},
+        {"magnetic_heading_deg": True},
+        {"indicated_airspeed_mps": [128.6]},
+        {"indicated_airspeed_mps": b"\x01"},
     ],
 )
 def test_other_types_go_to_the_model_and_get_its_reason(bad):
@@ -387,6 +415,8 @@ def test_accepted_values_are_those_of_the_model():
             roll_deg=90,
             ground_speed_mps=1100,
             track_angle_deg=math.nextafter(360.0, 0.0),
+            magnetic_heading_deg=math.nextafter(360.0, 0.0),
+            indicated_airspeed_mps=526.3,
         ),
         full_plot(
             range_m=-0.0,
@@ -398,6 +428,8 @@ def test_accepted_values_are_those_of_the_model():
             roll_deg=-0.0,
             ground_speed_mps=-0.0,
             track_angle_deg=0,
+            magnetic_heading_deg=-0.0,
+            indicated_airspeed_mps=math.nextafter(0.0, math.inf),
         ),
         {"t": 1.5, "range_m": 2_000_000.0, "azimuth_deg": 0, "unknown": [1, {"x": None}]},
     ]
@@ -411,6 +443,10 @@ def test_accepted_values_are_those_of_the_model():
     assert d.ground_speed_mps[:2].tolist() == [1100.0, 0.0] and math.copysign(1.0, d.ground_speed_mps[1]) == -1.0
     assert d.track_angle_deg[:2].tolist() == [math.nextafter(360.0, 0.0), 0.0]
     assert math.isnan(d.ground_speed_mps[2]) and math.isnan(d.track_angle_deg[2])
+    assert d.magnetic_heading_deg[:2].tolist() == [math.nextafter(360.0, 0.0), 0.0]
+    assert math.copysign(1.0, d.magnetic_heading_deg[1]) == -1.0
+    assert d.indicated_airspeed_mps[:2].tolist() == [526.3, math.nextafter(0.0, math.inf)]
+    assert math.isnan(d.magnetic_heading_deg[2]) and math.isnan(d.indicated_airspeed_mps[2])
 
 
 def every_reader(payload: bytes) -> dict[str, wire.DecodedPlots | None]:
@@ -563,6 +599,89 @@ def test_a_bad_ground_speed_or_track_is_refused_by_every_reader_and_spares_the_b
         assert (getattr(d, other) == full_plot()[other]).all()
 
 
+def test_heading_and_airspeed_are_read_where_sent_and_nan_where_not_by_every_reader():
+    """magnetic_heading_deg and indicated_airspeed_mps (v1 extensions, Mode S BDS 6,0):
+    each on its own, a value, nil or no key; the heading's closed bound and the airspeed's
+    upper bound in range, an integer is a number."""
+
+    def no(*names):
+        return {k: v for k, v in full_plot().items() if k not in names}
+
+    plot_list = [
+        full_plot(magnetic_heading_deg=359.82421875, indicated_airspeed_mps=526.3),
+        full_plot(magnetic_heading_deg=None, indicated_airspeed_mps=None),
+        no("magnetic_heading_deg", "indicated_airspeed_mps"),
+        no("magnetic_heading_deg") | {"indicated_airspeed_mps": 1},
+        no("indicated_airspeed_mps") | {"magnetic_heading_deg": 0},
+        full_plot(magnetic_heading_deg=-0.0, indicated_airspeed_mps=0.5, ground_speed_mps=None, fl=None),
+    ]
+    rng = random.Random(7)
+    for payload in (batch(plot_list), pack_other_ways({"v": 1, "radar_id": "r1", "seq": 7, "plots": plot_list}, rng)):
+        out = every_reader(payload)
+        assert out["bytes"] is not None  # well-formed: the daemon's fast path reads it
+        d = out["model"]
+        assert isinstance(d, wire.DecodedPlots) and d.rejected == {}
+        assert d.magnetic_heading_deg.dtype == float and d.indicated_airspeed_mps.dtype == float
+        hdg, ias = d.magnetic_heading_deg.tolist(), d.indicated_airspeed_mps.tolist()
+        assert hdg[0] == 359.82421875 and math.isnan(hdg[1]) and math.isnan(hdg[2]) and math.isnan(hdg[3])
+        assert hdg[4:] == [0.0, 0.0] and math.copysign(1.0, hdg[5]) == -1.0
+        assert ias[0] == 526.3 and math.isnan(ias[1]) and math.isnan(ias[2]) and ias[3] == 1.0
+        assert math.isnan(ias[4]) and ias[5] == 0.5
+        # each its own row: not BDS 5,0's, nor fl's
+        assert d.track_angle_deg.tolist() == [272.8125] * 6 and d.roll_deg.tolist() == [-12.5] * 6
+        assert d.ground_speed_mps[:5].tolist() == [231.5] * 5 and math.isnan(d.ground_speed_mps[5])
+        assert d.fl[:5].tolist() == [350.0] * 5 and math.isnan(d.fl[5])
+
+
+@pytest.mark.parametrize(
+    "name, value, reason",
+    [
+        ("magnetic_heading_deg", 360.0, "plot_out_of_range"),
+        ("magnetic_heading_deg", 360, "plot_out_of_range"),
+        ("magnetic_heading_deg", -0.1, "plot_out_of_range"),
+        ("magnetic_heading_deg", -1, "plot_out_of_range"),
+        ("magnetic_heading_deg", math.nan, "plot_non_finite"),
+        ("magnetic_heading_deg", math.inf, "plot_non_finite"),
+        ("magnetic_heading_deg", "270", "plot_schema"),
+        ("magnetic_heading_deg", True, "plot_schema"),
+        ("indicated_airspeed_mps", 0.0, "plot_out_of_range"),
+        ("indicated_airspeed_mps", 0, "plot_out_of_range"),
+        ("indicated_airspeed_mps", -0.0, "plot_out_of_range"),
+        ("indicated_airspeed_mps", -5.0, "plot_out_of_range"),
+        ("indicated_airspeed_mps", math.nextafter(526.3, math.inf), "plot_out_of_range"),
+        ("indicated_airspeed_mps", 1023, "plot_out_of_range"),
+        ("indicated_airspeed_mps", math.nan, "plot_non_finite"),
+        ("indicated_airspeed_mps", -math.inf, "plot_non_finite"),
+        ("indicated_airspeed_mps", "128.6", "plot_schema"),
+        ("indicated_airspeed_mps", False, "plot_schema"),
+        ("indicated_airspeed_mps", {"kt": 250}, "plot_schema"),
+    ],
+)
+def test_a_bad_heading_or_airspeed_is_refused_by_every_reader_and_spares_the_batch(name, value, reason):
+    plot_list = [full_plot(**{name: 1.5}), full_plot(**{name: value}, azimuth_deg=7.5), full_plot(**{name: None})]
+    plot_list += [full_plot(**{name: 2.5}, azimuth_deg=float(i)) for i in range(30)]  # the columns judge
+    out = every_reader(batch(plot_list))
+    assert out["bytes"] is None  # handed back: the general path gives the reason
+    other = "indicated_airspeed_mps" if name == "magnetic_heading_deg" else "magnetic_heading_deg"
+    for reader, d in out.items():
+        if d is None:
+            continue
+        assert d.rejected == {reason: 1}, reader
+        assert len(d) == len(plot_list) - 1 and 7.5 not in d.azimuth_deg.tolist()
+        col = getattr(d, name)
+        assert col[0] == 1.5 and math.isnan(col[1]) and (col[2:] == 2.5).all()
+        assert (getattr(d, other) == full_plot()[other]).all()
+
+
+def test_a_batch_of_an_older_sender_without_heading_or_airspeed_decodes_with_them_nan():
+    absent = ("magnetic_heading_deg", "indicated_airspeed_mps")
+    plot_list = [{k: v for k, v in full_plot(azimuth_deg=float(i)).items() if k not in absent} for i in range(30)]
+    for d in every_reader(batch(plot_list)).values():
+        assert isinstance(d, wire.DecodedPlots) and d.rejected == {} and len(d) == 30
+        assert np.isnan(d.magnetic_heading_deg).all() and np.isnan(d.indicated_airspeed_mps).all()
+        assert (d.track_angle_deg == 272.8125).all()
+
+
 def test_a_batch_of_an_older_sender_without_ground_speed_or_track_decodes_with_them_nan():
     plot_list = [
         {k: v for k, v in full_plot(azimuth_deg=float(i)).items() if k not in ("ground_speed_mps", "track_angle_deg")}
@@ -582,8 +701,12 @@ def test_a_batch_of_an_older_sender_without_roll_decodes_with_roll_nan():
 
 
 def test_an_empty_and_a_full_batch():
+    """The largest batch the contract allows, every field of every plot filled (4.6 MB), is
+    within the default payload limit (wire.MAX_PLOT_BATCH_BYTES)."""
     assert len(same_result(batch([]))) == 0
-    d = same_result(batch([full_plot(azimuth_deg=i % 360) for i in range(wire.MAX_PLOTS_PER_BATCH)]))
+    full = batch([full_plot(azimuth_deg=i % 360) for i in range(wire.MAX_PLOTS_PER_BATCH)])
+    assert 4 << 20 < len(full) <= wire.MAX_PLOT_BATCH_BYTES
+    d = same_result(full)
     assert len(d) == wire.MAX_PLOTS_PER_BATCH
 
 
@@ -618,6 +741,9 @@ def test_realistic_batches_decode_the_same_both_ways(simulated):
         ("ground_speed_mps", math.inf),
         ("track_angle_deg", 360.0),
         ("track_angle_deg", "north"),
+        ("magnetic_heading_deg", 360.0),
+        ("indicated_airspeed_mps", 0.0),
+        ("indicated_airspeed_mps", "fast"),
     ]
     n_batches = n_plots = 0
     for _, key, payload in simulated.messages:
@@ -657,6 +783,9 @@ def test_realistic_batches_decode_the_same_both_ways(simulated):
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(ground_speed_mps=1100.5)]}),
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(track_angle_deg=360.0)]}),
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(track_angle_deg=True)]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(magnetic_heading_deg=360.0)]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(indicated_airspeed_mps=0.0)]}),
+        pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot(), full_plot(indicated_airspeed_mps=526.4)]}),
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), "x": {"k": 1}}]}),  # a map in an extra
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), "x": "é"}]}),  # non-ASCII text
         pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [{**full_plot(), 3: 1}]}),  # a key not a str

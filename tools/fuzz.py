@@ -44,7 +44,7 @@ from radar_fusion import wire
 MAX_PAYLOAD_BYTES = 64 << 10
 PLOT_FIELDS = (
     "t", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind",
-    "roll_deg", "ground_speed_mps", "track_angle_deg",
+    "roll_deg", "ground_speed_mps", "track_angle_deg", "magnetic_heading_deg", "indicated_airspeed_mps",
 )  # fmt: skip
 HOSTILE_VALUES: list[Any] = [
     None,
@@ -88,6 +88,8 @@ def good_plot(t_s: float, range_m: float = 120_000.0, azimuth_deg: float = 45.0)
         "roll_deg": -12.5,
         "ground_speed_mps": 231.5,
         "track_angle_deg": 272.8125,
+        "magnetic_heading_deg": 268.59375,
+        "indicated_airspeed_mps": 128.6,
     }
 
 

@@ -332,6 +332,8 @@ def run_engine(
             roll_deg=np.full(A, np.nan),
             ground_speed_mps=np.full(A, np.nan),
             track_angle_deg=np.full(A, np.nan),
+            magnetic_heading_deg=np.full(A, np.nan),
+            indicated_airspeed_mps=np.full(A, np.nan),
         )
         seqs[ri] += 1
         engine.ingest_plots(batch)

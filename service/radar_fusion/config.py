@@ -30,6 +30,7 @@ from .safety_nets.config import SafetyNetsConfig
 from .tracking.clustering import ClusteringParams
 from .tracking.imm import IMMParams
 from .tracking.live_gate import LiveGateParams
+from .wire import MAX_PLOT_BATCH_BYTES
 from .tracking.registration import RegistrationParams
 from .tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2
 from .tracking.track_management import LifeCycle
@@ -83,7 +84,7 @@ class BusConfig(_Section):
     connect: list[str] = Field(default_factory=list)
     prefix: str = Field("atc", pattern=r"^[A-Za-z0-9_-]+(/[A-Za-z0-9_-]+)*$")
     health_period_s: float = Field(2.0, gt=0)
-    max_payload_bytes: int = Field(4 << 20, gt=0)
+    max_payload_bytes: int = Field(MAX_PLOT_BATCH_BYTES, gt=0)
     multicast_scouting: bool = False
     zenoh_config_file: str | None = Field(
         None, description="optional zenoh JSON5 config (TLS, access control); listen/connect/mode still apply"

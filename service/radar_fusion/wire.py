@@ -49,6 +49,9 @@ MODE_S_PATTERN = r"^[0-9A-Fa-f]{6}$"
 RADAR_ID_PATTERN = r"^[A-Za-z0-9_.-]{1,32}$"
 PLOT_KINDS = ("psr", "ssr", "cmb", "modes")
 MAX_PLOTS_PER_BATCH = 20_000
+#: the default limit of a plot batch's payload, bytes ([bus] max_payload_bytes): the largest
+#: batch the contract allows, every field of every plot filled, is 4.6 MB
+MAX_PLOT_BATCH_BYTES = 6 << 20
 
 
 class _Message(BaseModel):
@@ -89,6 +92,19 @@ class Plot(BaseModel):
         "(ICAO Doc 9871 table A-2-80)",
         ge=0,
         lt=360,
+    )
+    magnetic_heading_deg: float | None = Field(
+        None,
+        description="magnetic heading from Mode S BDS 6,0, degrees clockwise from magnetic north "
+        "(ICAO Doc 9871 table A-2-96)",
+        ge=0,
+        lt=360,
+    )
+    indicated_airspeed_mps: float | None = Field(
+        None,
+        description="indicated airspeed from Mode S BDS 6,0, m/s (ICAO Doc 9871 table A-2-96)",
+        gt=0,
+        le=526.3,
     )
 
 
@@ -340,9 +356,10 @@ class DecodedPlots:
     """The accepted plots of one PlotBatch as columns (what the engine ingests).
 
     Missing optional values are encoded as NaN (``fl``, ``roll_deg``, ``ground_speed_mps``,
-    ``track_angle_deg``) or −1 (``mode3a``, ``mode_s``, ``track_no``); ``mode_s`` is the
-    24-bit address as an integer. ``ground_speed_mps`` and ``track_angle_deg`` may be left
-    out when made (None: NaN for every plot).
+    ``track_angle_deg``, ``magnetic_heading_deg``, ``indicated_airspeed_mps``) or −1
+    (``mode3a``, ``mode_s``, ``track_no``); ``mode_s`` is the 24-bit address as an integer.
+    ``ground_speed_mps``, ``track_angle_deg`` (BDS 5,0), ``magnetic_heading_deg`` and
+    ``indicated_airspeed_mps`` (BDS 6,0) may be left out when made (None: NaN for every plot).
     """
 
     radar_id: str
@@ -358,6 +375,8 @@ class DecodedPlots:
     roll_deg: np.ndarray
     ground_speed_mps: np.ndarray = None  # type: ignore[assignment]
     track_angle_deg: np.ndarray = None  # type: ignore[assignment]
+    magnetic_heading_deg: np.ndarray = None  # type: ignore[assignment]
+    indicated_airspeed_mps: np.ndarray = None  # type: ignore[assignment]
     rejected: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -365,6 +384,10 @@ class DecodedPlots:
             self.ground_speed_mps = np.full(self.t_s.shape[0], np.nan)
         if self.track_angle_deg is None:
             self.track_angle_deg = np.full(self.t_s.shape[0], np.nan)
+        if self.magnetic_heading_deg is None:
+            self.magnetic_heading_deg = np.full(self.t_s.shape[0], np.nan)
+        if self.indicated_airspeed_mps is None:
+            self.indicated_airspeed_mps = np.full(self.t_s.shape[0], np.nan)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -446,7 +469,7 @@ COLUMNS_FROM_PLOTS = 24
 
 
 def decode_plot_batch(
-    payload: bytes, max_bytes: int = 4 << 20, columns_from: int = COLUMNS_FROM_PLOTS
+    payload: bytes, max_bytes: int = MAX_PLOT_BATCH_BYTES, columns_from: int = COLUMNS_FROM_PLOTS
 ) -> DecodedPlots | Rejection:
     """Decode and validate a PlotBatch; bad plots are dropped and counted in ``rejected``.
 
@@ -480,6 +503,8 @@ def decode_plot_batch(
         roll_deg=c.roll_deg,
         ground_speed_mps=c.ground_speed_mps,
         track_angle_deg=c.track_angle_deg,
+        magnetic_heading_deg=c.magnetic_heading_deg,
+        indicated_airspeed_mps=c.indicated_airspeed_mps,
         rejected=c.rejected,
     )
 
@@ -501,7 +526,7 @@ def validate_plots_by_model(plots: list[Any]) -> tuple[list[Plot], dict[str, int
     return good, rejected
 
 
-def decode_plot_batch_by_model(payload: bytes, max_bytes: int = 4 << 20) -> DecodedPlots | Rejection:
+def decode_plot_batch_by_model(payload: bytes, max_bytes: int = MAX_PLOT_BATCH_BYTES) -> DecodedPlots | Rejection:
     """:func:`decode_plot_batch` with every plot validated by the model (wire.Plot): the
     contract's own reading, the reference for the columnar one (about 3.5 µs a plot)."""
     env = _plot_batch_envelope(payload, max_bytes)
@@ -530,6 +555,12 @@ def _decoded_by_model(radar_id: str, seq: int, plots: list[Any]) -> DecodedPlots
         ),
         track_angle_deg=np.fromiter(
             (math.nan if p.track_angle_deg is None else p.track_angle_deg for p in good), float, n
+        ),
+        magnetic_heading_deg=np.fromiter(
+            (math.nan if p.magnetic_heading_deg is None else p.magnetic_heading_deg for p in good), float, n
+        ),
+        indicated_airspeed_mps=np.fromiter(
+            (math.nan if p.indicated_airspeed_mps is None else p.indicated_airspeed_mps for p in good), float, n
         ),
         rejected=rejected,
     )

@@ -57,14 +57,17 @@ _MAX_MAP = 64
 
 # the plot's fields: the numeric ones in wire_columns' order (its bounds' rows), then the text
 _PLOT_FIELDS = (*_NUMERIC, "mode_s", "kind")
-_F_T, _F_RANGE, _F_AZ, _F_FL, _F_ROLL, _F_GS, _F_TRK, _F_MODE3A, _F_TRACK_NO, _F_MODE_S, _F_KIND = range(11)
+(
+    _F_T, _F_RANGE, _F_AZ, _F_FL, _F_ROLL, _F_GS, _F_TRK, _F_HDG, _F_IAS,
+    _F_MODE3A, _F_TRACK_NO, _F_MODE_S, _F_KIND,
+) = range(13)  # fmt: skip
 assert _PLOT_FIELDS == (
     "t", "range_m", "azimuth_deg", "fl", "roll_deg", "ground_speed_mps", "track_angle_deg",
-    "mode3a", "track_no", "mode_s", "kind",
+    "magnetic_heading_deg", "indicated_airspeed_mps", "mode3a", "track_no", "mode_s", "kind",
 )  # fmt: skip
 assert set(_PLOT_FIELDS) == set(Plot.model_fields)
-# _parse's floats: a row per float field (_F_T .. _F_TRK); the numeric fields from _F_MODE3A are integers
-_FLOAT_ROWS = _F_TRK + 1
+# _parse's floats: a row per float field (_F_T .. _F_IAS); the numeric fields from _F_MODE3A are integers
+_FLOAT_ROWS = _F_IAS + 1
 _TOP_FIELDS = ("v", "radar_id", "seq", "plots")
 _REQUIRED_MASK = sum(1 << i for i, name in enumerate(_PLOT_FIELDS) if Plot.model_fields[name].is_required())
 
@@ -288,14 +291,16 @@ def _plot(
     ints: np.ndarray,
     kind: np.ndarray,
 ) -> int:
-    """Plot k (a map) at pos into column k of floats (7, N: t, range, azimuth, fl, roll,
-    ground speed, track angle; NaN absent), ints (3, N: mode3a, track_no, mode_s; −1 absent) and kind; the position
-    after it, or −1 to hand the batch back."""
+    """Plot k (a map) at pos into column k of floats (9, N: t, range, azimuth, fl, roll,
+    ground speed, track angle, magnetic heading, indicated airspeed; NaN absent), ints (3, N:
+    mode3a, track_no, mode_s; −1 absent) and kind; the position after it, or −1 to hand the
+    batch back."""
     entries, pos = _container(buf, pos, False)
     if entries < 0:
         return -1
     seen = 0
     floats[_F_FL, k] = floats[_F_ROLL, k] = floats[_F_GS, k] = floats[_F_TRK, k] = np.nan
+    floats[_F_HDG, k] = floats[_F_IAS, k] = np.nan
     ints[0, k] = ints[1, k] = ints[2, k] = -1
     kind[k] = _NO_KIND
     for _ in range(entries):
@@ -349,7 +354,7 @@ def _plot(
             if f == _F_T or f == _F_RANGE or f == _F_AZ:  # noqa: SIM109 (compiled)
                 return -1  # a required number
             continue
-        if f <= _F_TRK:  # a float field (strict: an integer is a number, a bool is not)
+        if f <= _F_IAS:  # a float field (strict: an integer is a number, a bool is not)
             x = fv if what == _FLOAT else float(iv)
             if not (_BOUNDS_LO[f] <= x <= _BOUNDS_HI[f]):  # NaN too
                 return -1
@@ -366,7 +371,7 @@ def _plot(
 @_compiled
 def _parse(buf: np.ndarray) -> tuple[int, int, int, int, np.ndarray, np.ndarray, np.ndarray]:
     """The whole PlotBatch: (1 accepted / 0 handed back, radar_id's start and length, seq,
-    floats (7, N), ints (3, N), kind (N,))."""
+    floats (9, N), ints (3, N), kind (N,))."""
     floats = np.empty((_FLOAT_ROWS, 0))
     ints = np.empty((3, 0), np.int64)
     kind = np.empty(0, np.int8)
@@ -454,6 +459,8 @@ def decode_plot_batch_bytes(payload: bytes) -> DecodedPlots | None:
         roll_deg=floats[_F_ROLL],
         ground_speed_mps=floats[_F_GS],
         track_angle_deg=floats[_F_TRK],
+        magnetic_heading_deg=floats[_F_HDG],
+        indicated_airspeed_mps=floats[_F_IAS],
         rejected={},
     )
 

@@ -63,9 +63,12 @@ def _closed_interval(name: str) -> tuple[float, float]:
     return lo, hi
 
 
-# the numeric fields, judged together as the rows of one (9, n) float64 array: the float
+# the numeric fields, judged together as the rows of one (11, n) float64 array: the float
 # fields' rows first, then the integer fields' (wire_bytes.py reads the bounds' rows by this order)
-_FLOAT_FIELDS = ("t", "range_m", "azimuth_deg", "fl", "roll_deg", "ground_speed_mps", "track_angle_deg")
+_FLOAT_FIELDS = (
+    "t", "range_m", "azimuth_deg", "fl", "roll_deg", "ground_speed_mps", "track_angle_deg",
+    "magnetic_heading_deg", "indicated_airspeed_mps",
+)  # fmt: skip
 _INT_FIELDS = ("mode3a", "track_no")
 _NUMERIC = _FLOAT_FIELDS + _INT_FIELDS
 _N_FLOAT = len(_FLOAT_FIELDS)
@@ -129,6 +132,8 @@ class PlotColumns:
     roll_deg: np.ndarray
     ground_speed_mps: np.ndarray
     track_angle_deg: np.ndarray
+    magnetic_heading_deg: np.ndarray
+    indicated_airspeed_mps: np.ndarray
     rejected: dict[str, int]
     by_model: int = 0
 
@@ -153,6 +158,8 @@ def _plot_columns(
         roll_deg=floats["roll_deg"],
         ground_speed_mps=floats["ground_speed_mps"],
         track_angle_deg=floats["track_angle_deg"],
+        magnetic_heading_deg=floats["magnetic_heading_deg"],
+        indicated_airspeed_mps=floats["indicated_airspeed_mps"],
         rejected=rejected,
         by_model=by_model,
     )

@@ -26,11 +26,12 @@ def pack_plots(cols: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """msgpack-encode every plot as a map, vectorised over plots.
 
     Each plot is built from fixed-width byte blocks (key + value), one per field, and a
-    mask drops the blocks of absent fields (``fl`` and the Mode S BDS 5,0 ones, ``roll_deg``,
-    ``ground_speed_mps``, ``track_angle_deg``, NaN or not given; ``mode3a``/``mode_s``/``track_no``
-    -1). Floats are float64 (0xcb), ``mode3a`` uint16 (0xcd), ``track_no`` uint32
-    (0xce), strings fixstr: valid msgpack that decodes to the same values as
-    :func:`wire.encode` of the same dict. Returns (bytes as uint8, offsets (n+1,)).
+    mask drops the blocks of absent fields (``fl``, the Mode S BDS 5,0 ones, ``roll_deg``,
+    ``ground_speed_mps``, ``track_angle_deg``, and the BDS 6,0 ones, ``magnetic_heading_deg``,
+    ``indicated_airspeed_mps``, NaN or not given; ``mode3a``/``mode_s``/``track_no`` -1).
+    Floats are float64 (0xcb), ``mode3a`` uint16 (0xcd), ``track_no`` uint32 (0xce),
+    strings fixstr: valid msgpack that decodes to the same values as :func:`wire.encode`
+    of the same dict. Returns (bytes as uint8, offsets (n+1,)).
     """
     n = cols["t_s"].shape[0]
     blocks: list[tuple[np.ndarray, np.ndarray | None]] = []
@@ -56,7 +57,11 @@ def pack_plots(cols: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     tn_ok = cols["track_no"] >= 0
     is5 = cols["kind"] == KIND_MODES
     # the optional float fields after kind (wire v1 extensions), in the model's order
-    extra = {k: cols[k] for k in ("roll_deg", "ground_speed_mps", "track_angle_deg") if cols.get(k) is not None}
+    extra = {
+        k: cols[k]
+        for k in ("roll_deg", "ground_speed_mps", "track_angle_deg", "magnetic_heading_deg", "indicated_airspeed_mps")
+        if cols.get(k) is not None
+    }
     extra_ok = {k: np.isfinite(v) for k, v in extra.items()}
     count = 4 + fl_ok.astype(np.uint8) + m3_ok + ms_ok + tn_ok + sum(extra_ok.values(), np.zeros(n, np.uint8))
     blocks.append(((0x80 | count).astype(np.uint8).reshape(n, 1), None))

@@ -4,7 +4,9 @@
 PlotBatch / RadarStatus messages, ready to publish or record (a plot whose I048/250 holds
 BDS 5,0 carries the aircraft's roll angle, ``roll_deg``, the IMM's turn evidence, and its
 ground speed and true track angle, ``ground_speed_mps`` / ``track_angle_deg``, where the
-register has both);
+register has both; one whose I048/250 holds BDS 6,0 its magnetic heading and indicated
+airspeed, ``magnetic_heading_deg`` / ``indicated_airspeed_mps``, each where its status bit
+is set);
 :func:`bds50_reference`
 gathers the aircraft's own BDS 5,0 velocity reports of a recording, to check tracks
 against.
@@ -22,7 +24,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from ..wire import Plot, PlotBatch, RadarStatus, encode
-from .bds import bds50_roll_deg, decode_bds50
+from .bds import bds50_roll_deg, decode_bds50, decode_bds60
 from .decode import SectorMessage, TargetReport, decode_datablock
 from .files import FileFormat, iter_file
 from .framing import DecodeCounters, split_datablocks
@@ -128,12 +130,19 @@ class AsterixToWire:
                 # the aircraft's roll angle, ground speed and true track, when the radar read
                 # its BDS 5,0 (speed and track together: decode_bds50 gives both or neither)
                 roll_deg = ground_speed_mps = track_angle_deg = None
+                # and its magnetic heading and indicated airspeed, when it read its BDS 6,0
+                # (each on its own status bit; an airspeed of 0 kt is none)
+                magnetic_heading_deg = indicated_airspeed_mps = None
                 for register, mb in item.bds:
                     if register == 0x50:
                         roll_deg = bds50_roll_deg(mb)
                         bds50 = decode_bds50(mb)
                         ground_speed_mps = None if bds50 is None else bds50["ground_speed_mps"]
                         track_angle_deg = None if bds50 is None else bds50["track_angle_deg"]
+                    elif register == 0x60:
+                        bds60 = decode_bds60(mb) or {}
+                        magnetic_heading_deg = bds60.get("magnetic_heading_deg")
+                        indicated_airspeed_mps = bds60.get("ias_mps") or None
                 try:
                     plot = Plot(
                         t=t_s,
@@ -147,6 +156,8 @@ class AsterixToWire:
                         roll_deg=roll_deg,
                         ground_speed_mps=ground_speed_mps,
                         track_angle_deg=track_angle_deg,
+                        magnetic_heading_deg=magnetic_heading_deg,
+                        indicated_airspeed_mps=indicated_airspeed_mps,
                     )
                 except ValidationError:
                     self.counters.skip("invalid_plot")

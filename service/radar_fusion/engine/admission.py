@@ -195,6 +195,8 @@ class Admission:
                 batch.roll_deg[idx],
                 batch.ground_speed_mps[idx],
                 batch.track_angle_deg[idx],
+                batch.magnetic_heading_deg[idx],
+                batch.indicated_airspeed_mps[idx],
             ),
             i,
             t_min_s,

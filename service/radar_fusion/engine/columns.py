@@ -34,7 +34,7 @@ from ..wire_columns import MapRows, array_header, map_header
 # once when it closes, which costs one vectorised pass instead of one per batch.
 PLOT_COLUMNS = (
     "t_s", "range_m", "azimuth_deg", "fl", "radar", "mode_s", "mode3a", "track_no",
-    "roll_deg", "ground_speed_mps", "track_angle_deg",
+    "roll_deg", "ground_speed_mps", "track_angle_deg", "magnetic_heading_deg", "indicated_airspeed_mps",
 )  # fmt: skip
 
 
@@ -57,6 +57,10 @@ class PlotChunk:
     # north; float, NaN none (None when made: none for every plot)
     ground_speed_mps: np.ndarray = None  # type: ignore[assignment]
     track_angle_deg: np.ndarray = None  # type: ignore[assignment]
+    # Mode S BDS 6,0 magnetic heading, degrees clockwise from magnetic north, and indicated
+    # airspeed, m/s; float, NaN none (None when made: none for every plot)
+    magnetic_heading_deg: np.ndarray = None  # type: ignore[assignment]
+    indicated_airspeed_mps: np.ndarray = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         if self.roll_deg is None:
@@ -65,6 +69,10 @@ class PlotChunk:
             self.ground_speed_mps = np.full(self.t_s.shape[0], np.nan)
         if self.track_angle_deg is None:
             self.track_angle_deg = np.full(self.t_s.shape[0], np.nan)
+        if self.magnetic_heading_deg is None:
+            self.magnetic_heading_deg = np.full(self.t_s.shape[0], np.nan)
+        if self.indicated_airspeed_mps is None:
+            self.indicated_airspeed_mps = np.full(self.t_s.shape[0], np.nan)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -80,7 +88,7 @@ class PlotChunk:
     @staticmethod
     def empty() -> PlotChunk:
         f, i = np.empty(0), np.empty(0, np.int64)
-        return PlotChunk(f, f, f, f, i, i, i, i, f, f, f)
+        return PlotChunk(f, f, f, f, i, i, i, i, f, f, f, f, f)
 
     def select(self, mask: np.ndarray) -> PlotChunk:
         return PlotChunk(*(getattr(self, name)[mask] for name in PLOT_COLUMNS))
@@ -477,6 +485,11 @@ class ConvertedPlots:
     # (n, 2, 2) the unknown height's part of a plot converted without any height
     # (geo.unknown_height.unknown_height_plots), zero for the others; not in cov_m2
     height_cov_m2: np.ndarray | None = None
+    # Mode S BDS 6,0 magnetic heading (degrees) and indicated airspeed (m/s), NaN none
+    # (PlotChunk.magnetic_heading_deg, .indicated_airspeed_mps); after height_cov_m2, which
+    # is passed by position
+    magnetic_heading_deg: np.ndarray | None = None
+    indicated_airspeed_mps: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -514,6 +527,11 @@ class ClusterMeasurements:
     # imm.IMMFilter.velocity_update_rows
     dap_v_mps: np.ndarray | None = None
     dap_age_s: np.ndarray | None = None
+    # (K, 2) the aircraft's air vector in the system plane, m/s, the mean of the cluster's
+    # Mode S BDS 6,0 reports (true heading, true airspeed), NaN none; (K,) its age as
+    # dap_age_s: engine._air_velocity_and_wind adds the track's wind
+    air_v_mps: np.ndarray | None = None
+    air_age_s: np.ndarray | None = None
     # (K, 2, 2) for a cluster of plots without any height, the unknown height's part of
     # its error (not in R_m2; the track's covariance floor), zero for the others
     height_cov_m2: np.ndarray | None = None
