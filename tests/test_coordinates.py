@@ -10,6 +10,7 @@ converter written in this file.
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -867,3 +868,38 @@ def test_ground_velocity_to_plane_matches_a_geodesic_step_projected_by_proj():
     # east (3.6° of longitude at 41.3°N, c ≈ Δλ sin φ)
     east = ground_velocity_to_plane(plane, 300e3, 0.0, 250.0, 0.0, 0.0)
     assert 2.2 < -np.degrees(np.arctan2(east[0], east[1])) < 2.5
+
+
+def test_isa_at_published_levels():
+    """The ICAO standard atmosphere (Doc 7488) at its published points: 238.42 hPa and
+    −54.34 °C at FL350, 226.32 hPa at the tropopause (11 km), 147.48 hPa at FL450."""
+    from radar_fusion.geo.air_data import isa_pressure_pa, isa_temperature_k
+
+    h = np.array([0.0, 350 * 30.48, 11_000.0, 450 * 30.48])
+    np.testing.assert_allclose(isa_pressure_pa(h), [101_325.0, 23_842.0, 22_632.0, 14_748.0], atol=3.0)
+    np.testing.assert_allclose(isa_temperature_k(h), [288.15, 218.81, 216.65, 216.65], atol=0.01)
+
+
+def test_true_airspeed_of_an_indicated_one():
+    """At sea level in ISA the calibrated airspeed is the true one; slow, at altitude, TAS =
+    CAS sqrt(ρ0/ρ) (the incompressible limit, ρ = p / (R T)); Mach 0.78 at FL350 (449.6 kt
+    true) is the 264 kt indicated of the flight manuals; a day 10 K warmer makes the same
+    indicated airspeed sqrt(T + 10 / T) faster; and the inverse gives the IAS back."""
+    from radar_fusion.geo import air_data as ad
+
+    kt = 1852.0 / 3600.0
+    cas = np.array([60.0, 150.0, 250.0, 340.0]) * kt
+    np.testing.assert_allclose(ad.true_airspeed_mps(cas, 0.0), cas, rtol=1e-12)
+    h = 3048.0  # FL100
+    t_k, p_pa = 288.15 - 0.0065 * h, 101_325.0 * (1.0 - 0.0065 * h / 288.15) ** 5.25588
+    rho_ratio = (p_pa / t_k) / (101_325.0 / 288.15)
+    assert ad.true_airspeed_mps(60.0 * kt, h) == pytest.approx(60.0 * kt / math.sqrt(rho_ratio), rel=1e-3)
+    fl350 = 350 * 30.48
+    tas_m078 = 0.78 * math.sqrt(1.4 * 287.05287 * 218.808)
+    assert tas_m078 / kt == pytest.approx(449.6, abs=0.2)
+    assert ad.indicated_airspeed_mps(tas_m078, fl350) / kt == pytest.approx(264.0, abs=1.5)
+    warm = ad.true_airspeed_mps(264.0 * kt, fl350, 10.0) / ad.true_airspeed_mps(264.0 * kt, fl350)
+    assert warm == pytest.approx(math.sqrt((218.808 + 10.0) / 218.808), rel=1e-12)
+    for dev_k in (0.0, -15.0, 20.0):
+        tas = ad.true_airspeed_mps(cas, fl350, dev_k)
+        np.testing.assert_allclose(ad.indicated_airspeed_mps(tas, fl350, dev_k), cas, rtol=1e-10)

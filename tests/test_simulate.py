@@ -500,7 +500,13 @@ def test_vectorised_encoder_matches_wire_encode(demo):
             if cols.track_no[i] >= 0:
                 p["track_no"] = int(cols.track_no[i])
             p["kind"] = sim.KIND_NAMES[int(cols.kind[i])]
-            for name in ("roll_deg", "ground_speed_mps", "track_angle_deg"):
+            for name in (
+                "roll_deg",
+                "ground_speed_mps",
+                "track_angle_deg",
+                "magnetic_heading_deg",
+                "indicated_airspeed_mps",
+            ):
                 if np.isfinite(getattr(cols, name)[i]):
                     p[name] = float(getattr(cols, name)[i])
             plots.append(p)

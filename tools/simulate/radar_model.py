@@ -46,11 +46,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from radar_fusion import wire
+from radar_fusion.geo.air_data import indicated_airspeed_mps
 from radar_fusion.geo.coordinates import RadarSites, SystemPlane, gaussian_earth_radius_m, geodetic_to_polar
 from radar_fusion.geo.units import M_PER_FT, MPS_PER_KT
 from radar_fusion.tracking.coordinated_turn import bank_of_turn_deg
 
-from .scenario import TRANSPONDER_CODES, RadarSpec, Rates, Target
+from .scenario import TRANSPONDER_CODES, Atmosphere, RadarSpec, Rates, Target
 from .trajectories import Trajectories
 
 KIND_PSR, KIND_SSR, KIND_CMB, KIND_MODES = (wire.KIND_CODES[k] for k in ("psr", "ssr", "cmb", "modes"))
@@ -159,17 +160,71 @@ def _velocity_reports(
     if not carry.size:
         return speed_out, track_out
     age_s = rng.uniform(*rates.dap_age_s, carry.size)
-    st = traj.state(tgt[carry], t_s[carry] - age_s)
-    lat, lon = plane.to_geodetic(st.x_m, st.y_m)
-    _, _, convergence_deg, k = plane.to_plane_and_factors(lat, lon)
-    radius_m = gaussian_earth_radius_m(lat)
-    speed = np.hypot(st.vx_mps, st.vy_mps) / k * (radius_m + st.alt_m) / radius_m
-    track = np.degrees(np.arctan2(st.vx_mps, st.vy_mps)) + convergence_deg
+    speed, track, _ = _true_ground_velocity(traj, plane, tgt[carry], t_s[carry] - age_s)
     speed += rng.normal(0.0, rates.sigma_ground_speed_mps, carry.size)
     track += rng.normal(0.0, rates.sigma_track_angle_deg, carry.size)
     speed_out[carry] = np.clip(np.round(speed / MPS_PER_KT / 2.0), 0.0, 1023.0) * 2.0 * MPS_PER_KT
     track_out[carry] = np.mod(np.round(track * 512.0 / 90.0), 2048.0) * 90.0 / 512.0
     return speed_out, track_out
+
+
+def _true_ground_velocity(
+    traj: Trajectories, plane: SystemPlane, tgt: np.ndarray, t_s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The truth's ground speed (m/s) and true track (degrees, clockwise from true north) at
+    ``t_s``, and its altitude (m): the plane velocity turned to true north by the meridian
+    convergence c there (grid = true − c, :meth:`SystemPlane.grid_convergence_deg`), its
+    speed over the point scale k, times (R + h) / R (the plane position is the point on the
+    ellipsoid under the aircraft, which at height h moves (R + h) / R as fast; R the
+    Gaussian radius; ``coordinates.ground_velocity_to_plane`` turns it back)."""
+    st = traj.state(tgt, t_s)
+    lat, lon = plane.to_geodetic(st.x_m, st.y_m)
+    _, _, convergence_deg, k = plane.to_plane_and_factors(lat, lon)
+    radius_m = gaussian_earth_radius_m(lat)
+    speed = np.hypot(st.vx_mps, st.vy_mps) / k * (radius_m + st.alt_m) / radius_m
+    track = np.degrees(np.arctan2(st.vx_mps, st.vy_mps)) + convergence_deg
+    return speed, track, st.alt_m
+
+
+def _air_reports(
+    traj: Trajectories,
+    plane: SystemPlane,
+    tgt: np.ndarray,
+    t_s: np.ndarray,
+    mode_s: np.ndarray,
+    rates: Rates,
+    atmosphere: Atmosphere,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The magnetic heading (degrees, [0, 360)) and indicated airspeed (m/s) a Mode S plot
+    reports (BDS 6,0, ICAO Doc 9871 table A-2-96); NaN on the plots that carry none (all but
+    ``rates.heading_prob`` of the Mode S ones, drawn apart from BDS 5,0's: on the Barcelona
+    hour the two registers are read independently, 90 % and 21 % of the plots).
+
+    The air vector is the ground velocity less the wind: the truth's true ground velocity
+    (:func:`_true_ground_velocity`) at t − age, age uniform over ``rates.air_age_s``, less
+    ``atmosphere``'s wind at the truth's height. Its direction is the true heading (the
+    simulated site's magnetic declination is 0, so the magnetic heading is the true one), its
+    length the true airspeed, which the day's temperature (ISA + ``temperature_deviation_k``)
+    turns into the calibrated airspeed the register holds (geo.air_data). Then
+    ``rates.sigma_heading_deg`` and ``rates.sigma_ias_mps`` of noise, rounded to the
+    register's 90/512° and 1 kt. ``rng``: a generator of their own, so every other draw of
+    the seed stays as it was."""
+    heading_out, ias_out = np.full(t_s.shape[0], np.nan), np.full(t_s.shape[0], np.nan)
+    carry = np.flatnonzero(mode_s & (rng.random(t_s.shape[0]) < rates.heading_prob))
+    if not carry.size:
+        return heading_out, ias_out
+    age_s = rng.uniform(*rates.air_age_s, carry.size)
+    speed, track_deg, alt_m = _true_ground_velocity(traj, plane, tgt[carry], t_s[carry] - age_s)
+    wind_e, wind_n = atmosphere.wind_mps(alt_m)
+    air_e = speed * np.sin(np.radians(track_deg)) - wind_e
+    air_n = speed * np.cos(np.radians(track_deg)) - wind_n
+    heading = np.degrees(np.arctan2(air_e, air_n)) + rng.normal(0.0, rates.sigma_heading_deg, carry.size)
+    ias = indicated_airspeed_mps(np.hypot(air_e, air_n), alt_m, atmosphere.temperature_deviation_k)
+    ias += rng.normal(0.0, rates.sigma_ias_mps, carry.size)
+    heading_out[carry] = np.mod(np.round(heading * 512.0 / 90.0), 2048.0) * 90.0 / 512.0
+    ias_out[carry] = np.clip(np.round(ias / MPS_PER_KT), 1.0, 1023.0) * MPS_PER_KT
+    return heading_out, ias_out
 
 
 class TargetTable:
@@ -287,6 +342,11 @@ def radar_plots(
     dap_rng = rng.spawn(1)[0]
     roll_deg, dap = _roll_reports(traj, tgt, c["t"], kind == KIND_MODES, rates, dap_rng)
     ground_speed_mps, track_angle_deg = _velocity_reports(traj, plane, tgt, c["t"], dap, rates, dap_rng)
+    # BDS 6,0: heading and airspeed, from a second spawned generator
+    atmosphere: Atmosphere = sim_ctx["atmosphere"]
+    magnetic_heading_deg, ias_mps = _air_reports(
+        traj, plane, tgt, c["t"], kind == KIND_MODES, rates, atmosphere, rng.spawn(1)[0]
+    )
 
     # ---- false plots: Poisson per revolution, uniform over the coverage disc
     rev0 = math.floor(beam_angle(t_start) / 360.0)
@@ -315,6 +375,8 @@ def radar_plots(
         "roll_deg": np.concatenate([roll_deg[sel], np.full(int(f_keep.sum()), np.nan)]),
         "ground_speed_mps": np.concatenate([ground_speed_mps[sel], np.full(int(f_keep.sum()), np.nan)]),
         "track_angle_deg": np.concatenate([track_angle_deg[sel], np.full(int(f_keep.sum()), np.nan)]),
+        "magnetic_heading_deg": np.concatenate([magnetic_heading_deg[sel], np.full(int(f_keep.sum()), np.nan)]),
+        "indicated_airspeed_mps": np.concatenate([ias_mps[sel], np.full(int(f_keep.sum()), np.nan)]),
     }
     az = np.mod(out["azimuth_deg"], 360.0)
     out["azimuth_deg"] = np.where(az >= 360.0, 0.0, az)

@@ -60,10 +60,48 @@ class Rates:
     and its own sensors add their latency: on the Barcelona hour the reported track angle in
     turns matches the plots' course 1.0 s (± 0.1) before the plot, with a spread of about
     0.5 s (σ; 0.4-0.6 from the residuals against the turn rate), which this uniform has"""
+    heading_prob: float = 0.9
+    """probability that a Mode S plot carries the aircraft's magnetic heading and indicated
+    airspeed (BDS 6,0): on the Barcelona hour 89 % of the Mode S plots carry its heading,
+    independently of BDS 5,0 (both on 18 %)"""
+    sigma_heading_deg: float = 0.3
+    """noise of the reported heading, degrees (then rounded to the register's 90/512°)"""
+    sigma_ias_mps: float = 0.5
+    """noise of the reported indicated airspeed, m/s (then rounded to the register's 1 kt)"""
+    air_age_s: tuple[float, float] = (-1.85, -0.15)
+    """how much older a BDS 6,0 report's heading and airspeed are than its plot, s, uniform
+    between the two: negative, the heading leads. On the Barcelona hour the air vector plus
+    the wind matches the BDS 5,0 ground velocity best with the heading of 2 s (± 0.5) before
+    the BDS 5,0 read, whose track runs 1.0 s behind the plots' course: the heading leads the
+    course by about 1 s (the aircraft yaws into a turn before its velocity turns)"""
     wild_errors: bool = True
     """False: the wild plots are drawn as usual but their gross errors are not applied, so the
     simulation is the clean twin of the one with them (the same noise, detections and false
     plots, plot for plot): what the wild plots cost is then measured on the same draws"""
+
+
+@dataclass(frozen=True)
+class Atmosphere:
+    """The day's wind and temperature, over the whole scenario: what separates the air
+    vector an aircraft reports (BDS 6,0) from its ground velocity (BDS 5,0, the plots)."""
+
+    wind_from_deg: float = 280.0
+    """direction the wind blows from, degrees clockwise from true north"""
+    wind_surface_mps: float = 5.0
+    """wind speed at the surface, m/s"""
+    wind_shear_mps_per_km: float = 2.5
+    """its growth with height, m/s per km (35 m/s at 12 km with the defaults: a jet-stream
+    level wind, so that a climbing aircraft's wind changes)"""
+    temperature_deviation_k: float = 5.0
+    """the day's temperature less ISA's at every height, K: the true airspeed of an
+    indicated one is then 1 % off ISA's, which no tracker is told"""
+
+    def wind_mps(self, alt_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The wind's east and north components at heights ``alt_m``, m/s (it blows towards
+        ``wind_from_deg`` + 180°)."""
+        speed = self.wind_surface_mps + self.wind_shear_mps_per_km * np.maximum(alt_m, 0.0) / 1000.0
+        to_rad = np.radians(self.wind_from_deg + 180.0)
+        return speed * np.sin(to_rad), speed * np.cos(to_rad)
 
 
 @dataclass(frozen=True)
@@ -194,6 +232,7 @@ class Scenario:
     period_s: float | None = None
     """fusion period written to config.toml; None = the shortest rotation period"""
     rates: Rates = field(default_factory=Rates)
+    atmosphere: Atmosphere = field(default_factory=Atmosphere)
 
     @property
     def effective_period_s(self) -> float:

@@ -36,7 +36,8 @@ class PlotColumns(wire.DecodedPlots):
     (:class:`wire.DecodedPlots`, so a batch goes to :meth:`Engine.ingest_plots` as it is,
     for benchmarks without msgpack), plus what only the simulator knows.
 
-    Missing values: ``fl``, ``roll_deg``, ``ground_speed_mps`` and ``track_angle_deg`` NaN,
+    Missing values: ``fl``, ``roll_deg``, ``ground_speed_mps``, ``track_angle_deg``,
+    ``magnetic_heading_deg`` and ``indicated_airspeed_mps`` NaN,
     ``mode3a``/``mode_s``/``track_no`` -1; ``kind`` uses :data:`wire.KIND_CODES`;
     ``radar_index`` is the radar's row of ``Scenario.radars``, ``t_pub_s`` the batch's
     publish time; ``target_index`` is the true target (row of ``Scenario.targets``), -1 for
@@ -107,7 +108,7 @@ class Simulation:
 
 _PLOT_COLUMNS = (
     "t_s", "range_m", "azimuth_deg", "fl", "mode3a", "mode_s", "track_no", "kind", "roll_deg",
-    "ground_speed_mps", "track_angle_deg", "target_index", "wild",
+    "ground_speed_mps", "track_angle_deg", "magnetic_heading_deg", "indicated_airspeed_mps", "target_index", "wild",
 )  # fmt: skip
 """The per-plot columns of a :class:`PlotColumns`."""
 
@@ -115,7 +116,9 @@ _PLOT_COLUMNS = (
 def _plot_columns(
     radar_id: str, radar_index: int, seq: int, t_pub_s: float, c: Mapping[str, np.ndarray]
 ) -> PlotColumns:
-    """A :class:`PlotColumns` of the columns ``c`` (keys :data:`_PLOT_COLUMNS`)."""
+    """A :class:`PlotColumns` of the columns ``c`` (keys :data:`_PLOT_COLUMNS`; the BDS 6,0
+    ones, ``magnetic_heading_deg`` and ``indicated_airspeed_mps``, may be missing: NaN)."""
+    none = np.full(c["t_s"].shape[0], np.nan)
     return PlotColumns(
         radar_id=radar_id,
         radar_index=radar_index,
@@ -132,6 +135,8 @@ def _plot_columns(
         roll_deg=c["roll_deg"],
         ground_speed_mps=c["ground_speed_mps"],
         track_angle_deg=c["track_angle_deg"],
+        magnetic_heading_deg=c.get("magnetic_heading_deg", none),
+        indicated_airspeed_mps=c.get("indicated_airspeed_mps", none),
         target_index=c["target_index"],
         wild=c["wild"],
     )
@@ -211,6 +216,7 @@ def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
         t_start=t_start,
         t_end=t_end,
         duration_s=float(scenario.duration_s),
+        atmosphere=scenario.atmosphere,
     )
     seeds = np.random.SeedSequence(scenario.seed).spawn(len(scenario.radars) + 1)
     phase_rng = np.random.default_rng(seeds[0])
