@@ -486,3 +486,68 @@ def test_the_velocity_of_a_plot_whose_position_the_live_gate_refused_still_updat
     print(f", without {np.round(without_v, 2)}")
     assert (np.array(with_v) < np.array(without_v)).all()
     assert np.mean(with_v) < 0.7 * np.mean(without_v)
+
+
+def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
+    """Simulated traffic (40 aircraft, 3 radars; the simulator's BDS 5,0 on a quarter of the
+    Mode S plots, BDS 6,0 on 90 %, a wind of 5-35 m/s growing with height, a day 5 K off ISA),
+    every aircraft turning 120° at 2°/s in the middle of its flight: with ``velocity_air`` the
+    engine learns the wind from the clusters carrying both registers, and every other BDS 6,0
+    plot measures the velocity. The turning position and the settled velocity errors fall
+    well below those without (measured when written: turning 67 against 95 m, velocity 10.7
+    against 16.1 m/s), straight flight is no worse (44 against 50 m), and the layers' wind is
+    the scenario's within 2 m/s (median; 3.5 at most). With a track's own wind kept for at
+    most 1 s, the air reports take the layer's wind instead and still beat positions and
+    BDS 5,0 alone (64 m: the simulated wind is one field, which the layers hold exactly)."""
+    import dataclasses
+    import tomllib
+
+    from radar_fusion.tools import evaluate as ev
+    from radar_fusion.tools import simulate as sim
+    from radar_fusion.tools.replay import replay_into_engine
+    from radar_fusion.tools.simulate.scenario import Leg
+
+    scenario = sim.scenario_for_benchmark(40, 3, 150.0, 4)
+    legs = (Leg(40.0, 0.0), Leg(60.0, 2.0), Leg(110.0, 0.0))
+    targets = [dataclasses.replace(tg, plan=dataclasses.replace(tg.plan, legs=legs)) for tg in scenario.targets]
+    scenario = dataclasses.replace(scenario, targets=targets)
+    simulation = sim.simulate(scenario)
+
+    def run(**imm):
+        cfg = tomllib.loads(sim.config_toml(scenario))
+        cfg.setdefault("tracking", {})["imm"] = imm
+        engine = Engine(settings_from_dict(cfg))
+        batches = [o.track_batch for o in replay_into_engine(engine, simulation.messages)]
+        return engine, ev.evaluate(batches, simulation.truth)
+
+    on, s_on = run()
+    off, s_off = run(velocity_air=False)
+    stale, s_stale = run(wind_max_age_s=1.0)
+    print(
+        f"\nturning {s_on.pos_rms_turning_m:.1f} / {s_off.pos_rms_turning_m:.1f} / {s_stale.pos_rms_turning_m:.1f} m, "
+        f"velocity {s_on.vel_rms_settled_mps:.2f} / {s_off.vel_rms_settled_mps:.2f} / "
+        f"{s_stale.vel_rms_settled_mps:.2f} m/s, straight {s_on.pos_rms_straight_m:.1f} / "
+        f"{s_off.pos_rms_straight_m:.1f} m (on / off / layer wind only)"
+    )
+    assert s_on.n_pairs_turning > 200
+    c = on.counters
+    assert c["wind_samples"] > 50 and c["updates_velocity_air"] > c["updates_velocity"] > 0
+    assert c["velocity_reports_refused"] < 0.01 * (c["updates_velocity"] + c["updates_velocity_air"])
+    assert off.counters["plots_air_velocity"] == 0 and off.counters["updates_velocity_air"] == 0
+    assert s_on.pos_rms_turning_m < 0.75 * s_off.pos_rms_turning_m
+    assert s_on.vel_rms_settled_mps < 0.7 * s_off.vel_rms_settled_mps
+    assert s_on.pos_rms_straight_m < 1.02 * s_off.pos_rms_straight_m
+    assert s_on.track_ids_per_target_mean == s_off.track_ids_per_target_mean == 1.0
+    # the layers' wind against the scenario's at the layer's middle (the plane's grid north is
+    # true north within a fraction of a degree here)
+    known = np.flatnonzero(np.isfinite(on.layer_wind_mps[:, 0]))
+    assert known.size >= 3
+    mid_m = (known + 0.5) * on.settings.tracking.imm.wind_layer_ft * 0.3048
+    east, north = scenario.atmosphere.wind_mps(mid_m)
+    err = np.hypot(on.layer_wind_mps[known, 0] - east, on.layer_wind_mps[known, 1] - north)
+    # (each aircraft's own error of the air vector, the day's 5 K off ISA, is 1.1 % of its
+    # airspeed along its heading, 2.5 m/s: a layer of a few aircraft does not average it out)
+    assert np.median(err) < 2.0 and err.max() < 3.5, err
+    s = stale.counters
+    assert s["updates_velocity_air_layer_wind"] > 0.9 * s["updates_velocity_air"]
+    assert s_stale.pos_rms_turning_m < 0.85 * s_off.pos_rms_turning_m

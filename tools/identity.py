@@ -287,6 +287,9 @@ def barcelona_settings(
     return settings_from_dict(
         {
             "system": {"center_lat": lat, "center_lon": lon, "period_s": period_s},
+            # the site's magnetic declination (BDS 6,0 reports magnetic headings): +1° fits the
+            # hour best of 0, 1 and 2° (tracking.imm.IMMParams.magnetic_declination_deg)
+            "tracking": {"imm": {"magnetic_declination_deg": 1.0}},
             "radars": [
                 {
                     "id": f"sac{sac}_sic{sic}",

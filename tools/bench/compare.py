@@ -175,10 +175,14 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     at the plot's time (its age unknown, as to the engine: see below). The engine takes
     those reports (imm.IMMFilter.velocity_update_rows), so this is the bound of everything
     it is given; the plots' alone undercounts it (straight flight came out at 0.58-0.77× that
-    one). Reports on wild plots are left out with their plots.
+    one). Then each plot's BDS 6,0 heading and airspeed, where the simulator gave them, as a
+    third update: the air vector, with the wind known (see below; the engine takes them with
+    the wind it learns, engine.Engine._air_velocity_and_wind). Reports on wild plots are left
+    out with their plots.
     """
     import numpy as np
 
+    from radar_fusion.geo.air_data import indicated_airspeed_mps
     from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
     from radar_fusion.geo.units import M_PER_FT
     from radar_fusion.tools.evaluate import EvalParams
@@ -194,9 +198,10 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     radar = np.concatenate([np.full(len(c), c.radar_index) for c in cols])
     t, rng, az, fl, tgt, wild = (cat(k) for k in ("t_s", "range_m", "azimuth_deg", "fl", "target_index", "wild"))
     gs_mps = cat("ground_speed_mps")
+    heading_deg = cat("magnetic_heading_deg")
     keep = (tgt >= 0) & ~wild
     t, rng, az, fl, tgt, radar = t[keep], rng[keep], az[keep], fl[keep], tgt[keep], radar[keep]
-    gs_mps = gs_mps[keep]
+    gs_mps, heading_deg = gs_mps[keep], heading_deg[keep]
     x, y, cov, _g, valid = polar_to_plane(
         sim.plane,
         sim.sites,
@@ -208,7 +213,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         return_valid=True,
     )
     t, x, y, cov, tgt = t[valid], x[valid], y[valid], cov[valid], tgt[valid]
-    gs_mps = gs_mps[valid]
+    gs_mps, heading_deg = gs_mps[valid], heading_deg[valid]
     truth = sim.truth_at(tgt, t)
     err2 = (x - truth["x_m"]) ** 2 + (y - truth["y_m"]) ** 2
     out = {
@@ -224,7 +229,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     else:
         alpha, sigma_m = trk.alpha_per_s, trk.sigma_m_mps2
     order = np.lexsort((t, tgt))
-    t, cov, tgt, gs_mps = t[order], cov[order], tgt[order], gs_mps[order]
+    t, cov, tgt, gs_mps, heading_deg = t[order], cov[order], tgt[order], gs_mps[order], heading_deg[order]
     n = t.size
     # The aircraft's own velocity (Mode S BDS 5,0) on the plots that carry it: the truth's
     # velocity an age τ before the plot, τ uniform over the simulator's dap_age_s and not
@@ -253,8 +258,40 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     Rv = along[:, :, None] * along[:, None, :] * var_along
     Rv += var_across[:, None, None] * across[:, :, None] * across[:, None, :]
     Rv += age_var_s2 * acc[:, :, None] * acc[:, None, :]
+    # The aircraft's heading and airspeed (BDS 6,0) on the plots that carry them: the air
+    # vector, the truth's velocity less the wind, of an age τ uniform over the simulator's
+    # air_age_s (H picks v − τ̄ a; var(τ) a aᵀ as above), the wind known: the simulated wind
+    # is one field over the whole coverage, which every aircraft's reports measure (the
+    # engine learns it per layer), so a bound may take it as given; the day's temperature off
+    # ISA likewise. The noise: the simulator's heading σ with the register's 90/512° across
+    # the air vector, and its IAS σ with the 1 kt step along it times TAS/IAS at the truth's
+    # height.
+    has_a = np.isfinite(heading_deg)
+    air_lo_s, air_hi_s = rates.air_age_s
+    air_mean_s, air_var_s2 = 0.5 * (air_lo_s + air_hi_s), (air_hi_s - air_lo_s) ** 2 / 12.0
+    Ha = np.zeros((int(has_a.sum()), 2, 6))
+    Ha[:, 0, 1] = Ha[:, 1, 4] = 1.0
+    Ha[:, 0, 2] = Ha[:, 1, 5] = -air_mean_s
+    ta = sim.truth_at(tgt[has_a], t[has_a] - air_mean_s)
+    a_early, a_late = (sim.truth_at(tgt[has_a], t[has_a] - air_mean_s + d) for d in (-0.5, 0.5))
+    acc_a = np.stack([a_late["vx_mps"] - a_early["vx_mps"], a_late["vy_mps"] - a_early["vy_mps"]], axis=1)
+    alt_a = ta["alt_ft"] * M_PER_FT
+    wind_e, wind_n = sim.scenario.atmosphere.wind_mps(alt_a)
+    air = np.stack([ta["vx_mps"] - wind_e, ta["vy_mps"] - wind_n], axis=1)
+    tas = np.maximum(np.hypot(air[:, 0], air[:, 1]), 1e-3)
+    dev_k = sim.scenario.atmosphere.temperature_deviation_k
+    tas_per_ias = tas / np.maximum(indicated_airspeed_mps(tas, alt_a, dev_k), 1e-3)
+    a_along = air / tas[:, None]
+    a_across = np.stack([a_along[:, 1], -a_along[:, 0]], axis=1)
+    var_a_along = tas_per_ias**2 * (rates.sigma_ias_mps**2 + kt_mps**2 / 12.0)
+    var_a_across = tas**2 * np.radians(np.hypot(rates.sigma_heading_deg, (90.0 / 512.0) / math.sqrt(12.0))) ** 2
+    Ra = var_a_along[:, None, None] * a_along[:, :, None] * a_along[:, None, :]
+    Ra += var_a_across[:, None, None] * a_across[:, :, None] * a_across[:, None, :]
+    Ra += air_var_s2 * acc_a[:, :, None] * acc_a[:, None, :]
     v_row = np.full(n, -1)
     v_row[has_v] = np.arange(int(has_v.sum()))
+    a_row = np.full(n, -1)
+    a_row[has_a] = np.arange(int(has_a.sum()))
     first = np.r_[True, tgt[1:] != tgt[:-1]]
     start = np.flatnonzero(first)
     rank = np.arange(n) - np.repeat(start, np.diff(np.r_[start, n]))
@@ -267,6 +304,10 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         p0[:, 1, 1] = p0[:, 4, 4] = unknown_velocity_var_m2ps2(settings.clustering.max_speed_mps)
         p0[:, 2, 2] = p0[:, 5, 5] = sigma_m**2
         return p0
+
+    def transition(dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Φ and Q of Singer's model (singer_filter)."""
+        return singer_transition(dt, alpha), singer_process_noise(dt, alpha, sigma_m)
 
     def joseph(Pp: np.ndarray, Hm: np.ndarray, R: np.ndarray) -> np.ndarray:
         """Covariance update in Joseph form: stays symmetric positive semi-definite in floating point."""
@@ -283,6 +324,9 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
             j = i[v_row[i] >= 0] if with_velocity else i[:0]
             if j.size:
                 P[j] = joseph(P[j], Hv[v_row[j]], Rv[v_row[j]])
+            j = i[a_row[i] >= 0] if with_velocity else i[:0]
+            if j.size:
+                P[j] = joseph(P[j], Ha[a_row[j]], Ra[a_row[j]])
 
         for r in range(int(rank.max()) + 1):
             idx = np.flatnonzero(rank == r)
@@ -296,9 +340,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
             P[idx[restart]] = prior(idx[restart])
             velocity_update(idx[restart])
             idx = idx[~restart]
-            dt = t[idx] - t[idx - 1]
-            F = singer_transition(dt, alpha)
-            Pp = F @ P[idx - 1] @ np.swapaxes(F, 1, 2) + singer_process_noise(dt, alpha, sigma_m)
+            F, Q = transition(t[idx] - t[idx - 1])
+            Pp = F @ P[idx - 1] @ np.swapaxes(F, 1, 2) + Q
             P[idx] = joseph(Pp, H, cov[idx])
             velocity_update(idx)
         return P
@@ -340,9 +383,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         q, j, straight, turning = q[near], j[near], straight[near], turning[near]
         if q.size == 0:
             continue
-        dt = q - t[j]
-        F = singer_transition(dt, alpha)
-        Qq = singer_process_noise(dt, alpha, sigma_m)
+        F, Qq = transition(q - t[j])
         for b, Pb in enumerate(bounds):
             Pq = F @ Pb[j] @ np.swapaxes(F, 1, 2) + Qq
             v = Pq[:, 0, 0] + Pq[:, 3, 3]
@@ -359,6 +400,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     out["pcrb_turning_pos_rms_m"], out["pcrb_velocity_turning_pos_rms_m"] = rms(turning_sum, turning_count)
     out["pcrb_turning_points"] = turning_count
     out["pcrb_velocity_reports"] = int(has_v.sum())
+    out["pcrb_air_reports"] = int(has_a.sum())
     return out
 
 

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ..config import Settings
+from ..geo.air_data import true_airspeed_mps
 from ..geo.coordinates import (
     RadarSites,
     SystemPlane,
@@ -166,6 +167,11 @@ class Engine:
         self._reg_next_t_s = -math.inf
         self.clock = ClockCheck(len(self.radar_ids))
         self.tracks = TrackTable(self.imm.n_models if self.imm is not None else 0)
+        # the wind shared by the aircraft of each layer (engine._air_velocity_and_wind): x, y
+        # in the system plane, m/s, and the time of its latest samples; NaN: none yet
+        n_layers = 1 + int(50_000.0 // (self.imm.params.wind_layer_ft if self.imm is not None else 50_000.0))
+        self.layer_wind_mps = np.full((n_layers, 2), np.nan)
+        self.layer_wind_t_s = np.full(n_layers, np.nan)
         self.track_t_s: float | None = None  # reference time of the newest closed period
         self.safety_nets = safety_nets
         self.periods_closed = 0
@@ -367,6 +373,8 @@ class Engine:
             raw.ground_speed_mps,
             raw.track_angle_deg,
             height_cov_m2,
+            raw.magnetic_heading_deg,
+            raw.indicated_airspeed_mps,
         )
 
     # --------------------------------------------------------------- predict
@@ -647,6 +655,7 @@ class Engine:
                 joint.size,
             )
         dap_v_mps, dap_age_s = self._dap_velocity(plots, used, lab, t_c, n_clusters)
+        air_v_mps, air_age_s = self._air_velocity(plots, used, lab, t_c, n_clusters)
         roll_used = plots.roll_deg[used]
         self.counters["plots_roll"] += int(np.isfinite(roll_used).sum())
         mode_s = np.full(n_clusters, -1, np.int64)
@@ -672,6 +681,8 @@ class Engine:
             roll_deg=_mean_known(lab, roll_used, n_clusters),
             dap_v_mps=dap_v_mps,
             dap_age_s=dap_age_s,
+            air_v_mps=air_v_mps,
+            air_age_s=air_age_s,
             height_cov_m2=cluster_h_cov,
             far=far,
         )
@@ -713,6 +724,146 @@ class Engine:
         age = np.full(n_clusters, np.nan)
         age[k] = self.imm.params.velocity_age_s + lag[k] / count[k]
         return v, age
+
+    def _air_velocity(
+        self, plots: ConvertedPlots, used: np.ndarray, lab: np.ndarray, t_c: np.ndarray, n_clusters: int
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Per cluster, the aircraft's air vector from the Mode S BDS 6,0 reports among its
+        plots, in the system plane, and its age, as :meth:`_dap_velocity` does for BDS 5,0:
+        the true heading is the magnetic one plus ``magnetic_declination_deg``; the true
+        airspeed that of the indicated one at the plot's pressure altitude (its Mode C) in
+        ISA (geo.air_data.true_airspeed_mps); a report without Mode C is not used. The
+        reports of one cluster are averaged as vectors at the cluster's position; the age is
+        ``air_velocity_age_s`` plus the cluster's time less the plot's. (None, None) without
+        the IMM or with ``velocity_dap`` or ``velocity_air`` off."""
+        if (
+            self.imm is None
+            or not (self.imm.params.velocity_dap and self.imm.params.velocity_air)
+            or plots.magnetic_heading_deg is None
+            or plots.indicated_airspeed_mps is None
+        ):
+            return None, None
+        idx = np.flatnonzero(used)
+        heading, ias, fl = plots.magnetic_heading_deg[idx], plots.indicated_airspeed_mps[idx], plots.fl[idx]
+        have = np.isfinite(heading) & np.isfinite(ias) & np.isfinite(fl)
+        if not have.any():
+            return None, None
+        self.counters["plots_air_velocity"] += int(have.sum())
+        i, lb = idx[have], lab[have]
+        p = self.imm.params
+        tas = true_airspeed_mps(plots.indicated_airspeed_mps[i], plots.fl[i] * M_PER_FL)
+        heading_rad = np.radians(plots.magnetic_heading_deg[i] + p.magnetic_declination_deg)
+        count = np.bincount(lb, minlength=n_clusters).astype(float)
+        east = np.bincount(lb, tas * np.sin(heading_rad), n_clusters)
+        north = np.bincount(lb, tas * np.cos(heading_rad), n_clusters)
+        lag = np.bincount(lb, t_c[lb] - plots.t_s[i], n_clusters)
+        alt = _mean_known(lb, plots.altitude_m[i], n_clusters)
+        k = np.flatnonzero(count > 0)
+        xy = (
+            np.bincount(lb, plots.x_m[i], n_clusters)[k] / count[k],
+            np.bincount(lb, plots.y_m[i], n_clusters)[k] / count[k],
+        )
+        speed = np.hypot(east[k], north[k]) / count[k]
+        v = np.full((n_clusters, 2), np.nan)
+        v[k, 0], v[k, 1] = ground_velocity_to_plane(
+            self.plane, *xy, speed, np.degrees(np.arctan2(east[k], north[k])), alt[k]
+        )
+        age = np.full(n_clusters, np.nan)
+        age[k] = p.air_velocity_age_s + lag[k] / count[k]
+        return v, age
+
+    def _air_velocity_and_wind(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The tracks ``rows`` (just updated with their clusters ``matched``, and with the
+        BDS 5,0 report where their cluster has one, :meth:`_update_velocity`) whose cluster
+        carries an air vector (BDS 6,0, :meth:`_air_velocity`):
+
+        * with a BDS 5,0 report too, and the track not manoeuvring (|acceleration| below
+          ``wind_sample_max_accel_mps2``): a wind sample, the ground velocity less the air
+          vector, each taken back to the cluster's time with the track's acceleration
+          (v(t) = v(t − age) + age · a); the track's wind follows the samples, w ← w + (1 −
+          exp(−Δt / ``wind_time_constant_s``)) (sample − w), the first taken as it is; the
+          period's samples of a layer of ``wind_layer_ft`` (by the track's flight level) feed,
+          as their mean, the layer's wind, with ``wind_layer_time_constant_s``;
+        * without one: the air vector plus the wind is a measurement of the velocity, the
+          IMM's velocity update (imm.IMMFilter.velocity_update_rows) with σ² =
+          ``air_velocity_sigma_mps``² per axis. The wind is the track's own if no older than
+          ``wind_max_age_s`` and taken within ``wind_max_climb_ft`` of the track's level,
+          else its layer's (its latest samples no older than twice
+          ``wind_layer_time_constant_s``), with ``wind_layer_sigma_mps``² more per axis.
+
+        Returns the rows the second updated."""
+        assert self.imm is not None and cl.air_v_mps is not None and cl.air_age_s is not None
+        p = self.imm.params
+        tr = self.tracks
+        air = cl.air_v_mps[matched]
+        has_air = np.isfinite(air[:, 0])
+        has_dap = np.zeros(matched.size, bool) if cl.dap_v_mps is None else np.isfinite(cl.dap_v_mps[matched, 0])
+        t_s = cl.t_s[matched]
+        # wind samples
+        s = np.flatnonzero(has_air & has_dap)
+        if s.size:
+            assert cl.dap_v_mps is not None and cl.dap_age_s is not None
+            r, k = rows[s], matched[s]
+            acc = tr.x[r][:, [2, 5]]  # the Singer state's acceleration
+            calm = np.hypot(acc[:, 0], acc[:, 1]) < p.wind_sample_max_accel_mps2
+            r, k, acc = r[calm], k[calm], acc[calm]
+            sample = (cl.dap_v_mps[k] + cl.dap_age_s[k, None] * acc) - (cl.air_v_mps[k] + cl.air_age_s[k, None] * acc)
+            dt = cl.t_s[k] - tr.wind_t_s[r]
+            gain = np.where(np.isfinite(dt), 1.0 - np.exp(-np.maximum(dt, 0.0) / p.wind_time_constant_s), 1.0)
+            prior = np.where(np.isfinite(tr.wind_mps[r]), tr.wind_mps[r], sample)
+            tr.wind_mps[r] = prior + gain[:, None] * (sample - prior)
+            tr.wind_t_s[r] = cl.t_s[k]
+            tr.wind_fl[r] = tr.alt_x[r, 0]
+            self.counters["wind_samples"] += int(r.size)
+            self._layer_wind_samples(self._wind_layer(r), sample, cl.t_s[k])
+        # the air vector plus the wind, where no BDS 5,0 report measured the velocity
+        a = np.flatnonzero(has_air & ~has_dap)
+        r = rows[a]
+        own = t_s[a] - tr.wind_t_s[r] <= p.wind_max_age_s  # NaN (no wind yet) compares False
+        climbed_fl = np.abs(tr.alt_x[r, 0] - tr.wind_fl[r])
+        own &= ~(climbed_fl > p.wind_max_climb_ft / FT_PER_FL)  # NaN (a level unknown): kept
+        layer = self._wind_layer(r)
+        shared = ~own & (layer >= 0)
+        shared[shared] = t_s[a[shared]] - self.layer_wind_t_s[layer[shared]] <= 2.0 * p.wind_layer_time_constant_s
+        a, own, layer = a[own | shared], own[own | shared], layer[own | shared]
+        if not a.size:
+            return rows[:0]
+        r, k = rows[a], matched[a]
+        wind = np.where(own[:, None], tr.wind_mps[r], self.layer_wind_mps[np.maximum(layer, 0)])
+        var = p.air_velocity_sigma_mps**2 + np.where(own, 0.0, p.wind_layer_sigma_mps**2)
+        R = var[:, None, None] * np.eye(2)
+        self.counters["updates_velocity_air_layer_wind"] += int((~own).sum())
+        return self._velocity_update_rows(r, cl.air_v_mps[k] + wind, R, cl.air_age_s[k], "updates_velocity_air")
+
+    def _wind_layer(self, rows: np.ndarray) -> np.ndarray:
+        """The wind layer of the tracks ``rows`` by their flight level (``wind_layer_ft``), −1
+        without one."""
+        assert self.imm is not None
+        fl = self.tracks.alt_x[rows, 0]
+        layer = np.floor(np.nan_to_num(fl, nan=-1.0) * FT_PER_FL / self.imm.params.wind_layer_ft).astype(np.int64)
+        return np.where(np.isfinite(fl), np.clip(layer, 0, self.layer_wind_t_s.size - 1), -1)
+
+    def _layer_wind_samples(self, layer: np.ndarray, sample: np.ndarray, t_s: np.ndarray) -> None:
+        """Feed the period's wind samples (n, 2) of tracks in ``layer`` (n,) to the layers'
+        winds: each layer's mean sample, w ← w + (1 − exp(−Δt / ``wind_layer_time_constant_s``))
+        (mean − w), the first taken as it is."""
+        assert self.imm is not None
+        ok = layer >= 0
+        if not ok.any():
+            return
+        layer, sample, t_s = layer[ok], sample[ok], t_s[ok]
+        n = self.layer_wind_t_s.size
+        count = np.bincount(layer, minlength=n)
+        k = np.flatnonzero(count)
+        mean = np.stack([np.bincount(layer, sample[:, j], n)[k] / count[k] for j in (0, 1)], axis=1)
+        t_new = np.bincount(layer, t_s, n)[k] / count[k]
+        dt = t_new - self.layer_wind_t_s[k]
+        gain = np.where(
+            np.isfinite(dt), 1.0 - np.exp(-np.maximum(dt, 0.0) / self.imm.params.wind_layer_time_constant_s), 1.0
+        )
+        prior = np.where(np.isfinite(self.layer_wind_mps[k]), self.layer_wind_mps[k], mean)
+        self.layer_wind_mps[k] = prior + gain[:, None] * (mean - prior)
+        self.layer_wind_t_s[k] = np.fmax(self.layer_wind_t_s[k], t_new)
 
     def _beyond_any_manoeuvre(
         self, res: ClusterResult, used: np.ndarray, row_of_plot: np.ndarray, pred: Prediction, t_plot_s: np.ndarray
@@ -1069,6 +1220,8 @@ class Engine:
         tr.x[rows], tr.P[rows] = x_c, P_c
         if cl.dap_v_mps is not None:
             self._update_velocity(cl, matched, rows)
+        if cl.air_v_mps is not None:
+            self._air_velocity_and_wind(cl, matched, rows)
         alt_x, alt_P = self.alt_filter.predict(tr.alt_x[rows], tr.alt_P[rows], dt_s)
         tr.alt_x[rows], tr.alt_P[rows] = self.alt_filter.update(alt_x, alt_P, cl.fl[matched])
         self._floor_no_height(rows, cl.height_cov_m2, matched)

@@ -388,6 +388,96 @@ class IMMParams(BaseModel):
         "model is not used (counted, velocity_reports_refused). Default 18.4: 99.99 %; a register misread or of "
         "another aircraft",
     )
+    velocity_air: bool = Field(
+        True,
+        description="with velocity_dap, also take a plot's Mode S heading and indicated airspeed (BDS 6,0, the "
+        "wire's magnetic_heading_deg and indicated_airspeed_mps) as a measurement of the velocity, once the "
+        "track has a wind: the air vector (true heading, true airspeed from the IAS at the plot's pressure "
+        "altitude in ISA, geo.air_data) plus the track's wind, estimated from the clusters that carry both "
+        "registers (engine._air_velocity_and_wind). The radar reads BDS 6,0 on 89 % of the Barcelona hour's "
+        "Mode S plots, BDS 5,0 on 21 %: in a turn the velocity is then measured every scan instead of every "
+        "fourth. A cluster with a BDS 5,0 report takes that one. False: BDS 5,0 alone",
+    )
+    magnetic_declination_deg: float = Field(
+        0.0,
+        ge=-180.0,
+        le=180.0,
+        description="the site's magnetic declination, degrees east of true north (true heading = magnetic + "
+        "this): BDS 6,0 reports the magnetic heading. A wrong value the wind estimate absorbs in straight "
+        "flight, but not in turns (1° is 4 m/s across the track at 230 m/s after a 180° turn). On the "
+        "Barcelona hour +1° fits best of 0, 1 and 2° (the air vector plus the wind against BDS 5,0: 3.07, 3.05 and "
+        "3.09 m/s RMS)",
+    )
+    air_velocity_sigma_mps: float = Field(
+        1.5,
+        gt=0,
+        description="σ per axis of the air vector plus the track's wind as a velocity, m/s. On the Barcelona "
+        "hour's straight flight, the air vector plus a wind estimated from the aircraft's earlier plots "
+        "predicts its next BDS 5,0 report within 1.8 m/s RMS (magnitude; 1.3 per axis, of which BDS 5,0's "
+        "own 0.5-0.7); the margin is for the tails (95th percentile 3.4 m/s)",
+    )
+    air_velocity_age_s: float = Field(
+        -1.0,
+        description="mean age of a BDS 6,0 heading's velocity when the radar reads it, s, as velocity_age_s "
+        "for BDS 5,0 (velocity_age_sigma_s is the spread of both). Negative: the heading leads the course. "
+        "On the Barcelona hour's turns the air vector plus the wind matches BDS 5,0 best with the heading of "
+        "2 s before it (turns above 1°/s: 5.3 m/s RMS against 7.8 with the heading of the same plot; 1.5 and "
+        "2.5 s are worse), and BDS 5,0 runs 1.0 s behind the plots' course",
+    )
+    wind_time_constant_s: float = Field(
+        15.0,
+        gt=0,
+        description="the track's wind estimate follows its samples (a BDS 5,0 ground velocity less the BDS 6,0 "
+        "air vector of one cluster) with this time constant, s. It absorbs, besides the wind, what the air "
+        "vector gets wrong by a constant: the day's temperature off ISA (1 % of the airspeed for 3 K), a "
+        "heading offset. On the Barcelona hour a shorter one predicts the next report better (straight: 1.8, "
+        "2.0, 2.3 m/s RMS at 10, 20, 30 s; turns 5.1, 5.3, 5.6); 15 s keeps two or three samples of a "
+        "simulated radar's noise",
+    )
+    wind_sample_max_accel_mps2: float = Field(
+        2.0,
+        gt=0,
+        description="a cluster's wind sample is taken only while the track's acceleration is below this, m/s²: "
+        "the two registers' ages differ by two seconds, which in a 3°/s turn turns the velocity by 6° "
+        "(24 m/s at 230 m/s). Default 2 m/s²: a turn of 0.5°/s at 230 m/s",
+    )
+    wind_layer_ft: float = Field(
+        2000.0,
+        gt=0,
+        description="height of the layers of the shared wind, ft: every track's wind samples also feed the wind "
+        "of its flight level's layer (all aircraft of a layer share its air mass), which a track without a wind "
+        "of its own takes (engine._air_velocity_and_wind). An aircraft whose radars have not read its BDS 5,0 "
+        "yet (a quarter of the Mode S scans: for a 12 s radar, 48 s on average) then has its velocity from its "
+        "first BDS 6,0 read; at 4,000x10 the worst turning errors (0.6-1.5 km, a two-point start in a turn on "
+        "one 12 s radar) were of such tracks",
+    )
+    wind_layer_time_constant_s: float = Field(
+        300.0,
+        gt=0,
+        description="a layer's wind follows the mean of its samples of each period with this time constant, s",
+    )
+    wind_layer_sigma_mps: float = Field(
+        5.0,
+        ge=0,
+        description="σ per axis added to air_velocity_sigma_mps where a track takes its layer's wind, m/s: the "
+        "wind varies over a layer and across the coverage, and the layer's mean does not hold the aircraft's "
+        "own errors of the air vector (the day's temperature off ISA is 1 % of the airspeed along the heading)",
+    )
+    wind_max_age_s: float = Field(
+        60.0,
+        gt=0,
+        description="a track's wind older than this, s, is not used (its layer's is, with wind_layer_sigma_mps): "
+        "what the air vector gets wrong drifts. On the Barcelona hour the air vector plus a wind older than "
+        "that was 8 m/s or more off the plot's own BDS 5,0 (half the time 190 s old or more), against a median "
+        "of 2.3 m/s over all",
+    )
+    wind_max_climb_ft: float = Field(
+        1000.0,
+        gt=0,
+        description="a track's wind taken more than this below or above its present level, ft, is not used (its "
+        "layer's is): the wind changes with height (on the Barcelona hour from 5 m/s near the ground to 35 m/s "
+        "at FL350)",
+    )
 
     def models(self) -> tuple[Model, ...]:
         """The models, in mode order (QUIET, MANOEUVRE, then a right and a left turn for each

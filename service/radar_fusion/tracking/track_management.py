@@ -187,11 +187,19 @@ _FIELDS = {
     # factors against the positions (imm.Evidence), and whether they are set aside
     "roll_check": ((), float, 0.0),
     "roll_distrust": ((), bool, False),
+    # the wind at the aircraft, m/s, in the system plane's x and y, from its BDS 5,0 and 6,0 reports
+    # (engine._air_velocity_and_wind), and the time of its latest sample; NaN: none yet
+    "wind_mps": ((2,), float, np.nan),
+    "wind_t_s": ((), float, np.nan),
+    "wind_fl": ((), float, np.nan),  # the track's flight level then
 }
 
 #: columns added after the state format's first release: a state without them is read
 #: with their fill (engine/state.py)
-OPTIONAL_FIELDS = ("held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources", "roll_check", "roll_distrust")
+OPTIONAL_FIELDS = (
+    "held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources", "roll_check", "roll_distrust",
+    "wind_mps", "wind_t_s", "wind_fl",
+)  # fmt: skip
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
 # track axis: (N, M, 6), (N, M, 6, 6), (N, M). A table for the single-model Singer filter
@@ -238,6 +246,9 @@ class TrackTable:
     held_sources: NDArray[np.uint64]  # its radars (bit mask)
     roll_check: NDArray[np.float64]  # fading sum of the roll reports' log Bayes factors (imm.Evidence)
     roll_distrust: NDArray[np.bool_]  # the track's roll reports are set aside
+    wind_mps: NDArray[np.float64]  # (N, 2) the wind at the aircraft (plane x, y), NaN: none yet
+    wind_t_s: NDArray[np.float64]  # the time of its latest sample
+    wind_fl: NDArray[np.float64]  # the track's flight level then, NaN: unknown
     x_models: NDArray[np.float64]  # (N, M, 6) each IMM model's state at t_state_s
     P_models: NDArray[np.float64]  # (N, M, 6, 6)
     mu: NDArray[np.float64]  # (N, M) IMM mode probabilities
