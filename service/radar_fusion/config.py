@@ -30,10 +30,10 @@ from .safety_nets.config import SafetyNetsConfig
 from .tracking.clustering import ClusteringParams
 from .tracking.imm import IMMParams
 from .tracking.live_gate import LiveGateParams
-from .wire import MAX_PLOT_BATCH_BYTES
 from .tracking.registration import RegistrationParams
 from .tracking.singer_filter import DEFAULT_ALPHA_PER_S, DEFAULT_SIGMA_M_MPS2
 from .tracking.track_management import LifeCycle
+from .wire import MAX_PLOT_BATCH_BYTES
 
 
 class ConfigError(Exception):
