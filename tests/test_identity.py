@@ -159,3 +159,87 @@ def test_barcelona_first_twenty_minutes_through_the_engine(shared_data, capsys):
     # hour without re-acquisition, 1.220 before identity association)
     assert f["ids_per_segment_mean"] <= 1.03, f["worst_addresses"]
     assert f["duplicate_batches"] == 0 and f["duplicate_track_time_share"] == 0.0
+
+
+@pytest.mark.slow
+def test_barcelona_heading_and_airspeed_bring_the_velocity_closer_to_held_out_reports(shared_data):
+    """The first twenty minutes of the Barcelona hour, half the BDS 5,0 reports (at random)
+    taken off the plots before the engine sees them: the confirmed Mode S tracks' velocity
+    (period by period, within 2 s of a held-out report) against those reports, with the
+    BDS 6,0 heading and airspeed measuring the velocity (tracking.imm.velocity_air) and
+    without. In turns (above 1°/s by the held-out reports' own track angles) the error falls;
+    in straight flight it stays within 10 %. Measured when written: turns 7.41 against 8.71
+    m/s RMS (50 reports), straight 2.97 against 2.80 (338); over the whole hour (a script, not
+    this test: 50 s more) turns 6.49 against 7.44 (127), straight 2.99 against 3.24 (954)."""
+    from radar_fusion.engine import Engine
+    from radar_fusion.tools.identity import BARCELONA_DAY, asterix_messages, barcelona_settings
+    from radar_fusion.tools.replay import ingest_record
+    from radar_fusion.wire import decode_plot_batch
+
+    path = shared_data / "asterix" / "barcelona_cat048_1h.ast"
+    if not path.is_file():
+        pytest.skip(f"{BARCELONA_FILE} is not present")
+    base = barcelona_settings()
+    messages, _ = asterix_messages(path, base, BARCELONA_DAY, minutes=20)
+
+    def run(velocity_air: bool) -> tuple[np.ndarray, np.ndarray]:
+        imm = base.tracking.imm.model_copy(update={"velocity_air": velocity_air})
+        settings = base.model_copy(update={"tracking": base.tracking.model_copy(update={"imm": imm})})
+        engine = Engine(settings)
+        rng = np.random.default_rng(0)
+        held: dict[int, list[tuple[float, float, float]]] = {}
+        outputs = []
+        for _t, key, payload in messages:
+            if key.endswith("/plots"):
+                batch = decode_plot_batch(payload)
+                out = np.isfinite(batch.ground_speed_mps) & (rng.random(len(batch)) < 0.5)
+                for j in np.flatnonzero(out):
+                    held.setdefault(int(batch.mode_s[j]), []).append(
+                        (float(batch.t_s[j]), float(batch.ground_speed_mps[j]), float(batch.track_angle_deg[j]))
+                    )
+                batch.ground_speed_mps[out] = np.nan
+                batch.track_angle_deg[out] = np.nan
+                engine.ingest_plots(batch)
+            else:
+                ingest_record(engine, key, payload)
+            outputs += engine.poll()
+        outputs += engine.flush()
+        series = {a: np.array(sorted(v)) for a, v in held.items()}
+        err, rate = [], []
+        for o in outputs:
+            for tr in o.track_batch["tracks"]:
+                if tr["status"] != "confirmed" or tr["updates"] < 4 or not tr["mode_s"]:
+                    continue
+                s = series.get(int(tr["mode_s"], 16))
+                if s is None:
+                    continue
+                j = int(np.argmin(np.abs(s[:, 0] - tr["t"])))
+                if abs(s[j, 0] - tr["t"]) > 2.0:
+                    continue
+                near = np.abs(s[:, 0] - s[j, 0]) <= 20.0
+                if near.sum() < 3:
+                    continue
+                course = np.unwrap(np.radians(s[near, 2]))
+                rate.append(abs(math.degrees(np.polyfit(s[near, 0] - s[j, 0], course, 1)[0])))
+                k = float(engine.plane.scale_factor(tr["lat_deg"], tr["lon_deg"]))
+                true_deg = math.degrees(math.atan2(tr["vx_mps"], tr["vy_mps"])) + float(
+                    engine.plane.grid_convergence_deg(tr["lat_deg"], tr["lon_deg"])
+                )
+                speed = math.hypot(tr["vx_mps"], tr["vy_mps"]) / k
+                ours = speed * np.array([math.sin(math.radians(true_deg)), math.cos(math.radians(true_deg))])
+                theirs = s[j, 1] * np.array([math.sin(math.radians(s[j, 2])), math.cos(math.radians(s[j, 2]))])
+                err.append(float(np.hypot(*(ours - theirs))))
+        assert engine.counters["updates_velocity_air"] > (5000 if velocity_air else -1)
+        return np.array(err), np.array(rate)
+
+    rms = lambda e: float(np.sqrt(np.mean(e**2)))
+    (e_on, r_on), (e_off, r_off) = run(True), run(False)
+    np.testing.assert_array_equal(r_on, r_off)  # the same reports, the same tracks to compare
+    turning, straight = r_on > 1.0, r_on < 0.3
+    print(
+        f"\nheld-out BDS 5,0: turns {rms(e_on[turning]):.2f} / {rms(e_off[turning]):.2f} m/s ({turning.sum()}), "
+        f"straight {rms(e_on[straight]):.2f} / {rms(e_off[straight]):.2f} ({straight.sum()}) (with / without BDS 6,0)"
+    )
+    assert turning.sum() > 30 and straight.sum() > 200
+    assert rms(e_on[turning]) < 0.92 * rms(e_off[turning])
+    assert rms(e_on[straight]) < 1.10 * rms(e_off[straight])
