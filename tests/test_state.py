@@ -4,6 +4,7 @@ period published twice, and the accuracy of the uninterrupted run."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from radar_fusion.engine import Engine
@@ -27,6 +28,7 @@ def test_a_restored_engine_keeps_every_track_and_id(demo_case, tmp_path):
     second = Engine(settings)
     assert load_state(second, tmp_path) == n_tracks > 20
     assert snapshot(second) == snapshot(first)  # everything the state holds came back
+    assert np.isfinite(second.layer_wind_mps).any()  # the layers' wind among it
     after = replay_into_engine(second, msgs[cut:])
 
     # periods: the second daemon goes on from the first one's next period, none twice

@@ -23,6 +23,8 @@ Format (version 1): one msgpack map
     live_gate       the wild-plot gate's window per radar track (tracking/live_gate.py),
                     {"arrays": {name: [dtype, shape, bytes]} of the rows in use, "last_sweep_t",
                     "counts"}; nil with the gate off
+    layer_wind      {"mps": [...], "t_s": [...]}: the wind of each height layer and the
+                    time of its latest samples (engine._air_velocity_and_wind)
     period          the newest closed period (None before the first)
     epoch, instance with [redundancy] on, the active that published it (else None)
 
@@ -38,8 +40,9 @@ does not matter for long: the plots buffered for the period that was open (lost 
 process, as on any restart; a standby has them itself), the clock check and the counters
 (health starts again with the new process's ``uptime_s``), and the safety nets' open
 alerts (a restarted daemon raises them again as new; a standby's child has them).
-A state written before ``live_gate`` and the registration's times were kept (the same
-version) is read without them: the gate relearns within a few scans.
+A state written before ``live_gate``, the registration's times or ``layer_wind`` were kept
+(the same version) is read without them: the gate relearns within a few scans, the layers'
+wind within minutes (a track's own wind is a track column).
 """
 
 from __future__ import annotations
@@ -118,6 +121,7 @@ def snapshot(engine: Engine, period: int | None = None, epoch: int | None = None
             "next_update_t_s": engine._reg_next_t_s if math.isfinite(engine._reg_next_t_s) else None,
         },
         "live_gate": _pack_gate(engine.outlier_gate),
+        "layer_wind": {"mps": _pack_array(engine.layer_wind_mps), "t_s": _pack_array(engine.layer_wind_t_s)},
         "epoch": epoch,
         "instance": instance,
     }
@@ -183,6 +187,11 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
         t_last_s = state["registration"].get("t_last_s")
         next_update_t_s = state["registration"].get("next_update_t_s")
         gate = _unpack_gate(engine, state.get("live_gate"))
+        # the layers' wind (engine._air_velocity_and_wind); a state from before it, or of
+        # other layers: learnt again from the reports within minutes
+        layer_wind = state.get("layer_wind")
+        wind_mps = _unpack_array(layer_wind["mps"]) if layer_wind else None
+        wind_t_s = _unpack_array(layer_wind["t_s"]) if layer_wind else None
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise StateMismatch(f"a damaged state: {exc}") from exc
     # every check before anything is changed: a refused state leaves the engine as it was
@@ -221,6 +230,8 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
     engine._reg_next_t_s = -math.inf if next_update_t_s is None else float(next_update_t_s)
     if gate is not None:
         engine.outlier_gate = gate
+    if wind_mps is not None and wind_t_s is not None and wind_mps.shape == engine.layer_wind_mps.shape:
+        engine.layer_wind_mps, engine.layer_wind_t_s = wind_mps.astype(float), wind_t_s.astype(float)
     return tr.n  # the registration's correction is taken from the estimator at each period
 
 
