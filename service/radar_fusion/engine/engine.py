@@ -655,7 +655,7 @@ class Engine:
                 joint.size,
             )
         dap_v_mps, dap_age_s = self._dap_velocity(plots, used, lab, t_c, n_clusters)
-        air_v_mps, air_age_s = self._air_velocity(plots, used, lab, t_c, n_clusters)
+        air_v_mps, air_age_s = self._air_velocity(plots, used, lab, t_c, z_m, n_clusters)
         roll_used = plots.roll_deg[used]
         self.counters["plots_roll"] += int(np.isfinite(roll_used).sum())
         mode_s = np.full(n_clusters, -1, np.int64)
@@ -726,16 +726,23 @@ class Engine:
         return v, age
 
     def _air_velocity(
-        self, plots: ConvertedPlots, used: np.ndarray, lab: np.ndarray, t_c: np.ndarray, n_clusters: int
+        self,
+        plots: ConvertedPlots,
+        used: np.ndarray,
+        lab: np.ndarray,
+        t_c: np.ndarray,
+        z_m: np.ndarray,
+        n_clusters: int,
     ) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Per cluster, the aircraft's air vector from the Mode S BDS 6,0 reports among its
-        plots, in the system plane, and its age, as :meth:`_dap_velocity` does for BDS 5,0:
-        the true heading is the magnetic one plus ``magnetic_declination_deg``; the true
-        airspeed that of the indicated one at the plot's pressure altitude (its Mode C) in
-        ISA (geo.air_data.true_airspeed_mps); a report without Mode C is not used. The
-        reports of one cluster are averaged as vectors at the cluster's position; the age is
-        ``air_velocity_age_s`` plus the cluster's time less the plot's. (None, None) without
-        the IMM or with ``velocity_dap`` or ``velocity_air`` off."""
+        plots, in the system plane at the cluster's position ``z_m``, and its age, as
+        :meth:`_dap_velocity` does for BDS 5,0: the true heading is the reports' mean
+        magnetic heading (as unit vectors) plus ``magnetic_declination_deg``; the true
+        airspeed that of their mean indicated one at their mean pressure altitude (Mode C) in
+        ISA (geo.air_data.true_airspeed_mps; one conversion per cluster, not per plot: the
+        reports of a cluster are one aircraft's within a scan); a report without Mode C is
+        not used. The age is ``air_velocity_age_s`` plus the cluster's time less the plots'.
+        (None, None) without the IMM or with ``velocity_dap`` or ``velocity_air`` off."""
         if (
             self.imm is None
             or not (self.imm.params.velocity_dap and self.imm.params.velocity_air)
@@ -751,25 +758,22 @@ class Engine:
         self.counters["plots_air_velocity"] += int(have.sum())
         i, lb = idx[have], lab[have]
         p = self.imm.params
-        tas = true_airspeed_mps(plots.indicated_airspeed_mps[i], plots.fl[i] * M_PER_FL)
-        heading_rad = np.radians(plots.magnetic_heading_deg[i] + p.magnetic_declination_deg)
+        heading_rad = np.radians(heading[have])
         count = np.bincount(lb, minlength=n_clusters).astype(float)
-        east = np.bincount(lb, tas * np.sin(heading_rad), n_clusters)
-        north = np.bincount(lb, tas * np.cos(heading_rad), n_clusters)
-        lag = np.bincount(lb, t_c[lb] - plots.t_s[i], n_clusters)
-        alt = _mean_known(lb, plots.altitude_m[i], n_clusters)
+        east = np.bincount(lb, np.sin(heading_rad), n_clusters)
+        north = np.bincount(lb, np.cos(heading_rad), n_clusters)
         k = np.flatnonzero(count > 0)
-        xy = (
-            np.bincount(lb, plots.x_m[i], n_clusters)[k] / count[k],
-            np.bincount(lb, plots.y_m[i], n_clusters)[k] / count[k],
-        )
-        speed = np.hypot(east[k], north[k]) / count[k]
+        n_k = count[k]
+        ias_k = np.bincount(lb, ias[have], n_clusters)[k] / n_k
+        alt_k = np.bincount(lb, fl[have], n_clusters)[k] / n_k * M_PER_FL
+        lag_k = np.bincount(lb, t_c[lb] - plots.t_s[i], n_clusters)[k] / n_k
+        true_deg = np.degrees(np.arctan2(east[k], north[k])) + p.magnetic_declination_deg
         v = np.full((n_clusters, 2), np.nan)
         v[k, 0], v[k, 1] = ground_velocity_to_plane(
-            self.plane, *xy, speed, np.degrees(np.arctan2(east[k], north[k])), alt[k]
+            self.plane, z_m[k, 0], z_m[k, 1], true_airspeed_mps(ias_k, alt_k), true_deg, alt_k
         )
         age = np.full(n_clusters, np.nan)
-        age[k] = p.air_velocity_age_s + lag[k] / count[k]
+        age[k] = p.air_velocity_age_s + lag_k
         return v, age
 
     def _air_velocity_and_wind(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> np.ndarray:

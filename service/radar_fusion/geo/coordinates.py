@@ -275,6 +275,42 @@ class SystemPlane:
         k: NDArray[np.float64] = (2.0 / d) * self.conformal_radius_m * self._gauss_c * cos_chi / (n_m * np.cos(phi))
         return x_m, y_m, convergence_deg, k
 
+    def factors_at(self, x_m: Any, y_m: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """At plane points: the meridian convergence (degrees), the point scale factor k and
+        the geodetic latitude (degrees), what :meth:`to_geodetic` then
+        :meth:`to_plane_and_factors` give, in one pass: the plane point goes to the conformal
+        sphere (:meth:`to_conformal_sphere`), the latitude follows by to_geodetic's fixed
+        point, and the two factors by to_plane_and_factors' closed forms from (chi, Lambda)
+        directly, without the forward map back. For the velocities of Mode S reports, every
+        period (ground_velocity_to_plane)."""
+        x = np.asarray(x_m, dtype=float)
+        y = np.asarray(y_m, dtype=float)
+        chi, lam = self.to_conformal_sphere(x, y)
+        num = (np.tan(0.5 * chi + 0.25 * math.pi) / self._gauss_k) ** (1.0 / self._gauss_c)
+        e = math.sqrt(_WGS84_E2)
+        phi = np.array(chi, dtype=float, copy=True)
+        for _ in range(20):
+            es = e * np.sin(phi)
+            new = 2.0 * np.arctan(num * ((1.0 - es) / (1.0 + es)) ** (-0.5 * e)) - 0.5 * math.pi
+            done = not np.any(np.abs(new - phi) >= 1e-14)
+            phi = new
+            if done:
+                break
+        s0, c0 = math.sin(self.conformal_center_lat_rad), math.cos(self.conformal_center_lat_rad)
+        sin_chi, cos_chi = np.sin(chi), np.cos(chi)
+        sin_lam, cos_lam = np.sin(lam), np.cos(lam)
+        d = 1.0 + s0 * sin_chi + c0 * cos_chi * cos_lam
+        u = cos_chi * sin_lam
+        v = c0 * sin_chi - s0 * cos_chi * cos_lam
+        d_chi = s0 * cos_chi - c0 * sin_chi * cos_lam
+        dx = -sin_chi * sin_lam * d - u * d_chi
+        dy = (c0 * cos_chi + s0 * sin_chi * cos_lam) * d - v * d_chi
+        convergence_deg: NDArray[np.float64] = -np.degrees(np.arctan2(dx, dy))
+        sin_phi = np.sin(phi)
+        n_m = _WGS84_A_M / np.sqrt(1.0 - _WGS84_E2 * sin_phi * sin_phi)
+        k: NDArray[np.float64] = (2.0 / d) * self.conformal_radius_m * self._gauss_c * cos_chi / (n_m * np.cos(phi))
+        return convergence_deg, k, np.asarray(np.degrees(phi), dtype=float)
+
     def grid_convergence_deg(self, lat_deg: Any, lon_deg: Any) -> np.ndarray:
         """Meridian convergence c at the given points, degrees.
 
@@ -721,8 +757,7 @@ def ground_velocity_to_plane(
     the aircraft (the ground range of the spherical model above), which moves R / (R + h)
     as fast as the aircraft at height h (0.17 % slower at FL350), R the Gaussian radius.
     NaN altitude: taken as 0."""
-    lat, lon = plane.to_geodetic(x_m, y_m)
-    _, _, convergence_deg, k = plane.to_plane_and_factors(lat, lon)
+    convergence_deg, k, lat = plane.factors_at(x_m, y_m)
     radius_m = gaussian_earth_radius_m(lat)
     h = np.nan_to_num(np.asarray(altitude_m, dtype=float), nan=0.0)
     speed = np.asarray(speed_mps, dtype=float) * k * radius_m / (radius_m + h)
