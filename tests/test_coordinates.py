@@ -903,3 +903,21 @@ def test_true_airspeed_of_an_indicated_one():
     for dev_k in (0.0, -15.0, 20.0):
         tas = ad.true_airspeed_mps(cas, fl350, dev_k)
         np.testing.assert_allclose(ad.indicated_airspeed_mps(tas, fl350, dev_k), cas, rtol=1e-10)
+
+
+def test_factors_at_a_plane_point_are_those_of_its_geodetic_position():
+    """SystemPlane.factors_at (the plane point to the conformal sphere, the closed forms
+    from there) against the round trip it replaces, to_geodetic then to_plane_and_factors,
+    over ±600 km of a centre at 41° N: the same convergence, scale and latitude."""
+    from radar_fusion.geo.coordinates import SystemPlane
+
+    plane = SystemPlane(41.3, 2.1)
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-600e3, 600e3, 2000), rng.uniform(-600e3, 600e3, 2000)
+    lat, lon = plane.to_geodetic(x, y)
+    _, _, convergence_deg, k = plane.to_plane_and_factors(lat, lon)
+    c2, k2, lat2 = plane.factors_at(x, y)
+    np.testing.assert_allclose(c2, convergence_deg, atol=1e-12)
+    np.testing.assert_allclose(k2, k, rtol=1e-13)
+    np.testing.assert_allclose(lat2, lat, atol=1e-12)
+    assert np.abs(convergence_deg).max() > 3.0  # far enough out for the convergence to matter
