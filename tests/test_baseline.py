@@ -247,7 +247,9 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
     turn of rate ω, nothing flying straight); then, where it carries them, its heading and
     airspeed as the air vector (the truth's velocity less the scenario's wind, known) with
     the heading's σ and step across the air vector, the IAS σ and 1 kt step times TAS/IAS
-    along it, and the air ages' spread the same way; predicted to every settled period time:
+    along it, and the air ages' spread the same way, the aircraft's own departure from the
+    wind and its heading error two unknown constants of the state (their priors the
+    simulator's σ); predicted to every settled period time:
     the same RMS as measurement_floor's, with and without the reports; the reports bring it
     well below the plots' own bound."""
     from radar_fusion.geo.air_data import indicated_airspeed_mps
@@ -283,29 +285,36 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
     imm, rates = settings.tracking.imm, scenario.rates
     alpha, sigma_m = imm.quiet_alpha_per_s, imm.quiet_sigma_m_mps2
 
+    atm = scenario.atmosphere
+
     def bound(with_velocity: bool) -> float:
+        # the state: x, vx, ax, y, vy, ay, then the aircraft's own wind departure (2) and
+        # heading error (radians), constant
         pos = [0, 3]
-        P = np.zeros((6, 6))
+        P = np.zeros((9, 9))
         P[np.ix_(pos, pos)] = cov[0]
         P[1, 1] = P[4, 4] = unknown_velocity_var_m2ps2(settings.clustering.max_speed_mps)
         P[2, 2] = P[5, 5] = sigma_m**2
+        P[6, 6] = P[7, 7] = atm.local_wind_sigma_mps**2
+        P[8, 8] = np.radians(atm.heading_bias_sigma_deg) ** 2
         history = []
 
         def update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> np.ndarray:
             K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
-            return (np.eye(6) - K @ H) @ P
+            return (np.eye(9) - K @ H) @ P
 
         def predict(P: np.ndarray, dt_s: float) -> np.ndarray:
             phi, q = _singer_van_loan(dt_s, alpha, sigma_m)
-            F, Q = np.kron(np.eye(2), phi), np.kron(np.eye(2), q)
+            F, Q = np.eye(9), np.zeros((9, 9))
+            F[:6, :6], Q[:6, :6] = np.kron(np.eye(2), phi), np.kron(np.eye(2), q)
             return F @ P @ F.T + Q
 
         for i in range(t.size):
             if i:
                 P = predict(P, t[i] - t[i - 1])
-                P = update(P, np.eye(6)[pos], cov[i])
+                P = update(P, np.eye(9)[pos], cov[i])
             if with_velocity and np.isfinite(gs[i]):
-                H = np.zeros((2, 6))
+                H = np.zeros((2, 9))
                 H[0, 1] = H[1, 4] = 1.0
                 H[0, 2] = H[1, 5] = -age_s
                 v = sim.truth_at(np.array([0]), np.array([t[i] - age_s]))
@@ -321,9 +330,10 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
             if with_velocity and np.isfinite(heading[i]):
                 lo, hi = rates.air_age_s
                 a_s = 0.5 * (lo + hi)
-                H = np.zeros((2, 6))
+                H = np.zeros((2, 9))
                 H[0, 1] = H[1, 4] = 1.0
                 H[0, 2] = H[1, 5] = -a_s
+                H[0, 6] = H[1, 7] = -1.0
                 v = sim.truth_at(np.array([0]), np.array([t[i] - a_s]))
                 alt_m = v["alt_ft"][0] * 0.3048
                 wind_e, wind_n = scenario.atmosphere.wind_mps(np.array([alt_m]))
@@ -332,6 +342,7 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
                 tas = float(np.hypot(*air))
                 u, g = air / tas, ground / float(np.hypot(*ground))
                 w = np.array([u[1], -u[0]])
+                H[:, 8] = tas * w  # the heading error turns the air vector to the right
                 ias = float(indicated_airspeed_mps(tas, alt_m, scenario.atmosphere.temperature_deviation_k))
                 var_u = (tas / ias) ** 2 * (rates.sigma_ias_mps**2 + (1852.0 / 3600.0) ** 2 / 12.0)
                 var_w = (tas * np.radians(1.0)) ** 2 * (rates.sigma_heading_deg**2 + (90.0 / 512.0) ** 2 / 12.0)
@@ -398,7 +409,8 @@ def test_the_bounds_velocity_report_model_matches_the_simulated_reports(turn_rat
 @pytest.mark.parametrize("turn_rate_dps", [0.0, 2.0])
 def test_the_bounds_air_report_model_matches_the_simulated_reports(turn_rate_dps):
     """The model the bound gives each BDS 6,0 report (measurement_floor: the truth's velocity
-    at the mean air age, less the scenario's wind, as heading and true airspeed; the heading's
+    at the mean air age, less the scenario's wind and the aircraft's own departure from it,
+    as heading (plus its heading error) and true airspeed; the heading's
     σ and 90/512° step across, the IAS σ and 1 kt step along, the ages' spread times the
     acceleration) against the simulator's reports of four aircraft over 1,500 s, straight or
     turning at 2°/s: the heading residual's mean near zero and its variance within 15 % of
@@ -424,9 +436,13 @@ def test_the_bounds_air_report_model_matches_the_simulated_reports(turn_rate_dps
     r_m = 6_371_000.0
     speed = np.hypot(truth["vx_mps"], truth["vy_mps"]) / k * (r_m + alt_m) / r_m
     track = np.radians(np.degrees(np.arctan2(truth["vx_mps"], truth["vy_mps"])) + convergence_deg)
-    air_e, air_n = speed * np.sin(track) - wind * math.sin(to), speed * np.cos(track) - wind * math.cos(to)
+    # each aircraft's own departure from the wind and heading error (Atmosphere.aircraft_errors)
+    own = atm.aircraft_errors(len(scenario.targets), scenario.seed)[p.target_index[has]]
+    air_e = speed * np.sin(track) - wind * math.sin(to) - own[:, 0]
+    air_n = speed * np.cos(track) - wind * math.cos(to) - own[:, 1]
     tas = np.hypot(air_e, air_n)
-    d_heading = (p.magnetic_heading_deg[has] - np.degrees(np.arctan2(air_e, air_n)) + 180.0) % 360.0 - 180.0
+    true_heading = np.degrees(np.arctan2(air_e, air_n)) + own[:, 2]
+    d_heading = (p.magnetic_heading_deg[has] - true_heading + 180.0) % 360.0 - 180.0
     d_ias = p.indicated_airspeed_mps[has] - indicated_airspeed_mps(tas, alt_m, atm.temperature_deviation_k)
     rate_rad_s = math.radians(turn_rate_dps)
     var_heading = rates.sigma_heading_deg**2 + (90.0 / 512.0) ** 2 / 12.0

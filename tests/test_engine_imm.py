@@ -494,11 +494,12 @@ def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
     every aircraft turning 120° at 2°/s in the middle of its flight: with ``velocity_air`` the
     engine learns the wind from the clusters carrying both registers, and every other BDS 6,0
     plot measures the velocity. The turning position and the settled velocity errors fall
-    well below those without (measured when written: turning 67 against 95 m, velocity 10.7
+    well below those without (measured when written: turning 67 against 95 m, velocity 10.9
     against 16.1 m/s), straight flight is no worse (44 against 50 m), and the layers' wind is
-    the scenario's within 2 m/s (median; 3.5 at most). With a track's own wind kept for at
+    the scenario's within 2.5 m/s (median; 6 at most: each aircraft has its own departure
+    from the wind and heading error, Atmosphere.aircraft_errors). With a track's own wind kept for at
     most 1 s, the air reports take the layer's wind instead and still beat positions and
-    BDS 5,0 alone (64 m: the simulated wind is one field, which the layers hold exactly)."""
+    BDS 5,0 alone (66 m)."""
     import dataclasses
     import tomllib
 
@@ -545,9 +546,10 @@ def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
     mid_m = (known + 0.5) * on.settings.tracking.imm.wind_layer_ft * 0.3048
     east, north = scenario.atmosphere.wind_mps(mid_m)
     err = np.hypot(on.layer_wind_mps[known, 0] - east, on.layer_wind_mps[known, 1] - north)
-    # (each aircraft's own error of the air vector, the day's 5 K off ISA, is 1.1 % of its
-    # airspeed along its heading, 2.5 m/s: a layer of a few aircraft does not average it out)
-    assert np.median(err) < 2.0 and err.max() < 3.5, err
+    # (each aircraft's own error of the air vector does not average out over the few of a
+    # layer: its own departure from the wind, 2 m/s per axis, its heading error, 0.5° or
+    # 2 m/s, and the day's 5 K off ISA, 1.1 % of its airspeed along its heading)
+    assert np.median(err) < 2.5 and err.max() < 6.0, err
     s = stale.counters
     assert s["updates_velocity_air_layer_wind"] > 0.9 * s["updates_velocity_air"]
     assert s_stale.pos_rms_turning_m < 0.85 * s_off.pos_rms_turning_m

@@ -231,6 +231,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     order = np.lexsort((t, tgt))
     t, cov, tgt, gs_mps, heading_deg = t[order], cov[order], tgt[order], gs_mps[order], heading_deg[order]
     n = t.size
+    atmosphere = sim.scenario.atmosphere
+    D = 9  # the Singer state (6), the aircraft's own wind departure (2) and heading error (1)
     # The aircraft's own velocity (Mode S BDS 5,0) on the plots that carry it: the truth's
     # velocity an age τ before the plot, τ uniform over the simulator's dap_age_s and not
     # known to any tracker (nothing on the wire says it). To first order v(t − τ) = v(t) −
@@ -243,7 +245,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     age_lo_s, age_hi_s = rates.dap_age_s
     age_mean_s, age_var_s2 = 0.5 * (age_lo_s + age_hi_s), (age_hi_s - age_lo_s) ** 2 / 12.0
     has_v = np.isfinite(gs_mps)
-    Hv = np.zeros((int(has_v.sum()), 2, 6))
+    Hv = np.zeros((int(has_v.sum()), 2, D))
     Hv[:, 0, 1] = Hv[:, 1, 4] = 1.0
     Hv[:, 0, 2] = Hv[:, 1, 5] = -age_mean_s
     tv = sim.truth_at(tgt[has_v], t[has_v] - age_mean_s)
@@ -260,26 +262,30 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     Rv += age_var_s2 * acc[:, :, None] * acc[:, None, :]
     # The aircraft's heading and airspeed (BDS 6,0) on the plots that carry them: the air
     # vector, the truth's velocity less the wind, of an age τ uniform over the simulator's
-    # air_age_s (H picks v − τ̄ a; var(τ) a aᵀ as above), the wind known: the simulated wind
-    # is one field over the whole coverage, which every aircraft's reports measure (the
-    # engine learns it per layer), so a bound may take it as given; the day's temperature off
-    # ISA likewise. The noise: the simulator's heading σ with the register's 90/512° across
-    # the air vector, and its IAS σ with the 1 kt step along it times TAS/IAS at the truth's
-    # height.
+    # air_age_s (H picks v − τ̄ a; var(τ) a aᵀ as above). The layers' wind known: one field
+    # over the coverage, which every aircraft's reports measure (the engine learns it per
+    # layer), so a bound may take it as given, and the day's temperature off ISA likewise;
+    # not each aircraft's own departure from the wind, o (2), nor its heading error δ, two
+    # more states of the bound, constant, from priors of the simulator's σ
+    # (Atmosphere.local_wind_sigma_mps, heading_bias_sigma_deg): H adds −o and δ TAS r̂ (r̂
+    # the air vector turned 90° right). The noise: the simulator's heading σ with the
+    # register's 90/512° across the air vector, and its IAS σ with the 1 kt step along it
+    # times TAS/IAS at the truth's height.
     has_a = np.isfinite(heading_deg)
     air_lo_s, air_hi_s = rates.air_age_s
     air_mean_s, air_var_s2 = 0.5 * (air_lo_s + air_hi_s), (air_hi_s - air_lo_s) ** 2 / 12.0
-    Ha = np.zeros((int(has_a.sum()), 2, 6))
+    Ha = np.zeros((int(has_a.sum()), 2, D))
     Ha[:, 0, 1] = Ha[:, 1, 4] = 1.0
     Ha[:, 0, 2] = Ha[:, 1, 5] = -air_mean_s
+    Ha[:, 0, 6] = Ha[:, 1, 7] = -1.0
     ta = sim.truth_at(tgt[has_a], t[has_a] - air_mean_s)
     a_early, a_late = (sim.truth_at(tgt[has_a], t[has_a] - air_mean_s + d) for d in (-0.5, 0.5))
     acc_a = np.stack([a_late["vx_mps"] - a_early["vx_mps"], a_late["vy_mps"] - a_early["vy_mps"]], axis=1)
     alt_a = ta["alt_ft"] * M_PER_FT
-    wind_e, wind_n = sim.scenario.atmosphere.wind_mps(alt_a)
+    wind_e, wind_n = atmosphere.wind_mps(alt_a)
     air = np.stack([ta["vx_mps"] - wind_e, ta["vy_mps"] - wind_n], axis=1)
     tas = np.maximum(np.hypot(air[:, 0], air[:, 1]), 1e-3)
-    dev_k = sim.scenario.atmosphere.temperature_deviation_k
+    dev_k = atmosphere.temperature_deviation_k
     tas_per_ias = tas / np.maximum(indicated_airspeed_mps(tas, alt_a, dev_k), 1e-3)
     a_along = air / tas[:, None]
     a_across = np.stack([a_along[:, 1], -a_along[:, 0]], axis=1)
@@ -288,6 +294,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     Ra = var_a_along[:, None, None] * a_along[:, :, None] * a_along[:, None, :]
     Ra += var_a_across[:, None, None] * a_across[:, :, None] * a_across[:, None, :]
     Ra += air_var_s2 * acc_a[:, :, None] * acc_a[:, None, :]
+    Ha[:, :, 8] = tas[:, None] * a_across
     v_row = np.full(n, -1)
     v_row[has_v] = np.arange(int(has_v.sum()))
     a_row = np.full(n, -1)
@@ -295,30 +302,38 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     first = np.r_[True, tgt[1:] != tgt[:-1]]
     start = np.flatnonzero(first)
     rank = np.arange(n) - np.repeat(start, np.diff(np.r_[start, n]))
-    H = np.zeros((2, 6))
+    H = np.zeros((2, D))
     H[0, 0] = H[1, 3] = 1.0
 
     def prior(i: np.ndarray) -> np.ndarray:
-        p0 = np.zeros((i.size, 6, 6))
+        p0 = np.zeros((i.size, D, D))
         p0[:, [0, 0, 3, 3], [0, 3, 0, 3]] = cov[i][:, [0, 0, 1, 1], [0, 1, 0, 1]]
         p0[:, 1, 1] = p0[:, 4, 4] = unknown_velocity_var_m2ps2(settings.clustering.max_speed_mps)
         p0[:, 2, 2] = p0[:, 5, 5] = sigma_m**2
+        p0[:, 6, 6] = p0[:, 7, 7] = atmosphere.local_wind_sigma_mps**2
+        p0[:, 8, 8] = math.radians(atmosphere.heading_bias_sigma_deg) ** 2
         return p0
 
     def transition(dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Φ and Q of Singer's model (singer_filter)."""
-        return singer_transition(dt, alpha), singer_process_noise(dt, alpha, sigma_m)
+        """Φ and Q of the state: Singer's model (singer_filter), the aircraft's own wind
+        departure and heading error constant."""
+        F = np.zeros((dt.size, D, D))
+        F[:, :6, :6] = singer_transition(dt, alpha)
+        F[:, 6, 6] = F[:, 7, 7] = F[:, 8, 8] = 1.0
+        Q = np.zeros((dt.size, D, D))
+        Q[:, :6, :6] = singer_process_noise(dt, alpha, sigma_m)
+        return F, Q
 
     def joseph(Pp: np.ndarray, Hm: np.ndarray, R: np.ndarray) -> np.ndarray:
         """Covariance update in Joseph form: stays symmetric positive semi-definite in floating point."""
         S = Hm @ Pp @ np.swapaxes(Hm, -1, -2) + R
         K = Pp @ np.swapaxes(Hm, -1, -2) @ np.linalg.inv(S)
-        IKH = np.eye(6) - K @ Hm
+        IKH = np.eye(D) - K @ Hm
         out: np.ndarray = IKH @ Pp @ np.swapaxes(IKH, 1, 2) + K @ R @ np.swapaxes(K, 1, 2)
         return out
 
     def recursion(with_velocity: bool) -> np.ndarray:
-        P = np.zeros((n, 6, 6))
+        P = np.zeros((n, D, D))
 
         def velocity_update(i: np.ndarray) -> None:
             j = i[v_row[i] >= 0] if with_velocity else i[:0]

@@ -194,6 +194,7 @@ def _air_reports(
     mode_s: np.ndarray,
     rates: Rates,
     atmosphere: Atmosphere,
+    aircraft_errors: np.ndarray,
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The magnetic heading (degrees, [0, 360)) and indicated airspeed (m/s) a Mode S plot
@@ -203,8 +204,10 @@ def _air_reports(
 
     The air vector is the ground velocity less the wind: the truth's true ground velocity
     (:func:`_true_ground_velocity`) at t − age, age uniform over ``rates.air_age_s``, less
-    ``atmosphere``'s wind at the truth's height. Its direction is the true heading (the
-    simulated site's magnetic declination is 0, so the magnetic heading is the true one), its
+    ``atmosphere``'s wind at the truth's height and the aircraft's own departure from it
+    (``aircraft_errors``, :meth:`Atmosphere.aircraft_errors`). Its direction is the true
+    heading (the simulated site's magnetic declination is 0, so the magnetic heading is the
+    true one), plus the aircraft's constant heading error, its
     length the true airspeed, which the day's temperature (ISA + ``temperature_deviation_k``)
     turns into the calibrated airspeed the register holds (geo.air_data). Then
     ``rates.sigma_heading_deg`` and ``rates.sigma_ias_mps`` of noise, rounded to the
@@ -217,9 +220,11 @@ def _air_reports(
     age_s = rng.uniform(*rates.air_age_s, carry.size)
     speed, track_deg, alt_m = _true_ground_velocity(traj, plane, tgt[carry], t_s[carry] - age_s)
     wind_e, wind_n = atmosphere.wind_mps(alt_m)
-    air_e = speed * np.sin(np.radians(track_deg)) - wind_e
-    air_n = speed * np.cos(np.radians(track_deg)) - wind_n
-    heading = np.degrees(np.arctan2(air_e, air_n)) + rng.normal(0.0, rates.sigma_heading_deg, carry.size)
+    own = aircraft_errors[tgt[carry]]
+    air_e = speed * np.sin(np.radians(track_deg)) - wind_e - own[:, 0]
+    air_n = speed * np.cos(np.radians(track_deg)) - wind_n - own[:, 1]
+    heading = np.degrees(np.arctan2(air_e, air_n)) + own[:, 2]
+    heading += rng.normal(0.0, rates.sigma_heading_deg, carry.size)
     ias = indicated_airspeed_mps(np.hypot(air_e, air_n), alt_m, atmosphere.temperature_deviation_k)
     ias += rng.normal(0.0, rates.sigma_ias_mps, carry.size)
     heading_out[carry] = np.mod(np.round(heading * 512.0 / 90.0), 2048.0) * 90.0 / 512.0
@@ -345,8 +350,9 @@ def radar_plots(
     # BDS 6,0: heading and airspeed, from a second spawned generator
     atmosphere: Atmosphere = sim_ctx["atmosphere"]
     magnetic_heading_deg, ias_mps = _air_reports(
-        traj, plane, tgt, c["t"], kind == KIND_MODES, rates, atmosphere, rng.spawn(1)[0]
-    )
+        traj, plane, tgt, c["t"], kind == KIND_MODES, rates, atmosphere, sim_ctx["aircraft_air_errors"],
+        rng.spawn(1)[0],
+    )  # fmt: skip
 
     # ---- false plots: Poisson per revolution, uniform over the coverage disc
     rev0 = math.floor(beam_angle(t_start) / 360.0)

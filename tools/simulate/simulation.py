@@ -217,6 +217,7 @@ def simulate(scenario: Scenario, *, encode: bool = True) -> Simulation:
         t_end=t_end,
         duration_s=float(scenario.duration_s),
         atmosphere=scenario.atmosphere,
+        aircraft_air_errors=scenario.atmosphere.aircraft_errors(len(scenario.targets), scenario.seed),
     )
     seeds = np.random.SeedSequence(scenario.seed).spawn(len(scenario.radars) + 1)
     phase_rng = np.random.default_rng(seeds[0])
