@@ -8,8 +8,6 @@ what each step must produce is known in closed form."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -1255,52 +1253,3 @@ def test_a_primary_plot_beside_a_mode_c_plot_counts_its_height_spread_in_the_joi
     assert len(eng.tracks) == 1 and eng.tracks.updates[0] == 2
     err_m = np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(float(eng.tracks.t_state_s[0]))))
     assert err_m < 300.0, err_m
-
-
-@pytest.mark.parametrize("register", ["BDS 5,0", "BDS 6,0"])
-def test_a_wild_first_plot_within_reach_does_not_give_the_track_its_velocity(register):
-    """Radar a alone: its first plot of the aircraft is 600 m across the track (a wild
-    plot, but within reach of the next), its second good and carrying the aircraft's own
-    velocity: the ground velocity (BDS 5,0), or heading and airspeed (BDS 6,0) with its
-    layer's wind known (calm). The two-point start's velocity is 150 m/s across the track;
-    the report refutes it beyond the velocity gate (engine._two_point_refuted), the track
-    starts again from the second plot and the report gives it the aircraft's velocity.
-    Without that check (the engine before it) the gate refused the report against the
-    two-point velocity, which stayed 150 m/s off."""
-    from radar_fusion.geo.air_data import indicated_airspeed_mps
-
-    def run(check: bool):
-        eng = Engine(settings())
-        if not check:
-            eng._two_point_refuted = lambda cl, matched, rows, x, P: np.zeros(rows.size, bool)
-        eng.layer_wind_mps[:] = 0.0  # a calm day, learnt before
-        eng.layer_wind_t_s[:] = T0
-        along = V_MPS / np.hypot(*V_MPS)
-        across = np.array([-along[1], along[0]])
-        outs = []
-        for k in range(4):
-            t = T0 + 4.0 * k + 1.0
-            p = _plot_at(eng, 0, k + 1, t, truth_xy(t) + (600.0 * across if k == 0 else 0.0))
-            if k == 1:  # the aircraft's own velocity, true north (the plane's grid + convergence)
-                lat, lon = eng.plane.to_geodetic(*truth_xy(t))
-                k_scale = float(eng.plane.scale_factor(lat, lon))
-                true_deg = math.degrees(math.atan2(*V_MPS)) + float(eng.plane.grid_convergence_deg(lat, lon))
-                speed = float(np.hypot(*V_MPS)) / k_scale * (1.0 + FL * M_PER_FL / 6_371_000.0)
-                if register == "BDS 5,0":
-                    p.ground_speed_mps, p.track_angle_deg = np.array([speed]), np.array([true_deg % 360.0])
-                else:
-                    p.magnetic_heading_deg = np.array([true_deg % 360.0])
-                    p.indicated_airspeed_mps = np.array([float(indicated_airspeed_mps(speed, FL * M_PER_FL))])
-            eng.ingest_plots(p)
-            eng.ingest_status(RadarStatus(radar_id="b", t=T0 + 4.0 * k + 3.9, kind="heartbeat"))
-            eng.ingest_status(RadarStatus(radar_id="a", t=T0 + 4.0 * k + 3.9, kind="heartbeat"))
-            outs += eng.poll()
-        return eng, _first_outputs({round((o.t_s - T0) / 4.0) - 1: o for o in outs})
-
-    eng, got = run(check=True)
-    assert eng.counters["tracks_two_point_refuted"] == 1
-    assert got[1][0] < 50.0 and got[1][1] < 3.0, got
-    assert got[2][0] < 50.0 and got[2][1] < 3.0, got
-    old, before = run(check=False)
-    assert old.counters["tracks_two_point_refuted"] == 0 and old.counters["velocity_reports_refused"] == 1
-    assert before[1][1] > 100.0, before

@@ -1218,12 +1218,6 @@ class Engine:
                 self.filter.sigma_m_mps2,
                 self.one_plot_vel_var_m2ps2 if self.settings.tracking.two_point_prior else None,
             )
-            if self.imm is not None:
-                refuted = self._two_point_refuted(cl, matched[two], rows[two], x, P)
-                if refuted.any():  # the first point was a wild one: start from this one
-                    x[refuted], P[refuted] = one_point_initiation(
-                        z_m[two][refuted], R_m2[two][refuted], self.one_plot_vel_var_m2ps2, self.filter.sigma_m_mps2
-                    )
             x_c[two], P_c[two] = x, P
             tr.initiated[rows[two]] = True
             self._imm_initiate(rows[two], x, P)
@@ -1244,48 +1238,6 @@ class Engine:
         tr.seen_by[rows] |= cl.sources[matched]
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
-
-    def _two_point_refuted(
-        self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray, x: np.ndarray, P: np.ndarray
-    ) -> np.ndarray:
-        """Of two-point initiations x, P (Shu §4) of the tracks ``rows`` with their clusters
-        ``matched``: those whose velocity the cluster's own report refutes, the aircraft's
-        BDS 5,0 velocity or else its BDS 6,0 air vector plus the track's or its layer's wind
-        (as :meth:`_air_velocity_and_wind` would take them), outside ``velocity_gate_chi2``
-        of the report's covariance plus the two-point velocity's. One of the two positions
-        was then a wild plot (3 % wild plots, 1,000x10: 288 and 322 m/s off for a scan or two,
-        which the report, refused by the gate against that velocity, did not mend). The track
-        starts again from this cluster alone, and the report's update that follows gives it
-        the aircraft's velocity. If the first plot was the good one, this one's position is
-        wild whatever the start: the two-point start's position is this plot's too. (K,) bool."""
-        assert self.imm is not None
-        p = self.imm.params
-        k = rows.size
-        v = np.full((k, 2), np.nan)
-        R = np.zeros((k, 2, 2))
-        if cl.dap_v_mps is not None:
-            has = np.isfinite(cl.dap_v_mps[matched, 0])
-            v[has] = cl.dap_v_mps[matched[has]]
-            R[has] = self._velocity_R(v[has])
-        if cl.air_v_mps is not None and p.velocity_air:
-            air = np.isnan(v[:, 0]) & np.isfinite(cl.air_v_mps[matched, 0])
-            layer = self._wind_layer(rows)
-            own = np.isfinite(self.tracks.wind_mps[rows, 0])
-            wind = np.where(own[:, None], self.tracks.wind_mps[rows], self.layer_wind_mps[np.maximum(layer, 0)])
-            air &= own | (layer >= 0)
-            air &= np.isfinite(wind[:, 0])
-            v[air] = cl.air_v_mps[matched[air]] + wind[air]
-            var = p.air_velocity_sigma_mps**2 + np.where(own[air], 0.0, p.wind_layer_sigma_mps**2)
-            R[air] = var[:, None, None] * np.eye(2)
-        check = np.flatnonzero(np.isfinite(v[:, 0]))
-        out = np.zeros(k, bool)
-        if not check.size:
-            return out
-        nu = v[check] - velocity_mps(x[check])
-        S = R[check] + cov_vel(P[check])
-        out[check] = np.einsum("ki,kij,kj->k", nu, inv_2x2(S), nu) > p.velocity_gate_chi2
-        self.counters["tracks_two_point_refuted"] += int(out.sum())
-        return out
 
     def _birth_velocity_refuted(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """At the second update of a track that started with the aircraft's own velocity
