@@ -921,3 +921,29 @@ def test_factors_at_a_plane_point_are_those_of_its_geodetic_position():
     np.testing.assert_allclose(k2, k, rtol=1e-13)
     np.testing.assert_allclose(lat2, lat, atol=1e-12)
     assert np.abs(convergence_deg).max() > 3.0  # far enough out for the convergence to matter
+
+
+def test_the_velocity_frame_is_the_exact_factors_but_for_the_gauss_maps_own_scale():
+    """SystemPlane.velocity_frame against factors_at (exact): the same convergence, and a
+    scale within 2.5e-6 over ±600 km (the Gauss map's own, left out), 1e-9 near the centre;
+    ground_velocity_to_plane with it against the exact path (k and the Gaussian radius at the
+    aircraft's latitude): within 2 mm/s at 250 m/s, FL350."""
+    from radar_fusion.geo.coordinates import SystemPlane, gaussian_earth_radius_m, ground_velocity_to_plane
+
+    plane = SystemPlane(41.3, 2.1)
+    rng = np.random.default_rng(4)
+    x, y = rng.uniform(-600e3, 600e3, 2000), rng.uniform(-600e3, 600e3, 2000)
+    x[:50], y[:50] = rng.uniform(-15e3, 15e3, 50), rng.uniform(-15e3, 15e3, 50)
+    c_exact, k_exact, lat = plane.factors_at(x, y)
+    c, k = plane.velocity_frame(x, y)
+    np.testing.assert_allclose(c, c_exact, atol=1e-12)
+    assert np.abs(k / k_exact - 1.0).max() < 2.5e-6
+    near = np.hypot(x, y) < 20e3
+    assert near.any() and np.abs(k[near] / k_exact[near] - 1.0).max() < 1e-8
+    h = 350 * 30.48
+    track = rng.uniform(0.0, 360.0, x.size)
+    vx, vy = ground_velocity_to_plane(plane, x, y, 250.0, track, h)
+    r = gaussian_earth_radius_m(lat)
+    speed = 250.0 * k_exact * r / (r + h)
+    beta = np.radians(track - c_exact)
+    assert np.hypot(vx - speed * np.sin(beta), vy - speed * np.cos(beta)).max() < 2e-3

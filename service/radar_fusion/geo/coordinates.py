@@ -311,6 +311,29 @@ class SystemPlane:
         k: NDArray[np.float64] = (2.0 / d) * self.conformal_radius_m * self._gauss_c * cos_chi / (n_m * np.cos(phi))
         return convergence_deg, k, np.asarray(np.degrees(phi), dtype=float)
 
+    def velocity_frame(self, x_m: Any, y_m: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """At plane points, for velocities: the meridian convergence (degrees, exact, as
+        :meth:`factors_at`) and the point scale of the sphere's stereographic projection,
+        k = 1 + r² / (4 R_c²), without the Gauss map's own scale, which is 1 to 2e-6 within
+        600 km of the centre (tests/test_coordinates.py): no latitude, so no fixed point.
+        For the Mode S velocities of every period (ground_velocity_to_plane), where 2e-6 is
+        0.5 mm/s at 250 m/s against the reports' 0.5 m/s."""
+        x = np.asarray(x_m, dtype=float)
+        y = np.asarray(y_m, dtype=float)
+        chi, lam = self.to_conformal_sphere(x, y)
+        s0, c0 = math.sin(self.conformal_center_lat_rad), math.cos(self.conformal_center_lat_rad)
+        sin_chi, cos_chi = np.sin(chi), np.cos(chi)
+        sin_lam, cos_lam = np.sin(lam), np.cos(lam)
+        d = 1.0 + s0 * sin_chi + c0 * cos_chi * cos_lam
+        u = cos_chi * sin_lam
+        v = c0 * sin_chi - s0 * cos_chi * cos_lam
+        d_chi = s0 * cos_chi - c0 * sin_chi * cos_lam
+        dx = -sin_chi * sin_lam * d - u * d_chi
+        dy = (c0 * cos_chi + s0 * sin_chi * cos_lam) * d - v * d_chi
+        convergence_deg: NDArray[np.float64] = -np.degrees(np.arctan2(dx, dy))
+        k: NDArray[np.float64] = 1.0 + (x * x + y * y) / (4.0 * self.conformal_radius_m**2)
+        return convergence_deg, k
+
     def grid_convergence_deg(self, lat_deg: Any, lon_deg: Any) -> np.ndarray:
         """Meridian convergence c at the given points, degrees.
 
@@ -755,10 +778,12 @@ def ground_velocity_to_plane(
     beta = track - c (:meth:`SystemPlane.grid_convergence_deg`); the speed scales by the
     plane's point scale k and by R / (R + h): plot positions are on the ellipsoid under
     the aircraft (the ground range of the spherical model above), which moves R / (R + h)
-    as fast as the aircraft at height h (0.17 % slower at FL350), R the Gaussian radius.
+    as fast as the aircraft at height h (0.17 % slower at FL350), R the Gaussian radius at
+    the plane's centre (R_c; at the aircraft's latitude it differs by 1e-6 of R / (R + h)
+    within 600 km). c and k from :meth:`SystemPlane.velocity_frame` (k to 2e-6).
     NaN altitude: taken as 0."""
-    convergence_deg, k, lat = plane.factors_at(x_m, y_m)
-    radius_m = gaussian_earth_radius_m(lat)
+    convergence_deg, k = plane.velocity_frame(x_m, y_m)
+    radius_m = plane.conformal_radius_m
     h = np.nan_to_num(np.asarray(altitude_m, dtype=float), nan=0.0)
     speed = np.asarray(speed_mps, dtype=float) * k * radius_m / (radius_m + h)
     beta = np.radians(np.asarray(track_deg, dtype=float) - convergence_deg)
