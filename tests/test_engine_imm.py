@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pyproj
+import pytest
 
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
@@ -494,12 +495,11 @@ def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
     every aircraft turning 120° at 2°/s in the middle of its flight: with ``velocity_air`` the
     engine learns the wind from the clusters carrying both registers, and every other BDS 6,0
     plot measures the velocity. The turning position and the settled velocity errors fall
-    well below those without (measured when written: turning 67 against 95 m, velocity 10.9
+    well below those without (measured when written: turning 65 against 95 m, velocity 10.7
     against 16.1 m/s), straight flight is no worse (44 against 50 m), and the layers' wind is
     the scenario's within 2.5 m/s (median; 6 at most: each aircraft has its own departure
-    from the wind and heading error, Atmosphere.aircraft_errors). With a track's own wind kept for at
-    most 1 s, the air reports take the layer's wind instead and still beat positions and
-    BDS 5,0 alone (66 m)."""
+    from the wind and heading error, Atmosphere.aircraft_errors); tracks without a wind of
+    their own take their layer's."""
     import dataclasses
     import tomllib
 
@@ -523,17 +523,15 @@ def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
 
     on, s_on = run()
     off, s_off = run(velocity_air=False)
-    stale, s_stale = run(wind_max_age_s=1.0)
     print(
-        f"\nturning {s_on.pos_rms_turning_m:.1f} / {s_off.pos_rms_turning_m:.1f} / {s_stale.pos_rms_turning_m:.1f} m, "
-        f"velocity {s_on.vel_rms_settled_mps:.2f} / {s_off.vel_rms_settled_mps:.2f} / "
-        f"{s_stale.vel_rms_settled_mps:.2f} m/s, straight {s_on.pos_rms_straight_m:.1f} / "
-        f"{s_off.pos_rms_straight_m:.1f} m (on / off / layer wind only)"
+        f"\nturning {s_on.pos_rms_turning_m:.1f} / {s_off.pos_rms_turning_m:.1f} m, "
+        f"velocity {s_on.vel_rms_settled_mps:.2f} / {s_off.vel_rms_settled_mps:.2f} m/s, "
+        f"straight {s_on.pos_rms_straight_m:.1f} / {s_off.pos_rms_straight_m:.1f} m (on / off)"
     )
     assert s_on.n_pairs_turning > 200
     c = on.counters
     assert c["wind_samples"] > 50 and c["updates_velocity_air"] > c["updates_velocity"] > 0
-    assert c["velocity_reports_refused"] < 0.01 * (c["updates_velocity"] + c["updates_velocity_air"])
+    assert c["velocity_reports_refused"] < 0.02 * (c["updates_velocity"] + c["updates_velocity_air"])
     assert off.counters["plots_air_velocity"] == 0 and off.counters["updates_velocity_air"] == 0
     assert s_on.pos_rms_turning_m < 0.75 * s_off.pos_rms_turning_m
     assert s_on.vel_rms_settled_mps < 0.7 * s_off.vel_rms_settled_mps
@@ -550,6 +548,58 @@ def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
     # layer: its own departure from the wind, 2 m/s per axis, its heading error, 0.5° or
     # 2 m/s, and the day's 5 K off ISA, 1.1 % of its airspeed along its heading)
     assert np.median(err) < 2.5 and err.max() < 6.0, err
-    s = stale.counters
-    assert s["updates_velocity_air_layer_wind"] > 0.9 * s["updates_velocity_air"]
-    assert s_stale.pos_rms_turning_m < 0.85 * s_off.pos_rms_turning_m
+    assert c["updates_velocity_air_layer_wind"] > 0 and c["wind_samples_refused"] < 0.05 * c["wind_samples"]
+
+
+@pytest.mark.parametrize("register", ["BDS 5,0", "BDS 6,0"])
+def test_misread_registers_do_not_pull_tracks_off(register):
+    """Simulated traffic (30 aircraft, 3 radars, 150 s) with 3 % of one register's reads
+    misread, the track angle or the heading 90° off (a garbled reply): a refused BDS 5,0 makes
+    no wind sample, a cluster whose headings disagree has no air vector, wind samples far
+    from the track's wind are refused (``wind_sample_gate_mps``) and air vectors beyond the
+    combined state's gate (``air_gate_chi2``), so the tracks stay as accurate as on the
+    clean reads.
+    A review found before these checks: with the BDS 5,0 misreads, turning 65 -> 373 m and a
+    layer's wind of 117 m/s; with the BDS 6,0 ones, straight flight 42 -> 119 m."""
+    import tomllib
+
+    from radar_fusion.tools import evaluate as ev
+    from radar_fusion.tools import simulate as sim
+    from radar_fusion.tools.replay import ingest_record
+    from radar_fusion.wire import decode_plot_batch
+
+    scenario = sim.scenario_for_benchmark(30, 3, 150.0, 2)
+    simulation = sim.simulate(scenario)
+
+    def run(misread: bool):
+        engine = Engine(settings_from_dict(tomllib.loads(sim.config_toml(scenario))))
+        rng = np.random.default_rng(0)
+        outputs = []
+        for _t, key, payload in simulation.messages:
+            if key.endswith("/plots"):
+                batch = decode_plot_batch(payload)
+                column = batch.track_angle_deg if register == "BDS 5,0" else batch.magnetic_heading_deg
+                wrong = np.isfinite(column) & (rng.random(len(batch)) < (0.03 if misread else 0.0))
+                column[wrong] = np.mod(column[wrong] + 90.0, 360.0)
+                engine.ingest_plots(batch)
+            else:
+                ingest_record(engine, key, payload)
+            outputs += engine.poll()
+        outputs += engine.flush()
+        return engine, ev.evaluate([o.track_batch for o in outputs], simulation.truth)
+
+    _clean, s_clean = run(False)
+    bad, s_bad = run(True)
+    print(
+        f"\n{register} misread 3 %: turning {s_bad.pos_rms_turning_m:.1f} / {s_clean.pos_rms_turning_m:.1f} m, "
+        f"straight {s_bad.pos_rms_straight_m:.1f} / {s_clean.pos_rms_straight_m:.1f} m, velocity "
+        f"{s_bad.vel_rms_settled_mps:.2f} / {s_clean.vel_rms_settled_mps:.2f} m/s; refused "
+        f"{bad.counters['velocity_reports_refused']} reports, {bad.counters['wind_samples_refused']} wind samples, "
+        f"{bad.counters['air_clusters_disagreeing']} clusters"
+    )
+    c = bad.counters
+    assert c["velocity_reports_refused"] + c["wind_samples_refused"] + c["air_clusters_disagreeing"] > 10
+    assert s_bad.pos_rms_turning_m < 1.1 * s_clean.pos_rms_turning_m
+    assert s_bad.pos_rms_straight_m < 1.1 * s_clean.pos_rms_straight_m
+    assert s_bad.vel_rms_settled_mps < 1.25 * s_clean.vel_rms_settled_mps
+    assert np.nanmax(np.hypot(bad.layer_wind_mps[:, 0], bad.layer_wind_mps[:, 1])) < 40.0  # the scenario's: 5-35

@@ -172,6 +172,7 @@ class Engine:
         n_layers = 1 + int(50_000.0 // (self.imm.params.wind_layer_ft if self.imm is not None else 50_000.0))
         self.layer_wind_mps = np.full((n_layers, 2), np.nan)
         self.layer_wind_t_s = np.full(n_layers, np.nan)
+        self._layer_winds_t_s = -math.inf  # when _layer_winds last ran
         self.track_t_s: float | None = None  # reference time of the newest closed period
         self.safety_nets = safety_nets
         self.periods_closed = 0
@@ -740,9 +741,11 @@ class Engine:
         magnetic heading (as unit vectors) plus ``magnetic_declination_deg``; the true
         airspeed that of their mean indicated one at their mean pressure altitude (Mode C) in
         ISA (geo.air_data.true_airspeed_mps; one conversion per cluster, not per plot: the
-        reports of a cluster are one aircraft's within a scan); a report without Mode C is
-        not used. The age is ``air_velocity_age_s`` plus the cluster's time less the plots'.
-        (None, None) without the IMM or with ``velocity_dap`` or ``velocity_air`` off."""
+        reports of a cluster are one aircraft's within a scan; a cluster whose headings
+        disagree by more than 5° has none); a report without Mode C, or
+        with an IAS below ``air_min_ias_mps``, is not used. The age is ``air_velocity_age_s``
+        plus the cluster's time less the plots'. (None, None) without the IMM or with
+        ``velocity_dap`` or ``velocity_air`` off."""
         if (
             self.imm is None
             or not (self.imm.params.velocity_dap and self.imm.params.velocity_air)
@@ -752,7 +755,7 @@ class Engine:
             return None, None
         idx = np.flatnonzero(used)
         heading, ias, fl = plots.magnetic_heading_deg[idx], plots.indicated_airspeed_mps[idx], plots.fl[idx]
-        have = np.isfinite(heading) & np.isfinite(ias) & np.isfinite(fl)
+        have = np.isfinite(heading) & (ias >= self.imm.params.air_min_ias_mps) & np.isfinite(fl)  # NaN: False
         if not have.any():
             return None, None
         self.counters["plots_air_velocity"] += int(have.sum())
@@ -762,7 +765,13 @@ class Engine:
         count = np.bincount(lb, minlength=n_clusters).astype(float)
         east = np.bincount(lb, np.sin(heading_rad), n_clusters)
         north = np.bincount(lb, np.cos(heading_rad), n_clusters)
+        # the reports of one cluster are one aircraft's within a scan: headings that disagree
+        # by more than a few degrees (their mean unit vector shorter than cos 5°) hold a
+        # misread one, and the cluster has no air vector (a third of a 90° error is 108 m/s)
         k = np.flatnonzero(count > 0)
+        agree = np.hypot(east[k], north[k]) >= count[k] * math.cos(math.radians(5.0))
+        self.counters["air_clusters_disagreeing"] += int((~agree).sum())
+        k = k[agree]
         n_k = count[k]
         ias_k = np.bincount(lb, ias[have], n_clusters)[k] / n_k
         alt_k = np.bincount(lb, fl[have], n_clusters)[k] / n_k * M_PER_FL
@@ -776,24 +785,30 @@ class Engine:
         age[k] = p.air_velocity_age_s + lag_k
         return v, age
 
-    def _air_velocity_and_wind(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """The tracks ``rows`` (just updated with their clusters ``matched``, and with the
-        BDS 5,0 report where their cluster has one, :meth:`_update_velocity`) whose cluster
+    def _air_velocity_and_wind(
+        self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray, dap_used: np.ndarray
+    ) -> np.ndarray:
+        """The tracks ``rows`` (just updated with their clusters ``matched``, and ``dap_used``
+        of them with their cluster's BDS 5,0 report, :meth:`_update_velocity`) whose cluster
         carries an air vector (BDS 6,0, :meth:`_air_velocity`):
 
-        * with a BDS 5,0 report too, and the track not manoeuvring (|acceleration| below
-          ``wind_sample_max_accel_mps2``): a wind sample, the ground velocity less the air
-          vector, each taken back to the cluster's time with the track's acceleration
-          (v(t) = v(t − age) + age · a); the track's wind follows the samples, w ← w + (1 −
-          exp(−Δt / ``wind_time_constant_s``)) (sample − w), the first taken as it is; the
-          period's samples of a layer of ``wind_layer_ft`` (by the track's flight level) feed,
-          as their mean, the layer's wind, with ``wind_layer_time_constant_s``;
+        * with a BDS 5,0 report the update took, and the track not manoeuvring (|acceleration|
+          below ``wind_sample_max_accel_mps2``): a wind sample, the ground velocity less the
+          air vector, each taken back to the cluster's time with the track's acceleration
+          (v(t) = v(t − age) + age · a). A sample above ``wind_max_mps``, or farther than
+          ``wind_sample_gate_mps`` from the track's own wind (or, for its first, from its
+          layer's), is refused (``wind_samples_refused``: a misread heading, an airspeed of a
+          take-off roll); the track's wind follows the others, w ← w + (1 − exp(−Δt /
+          ``wind_time_constant_s``)) (sample − w), the first taken as it is;
         * without one: the air vector plus the wind is a measurement of the velocity, the
           IMM's velocity update (imm.IMMFilter.velocity_update_rows) with σ² =
           ``air_velocity_sigma_mps``² per axis. The wind is the track's own if no older than
           ``wind_max_age_s`` and taken within ``wind_max_climb_ft`` of the track's level,
-          else its layer's (its latest samples no older than twice
-          ``wind_layer_time_constant_s``), with ``wind_layer_sigma_mps``² more per axis.
+          else its layer's (:meth:`_layer_winds`), with ``wind_layer_sigma_mps``² more per
+          axis. A measurement beyond ``air_gate_chi2`` of the combined state's velocity
+          (H P Hᵀ + R, H = v − age·acc) is refused before the update (counted with
+          ``velocity_reports_refused``): the update's own gate asks whether any model takes
+          it, and the manoeuvre model took headings 90° off.
 
         Returns the rows the second updated."""
         assert self.imm is not None and cl.air_v_mps is not None and cl.air_age_s is not None
@@ -801,7 +816,7 @@ class Engine:
         tr = self.tracks
         air = cl.air_v_mps[matched]
         has_air = np.isfinite(air[:, 0])
-        has_dap = np.zeros(matched.size, bool) if cl.dap_v_mps is None else np.isfinite(cl.dap_v_mps[matched, 0])
+        has_dap = np.isin(rows, dap_used)
         t_s = cl.t_s[matched]
         # wind samples
         s = np.flatnonzero(has_air & has_dap)
@@ -812,23 +827,29 @@ class Engine:
             calm = np.hypot(acc[:, 0], acc[:, 1]) < p.wind_sample_max_accel_mps2
             r, k, acc = r[calm], k[calm], acc[calm]
             sample = (cl.dap_v_mps[k] + cl.dap_age_s[k, None] * acc) - (cl.air_v_mps[k] + cl.air_age_s[k, None] * acc)
+            own = self._own_wind_valid(r, cl.t_s[k])
+            layer = self._wind_layer(r)
+            ref = np.where(own[:, None], tr.wind_mps[r], self.layer_wind_mps[np.maximum(layer, 0)])
+            ref = np.where((own | (layer >= 0))[:, None], ref, np.nan)
+            off = np.hypot(sample[:, 0] - ref[:, 0], sample[:, 1] - ref[:, 1])
+            ok = (np.hypot(sample[:, 0], sample[:, 1]) <= p.wind_max_mps) & ~(off > p.wind_sample_gate_mps)
+            self.counters["wind_samples_refused"] += int((~ok).sum())
+            r, k, sample, own = r[ok], k[ok], sample[ok], own[ok]
             dt = cl.t_s[k] - tr.wind_t_s[r]
-            gain = np.where(np.isfinite(dt), 1.0 - np.exp(-np.maximum(dt, 0.0) / p.wind_time_constant_s), 1.0)
-            prior = np.where(np.isfinite(tr.wind_mps[r]), tr.wind_mps[r], sample)
+            gain = np.where(own, 1.0 - np.exp(-np.maximum(np.nan_to_num(dt), 0.0) / p.wind_time_constant_s), 1.0)
+            prior = np.where(own[:, None], tr.wind_mps[r], sample)
             tr.wind_mps[r] = prior + gain[:, None] * (sample - prior)
             tr.wind_t_s[r] = cl.t_s[k]
             tr.wind_fl[r] = tr.alt_x[r, 0]
             self.counters["wind_samples"] += int(r.size)
-            self._layer_wind_samples(self._wind_layer(r), sample, cl.t_s[k])
+        self._layer_winds(float(np.max(t_s)) if t_s.size else math.nan)
         # the air vector plus the wind, where no BDS 5,0 report measured the velocity
         a = np.flatnonzero(has_air & ~has_dap)
         r = rows[a]
-        own = t_s[a] - tr.wind_t_s[r] <= p.wind_max_age_s  # NaN (no wind yet) compares False
-        climbed_fl = np.abs(tr.alt_x[r, 0] - tr.wind_fl[r])
-        own &= ~(climbed_fl > p.wind_max_climb_ft / FT_PER_FL)  # NaN (a level unknown): kept
+        own = self._own_wind_valid(r, t_s[a])
         layer = self._wind_layer(r)
         shared = ~own & (layer >= 0)
-        shared[shared] = t_s[a[shared]] - self.layer_wind_t_s[layer[shared]] <= 2.0 * p.wind_layer_time_constant_s
+        shared[shared] = np.isfinite(self.layer_wind_mps[layer[shared], 0])
         a, own, layer = a[own | shared], own[own | shared], layer[own | shared]
         if not a.size:
             return rows[:0]
@@ -836,8 +857,31 @@ class Engine:
         wind = np.where(own[:, None], tr.wind_mps[r], self.layer_wind_mps[np.maximum(layer, 0)])
         var = p.air_velocity_sigma_mps**2 + np.where(own, 0.0, p.wind_layer_sigma_mps**2)
         R = var[:, None, None] * np.eye(2)
-        self.counters["updates_velocity_air_layer_wind"] += int((~own).sum())
-        return self._velocity_update_rows(r, cl.air_v_mps[k] + wind, R, cl.air_age_s[k], "updates_velocity_air")
+        z = cl.air_v_mps[k] + wind
+        age = cl.air_age_s[k]
+        # the combined state's gate (the update's asks whether any one model takes it)
+        H = np.zeros((r.size, 2, 6))
+        H[:, 0, 1] = H[:, 1, 4] = 1.0
+        H[:, 0, 2] = H[:, 1, 5] = -age
+        acc = tr.x[r][:, [2, 5]]
+        nu = z - np.einsum("kij,kj->ki", H, tr.x[r])
+        S = np.einsum("kij,kjl,kml->kim", H, tr.P[r], H) + R
+        S += p.velocity_age_sigma_s**2 * acc[:, :, None] * acc[:, None, :]
+        far = np.einsum("ki,kij,kj->k", nu, inv_2x2(S), nu) > p.air_gate_chi2
+        self.counters["velocity_reports_refused"] += int(far.sum())
+        keep = ~far
+        self.counters["updates_velocity_air_layer_wind"] += int((~own[keep]).sum())
+        return self._velocity_update_rows(r[keep], z[keep], R[keep], age[keep], "updates_velocity_air")
+
+    def _own_wind_valid(self, rows: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+        """Whether the tracks ``rows`` have a wind of their own to use at ``t_s``: taken no
+        longer than ``wind_max_age_s`` ago and within ``wind_max_climb_ft`` of their level."""
+        assert self.imm is not None
+        p = self.imm.params
+        tr = self.tracks
+        own = t_s - tr.wind_t_s[rows] <= p.wind_max_age_s  # NaN (no wind yet) compares False
+        climbed_fl = np.abs(tr.alt_x[rows, 0] - tr.wind_fl[rows])
+        return np.asarray(own & ~(climbed_fl > p.wind_max_climb_ft / FT_PER_FL))  # NaN level: kept
 
     def _wind_layer(self, rows: np.ndarray) -> np.ndarray:
         """The wind layer of the tracks ``rows`` by their flight level (``wind_layer_ft``), −1
@@ -847,27 +891,33 @@ class Engine:
         layer = np.floor(np.nan_to_num(fl, nan=-1.0) * FT_PER_FL / self.imm.params.wind_layer_ft).astype(np.int64)
         return np.where(np.isfinite(fl), np.clip(layer, 0, self.layer_wind_t_s.size - 1), -1)
 
-    def _layer_wind_samples(self, layer: np.ndarray, sample: np.ndarray, t_s: np.ndarray) -> None:
-        """Feed the period's wind samples (n, 2) of tracks in ``layer`` (n,) to the layers'
-        winds: each layer's mean sample, w ← w + (1 − exp(−Δt / ``wind_layer_time_constant_s``))
-        (mean − w), the first taken as it is."""
+    def _layer_winds(self, t_s: float) -> None:
+        """Each layer's wind, at most every ``wind_layer_update_s``: the median, per axis, of
+        the own winds of its tracks that hold one (:meth:`_own_wind_valid`), a layer by each
+        track's level. A median of tracks, not a running mean of samples: a track whose wind
+        is wrong (a misread register it took first) does not carry the layer with it. A layer
+        with no such track keeps its wind for ``wind_layer_keep_s``, then has none."""
         assert self.imm is not None
-        ok = layer >= 0
-        if not ok.any():
+        p = self.imm.params
+        if not math.isfinite(t_s) or t_s - self._layer_winds_t_s < p.wind_layer_update_s:
             return
-        layer, sample, t_s = layer[ok], sample[ok], t_s[ok]
-        n = self.layer_wind_t_s.size
-        count = np.bincount(layer, minlength=n)
-        k = np.flatnonzero(count)
-        mean = np.stack([np.bincount(layer, sample[:, j], n)[k] / count[k] for j in (0, 1)], axis=1)
-        t_new = np.bincount(layer, t_s, n)[k] / count[k]
-        dt = t_new - self.layer_wind_t_s[k]
-        gain = np.where(
-            np.isfinite(dt), 1.0 - np.exp(-np.maximum(dt, 0.0) / self.imm.params.wind_layer_time_constant_s), 1.0
-        )
-        prior = np.where(np.isfinite(self.layer_wind_mps[k]), self.layer_wind_mps[k], mean)
-        self.layer_wind_mps[k] = prior + gain[:, None] * (mean - prior)
-        self.layer_wind_t_s[k] = np.fmax(self.layer_wind_t_s[k], t_new)
+        self._layer_winds_t_s = t_s
+        tr = self.tracks
+        rows = np.flatnonzero(np.isfinite(tr.wind_t_s[: len(tr)]))
+        rows = rows[self._own_wind_valid(rows, np.full(rows.size, t_s))]
+        layer = self._wind_layer(rows)
+        rows, layer = rows[layer >= 0], layer[layer >= 0]
+        stale = t_s - self.layer_wind_t_s > p.wind_layer_keep_s
+        self.layer_wind_mps[stale] = np.nan
+        self.layer_wind_t_s[stale] = np.nan
+        if not rows.size:
+            return
+        order = np.argsort(layer, kind="stable")
+        rows, layer = rows[order], layer[order]
+        starts = np.flatnonzero(np.r_[True, layer[1:] != layer[:-1]])
+        for lo, hi in zip(starts, np.r_[starts[1:], layer.size], strict=True):
+            self.layer_wind_mps[layer[lo]] = np.median(tr.wind_mps[rows[lo:hi]], axis=0)
+            self.layer_wind_t_s[layer[lo]] = t_s
 
     def _beyond_any_manoeuvre(
         self, res: ClusterResult, used: np.ndarray, row_of_plot: np.ndarray, pred: Prediction, t_plot_s: np.ndarray
@@ -1222,10 +1272,11 @@ class Engine:
             tr.initiated[rows[two]] = True
             self._imm_initiate(rows[two], x, P)
         tr.x[rows], tr.P[rows] = x_c, P_c
+        dap_used = rows[:0]
         if cl.dap_v_mps is not None:
-            self._update_velocity(cl, matched, rows)
+            dap_used = self._update_velocity(cl, matched, rows)
         if cl.air_v_mps is not None:
-            self._air_velocity_and_wind(cl, matched, rows)
+            self._air_velocity_and_wind(cl, matched, rows, dap_used)
         alt_x, alt_P = self.alt_filter.predict(tr.alt_x[rows], tr.alt_P[rows], dt_s)
         tr.alt_x[rows], tr.alt_P[rows] = self.alt_filter.update(alt_x, alt_P, cl.fl[matched])
         self._floor_no_height(rows, cl.height_cov_m2, matched)

@@ -23,8 +23,9 @@ Format (version 1): one msgpack map
     live_gate       the wild-plot gate's window per radar track (tracking/live_gate.py),
                     {"arrays": {name: [dtype, shape, bytes]} of the rows in use, "last_sweep_t",
                     "counts"}; nil with the gate off
-    layer_wind      {"mps": [...], "t_s": [...]}: the wind of each height layer and the
-                    time of its latest samples (engine._air_velocity_and_wind)
+    layer_wind      {"mps": [...], "t_s": [...], "layer_ft"}: the wind of each height layer,
+                    when it was last taken, and the layers' height (engine._layer_winds; a
+                    state of other layers is read without it)
     period          the newest closed period (None before the first)
     epoch, instance with [redundancy] on, the active that published it (else None)
 
@@ -121,7 +122,11 @@ def snapshot(engine: Engine, period: int | None = None, epoch: int | None = None
             "next_update_t_s": engine._reg_next_t_s if math.isfinite(engine._reg_next_t_s) else None,
         },
         "live_gate": _pack_gate(engine.outlier_gate),
-        "layer_wind": {"mps": _pack_array(engine.layer_wind_mps), "t_s": _pack_array(engine.layer_wind_t_s)},
+        "layer_wind": {
+            "mps": _pack_array(engine.layer_wind_mps),
+            "t_s": _pack_array(engine.layer_wind_t_s),
+            "layer_ft": engine.imm.params.wind_layer_ft if engine.imm is not None else None,
+        },
         "epoch": epoch,
         "instance": instance,
     }
@@ -189,9 +194,10 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
         gate = _unpack_gate(engine, state.get("live_gate"))
         # the layers' wind (engine._air_velocity_and_wind); a state from before it, or of
         # other layers: learnt again from the reports within minutes
-        layer_wind = state.get("layer_wind")
-        wind_mps = _unpack_array(layer_wind["mps"]) if layer_wind else None
-        wind_t_s = _unpack_array(layer_wind["t_s"]) if layer_wind else None
+        layer_wind: dict[str, Any] = state.get("layer_wind") or {}
+        same_layers = engine.imm is not None and layer_wind.get("layer_ft") == engine.imm.params.wind_layer_ft
+        wind_mps = _unpack_array(layer_wind["mps"]) if same_layers else None
+        wind_t_s = _unpack_array(layer_wind["t_s"]) if same_layers else None
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise StateMismatch(f"a damaged state: {exc}") from exc
     # every check before anything is changed: a refused state leaves the engine as it was

@@ -404,7 +404,8 @@ class IMMParams(BaseModel):
         le=180.0,
         description="the site's magnetic declination, degrees east of true north (true heading = magnetic + "
         "this): BDS 6,0 reports the magnetic heading. A wrong value the wind estimate absorbs in straight "
-        "flight, but not in turns (1° is 4 m/s across the track at 230 m/s after a 180° turn). On the "
+        "flight, but not in turns (1° is 4 m/s across the track at 230 m/s; after a 180° turn the error the wind "
+        "absorbed flips sign: 8 m/s). On the "
         "Barcelona hour +1° fits best of 0, 1 and 2° (the air vector plus the wind against BDS 5,0: 3.07, 3.05 and "
         "3.09 m/s RMS)",
     )
@@ -445,17 +446,52 @@ class IMMParams(BaseModel):
     wind_layer_ft: float = Field(
         2000.0,
         gt=0,
-        description="height of the layers of the shared wind, ft: every track's wind samples also feed the wind "
-        "of its flight level's layer (all aircraft of a layer share its air mass), which a track without a wind "
-        "of its own takes (engine._air_velocity_and_wind). An aircraft whose radars have not read its BDS 5,0 "
-        "yet (a quarter of the Mode S scans: for a 12 s radar, 48 s on average) then has its velocity from its "
-        "first BDS 6,0 read; at 4,000x10 the worst turning errors (0.6-1.5 km, a two-point start in a turn on "
-        "one 12 s radar) were of such tracks",
+        description="height of the layers of the shared wind, ft: all aircraft of a layer share its air mass, and a "
+        "track without a wind of its own takes its layer's (engine._layer_winds, the median of its tracks' own). "
+        "An aircraft whose radars have not read its BDS 5,0 yet (a quarter of the Mode S scans: for a 12 s radar, "
+        "48 s on average) then has its velocity measured from its second update on; at 4,000x10 the worst "
+        "turning errors (0.6-1.5 km, a two-point start in a turn on one 12 s radar) were of such tracks",
     )
-    wind_layer_time_constant_s: float = Field(
-        300.0,
+    wind_layer_update_s: float = Field(
+        10.0,
         gt=0,
-        description="a layer's wind follows the mean of its samples of each period with this time constant, s",
+        description="how often the layers' wind is taken again, s: per layer, the median of the own winds its "
+        "tracks hold (engine._layer_winds)",
+    )
+    wind_layer_keep_s: float = Field(
+        600.0,
+        gt=0,
+        description="a layer whose tracks hold no wind of their own keeps its last one this long, s, then has none",
+    )
+    wind_max_mps: float = Field(
+        120.0,
+        gt=0,
+        description="a wind sample faster than this, m/s, is refused (wind_samples_refused): the strongest jet "
+        "streams blow 100 m/s; faster is a misread register",
+    )
+    wind_sample_gate_mps: float = Field(
+        20.0,
+        gt=0,
+        description="a wind sample farther than this, m/s, from the track's own wind (for its first: its layer's) is "
+        "refused (wind_samples_refused). A misread BDS 5,0 or BDS 6,0 makes samples of 100 m/s and more off (a "
+        "review's run with 3 % of BDS 5,0 track angles 90° off: turning 65 -> 373 m without this check); on the "
+        "Barcelona hour consecutive samples of one aircraft differ by 2.3 m/s RMS, 4.6 at the 95th percentile",
+    )
+    air_gate_chi2: float = Field(
+        40.0,
+        gt=0,
+        description="an air vector plus wind beyond this χ² (2 dof) of the combined state's velocity is refused "
+        "before the update (counted with velocity_reports_refused; engine._air_velocity_and_wind). The update's "
+        "own gate (velocity_gate_chi2) asks whether any one model takes a report, and the manoeuvre model, its "
+        "velocity 15-35 m/s uncertain, took headings 90° off (a review's run, 3 % of them: straight flight "
+        "41.7 -> 119 m). Default 40: with it that run is 41.4 m; 18.4 refused 2 % of the good reports of 40 "
+        "aircraft in 2°/s turns (turning 67.7 m against 65.0), 80 let the misread ones through (77.7 m)",
+    )
+    air_min_ias_mps: float = Field(
+        25.7,
+        ge=0,
+        description="an indicated airspeed below this, m/s, is not used (engine._air_velocity): 50 kt, below any "
+        "aircraft's flying speed; on the ground or on a take-off roll the pitot reads little of the air mass",
     )
     wind_layer_sigma_mps: float = Field(
         5.0,
