@@ -247,12 +247,13 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
     turn of rate ω, nothing flying straight); then, where it carries them, its heading and
     airspeed as the air vector (the truth's velocity less the scenario's wind, known) with
     the heading's σ and step across the air vector, the IAS σ and 1 kt step times TAS/IAS
-    along it, and the air ages' spread the same way, the aircraft's own departure from the
+    along it (times dTAS/dIAS), the wind turned to the plane's grid by the meridian
+    convergence, and the air ages' spread the same way, the aircraft's own departure from the
     wind and its heading error two unknown constants of the state (their priors the
     simulator's σ); predicted to every settled period time:
     the same RMS as measurement_floor's, with and without the reports; the reports bring it
     well below the plots' own bound."""
-    from radar_fusion.geo.air_data import indicated_airspeed_mps
+    from radar_fusion.geo.air_data import indicated_airspeed_mps, true_airspeed_mps
     from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
     from radar_fusion.geo.units import M_PER_FT
     from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
@@ -337,14 +338,21 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
                 v = sim.truth_at(np.array([0]), np.array([t[i] - a_s]))
                 alt_m = v["alt_ft"][0] * 0.3048
                 wind_e, wind_n = scenario.atmosphere.wind_mps(np.array([alt_m]))
+                c = np.radians(sim.plane.factors_at(v["x_m"], v["y_m"])[0][0])  # grid = true − c
+                wind = np.array(
+                    [wind_e[0] * np.cos(c) - wind_n[0] * np.sin(c), wind_n[0] * np.cos(c) + wind_e[0] * np.sin(c)]
+                )
                 ground = np.array([v["vx_mps"][0], v["vy_mps"][0]])
-                air = ground - np.array([wind_e[0], wind_n[0]])
+                air = ground - wind
                 tas = float(np.hypot(*air))
                 u, g = air / tas, ground / float(np.hypot(*ground))
                 w = np.array([u[1], -u[0]])
                 H[:, 8] = tas * w  # the heading error turns the air vector to the right
-                ias = float(indicated_airspeed_mps(tas, alt_m, scenario.atmosphere.temperature_deviation_k))
-                var_u = (tas / ias) ** 2 * (rates.sigma_ias_mps**2 + (1852.0 / 3600.0) ** 2 / 12.0)
+                dev_k = scenario.atmosphere.temperature_deviation_k
+                ias = float(indicated_airspeed_mps(tas, alt_m, dev_k))
+                # dTAS/dIAS by a wider difference than the bound's (the same slope to 1e-6)
+                slope = (true_airspeed_mps(ias + 2.0, alt_m, dev_k) - true_airspeed_mps(ias - 2.0, alt_m, dev_k)) / 4.0
+                var_u = slope**2 * (rates.sigma_ias_mps**2 + (1852.0 / 3600.0) ** 2 / 12.0)
                 var_w = (tas * np.radians(1.0)) ** 2 * (rates.sigma_heading_deg**2 + (90.0 / 512.0) ** 2 / 12.0)
                 acc = float(np.hypot(*ground)) * np.radians(turn_rate_dps) * np.array([g[1], -g[0]])
                 R = var_u * np.outer(u, u) + var_w * np.outer(w, w) + (hi - lo) ** 2 / 12.0 * np.outer(acc, acc)

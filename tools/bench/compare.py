@@ -182,7 +182,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     """
     import numpy as np
 
-    from radar_fusion.geo.air_data import indicated_airspeed_mps
+    from radar_fusion.geo.air_data import indicated_airspeed_mps, true_airspeed_mps
     from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
     from radar_fusion.geo.units import M_PER_FT
     from radar_fusion.tools.evaluate import EvalParams
@@ -270,7 +270,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     # (Atmosphere.local_wind_sigma_mps, heading_bias_sigma_deg): H adds −o and δ TAS r̂ (r̂
     # the air vector turned 90° right). The noise: the simulator's heading σ with the
     # register's 90/512° across the air vector, and its IAS σ with the 1 kt step along it
-    # times TAS/IAS at the truth's height.
+    # times dTAS/dIAS at the truth's height.
     has_a = np.isfinite(heading_deg)
     air_lo_s, air_hi_s = rates.air_age_s
     air_mean_s, air_var_s2 = 0.5 * (air_lo_s + air_hi_s), (air_hi_s - air_lo_s) ** 2 / 12.0
@@ -282,11 +282,18 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     a_early, a_late = (sim.truth_at(tgt[has_a], t[has_a] - air_mean_s + d) for d in (-0.5, 0.5))
     acc_a = np.stack([a_late["vx_mps"] - a_early["vx_mps"], a_late["vy_mps"] - a_early["vy_mps"]], axis=1)
     alt_a = ta["alt_ft"] * M_PER_FT
+    # the wind (east, north: true) in the plane's grid: turned by the meridian convergence c
+    # (a true bearing β is the grid bearing β − c)
     wind_e, wind_n = atmosphere.wind_mps(alt_a)
-    air = np.stack([ta["vx_mps"] - wind_e, ta["vy_mps"] - wind_n], axis=1)
+    c_rad = np.radians(sim.plane.velocity_frame(ta["x_m"], ta["y_m"])[0])
+    wind_x = wind_e * np.cos(c_rad) - wind_n * np.sin(c_rad)
+    wind_y = wind_n * np.cos(c_rad) + wind_e * np.sin(c_rad)
+    air = np.stack([ta["vx_mps"] - wind_x, ta["vy_mps"] - wind_y], axis=1)
     tas = np.maximum(np.hypot(air[:, 0], air[:, 1]), 1e-3)
     dev_k = atmosphere.temperature_deviation_k
-    tas_per_ias = tas / np.maximum(indicated_airspeed_mps(tas, alt_a, dev_k), 1e-3)
+    # the IAS's noise along the air vector: times dTAS/dIAS there (a central difference)
+    ias_a = indicated_airspeed_mps(tas, alt_a, dev_k)
+    tas_per_ias = true_airspeed_mps(ias_a + 0.5, alt_a, dev_k) - true_airspeed_mps(ias_a - 0.5, alt_a, dev_k)
     a_along = air / tas[:, None]
     a_across = np.stack([a_along[:, 1], -a_along[:, 0]], axis=1)
     var_a_along = tas_per_ias**2 * (rates.sigma_ias_mps**2 + kt_mps**2 / 12.0)
