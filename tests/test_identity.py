@@ -168,9 +168,9 @@ def test_barcelona_heading_and_airspeed_bring_the_velocity_closer_to_held_out_re
     (period by period, within 2 s of a held-out report) against those reports, with the
     BDS 6,0 heading and airspeed measuring the velocity (tracking.imm.velocity_air) and
     without. In turns (above 1°/s by the held-out reports' own track angles) the error falls;
-    in straight flight it stays within 10 %. Measured when written: turns 7.41 against 8.71
-    m/s RMS (50 reports), straight 2.97 against 2.80 (338); over the whole hour (a script, not
-    this test: 50 s more) turns 6.49 against 7.44 (127), straight 2.99 against 3.24 (954)."""
+    in straight flight it stays within 10 %. Measured when written: turns 7.40 against 8.71
+    m/s RMS (50 reports), straight 2.81 against 2.80 (338); over the whole hour (a script, not
+    this test: 50 s more) turns 6.55 against 7.44 (127), straight 2.87 against 3.24 (954)."""
     from radar_fusion.engine import Engine
     from radar_fusion.tools.identity import BARCELONA_DAY, asterix_messages, barcelona_settings
     from radar_fusion.tools.replay import ingest_record
