@@ -701,7 +701,7 @@ def test_a_batch_of_an_older_sender_without_roll_decodes_with_roll_nan():
 
 
 def test_an_empty_and_a_full_batch():
-    """The largest batch the contract allows, every field of every plot filled (4.6 MB), is
+    """The largest batch the contract allows, every field of every plot filled (4.8 MB), is
     within the default payload limit (wire.MAX_PLOT_BATCH_BYTES)."""
     assert len(same_result(batch([]))) == 0
     full = batch([full_plot(azimuth_deg=i % 360) for i in range(wire.MAX_PLOTS_PER_BATCH)])

@@ -50,7 +50,7 @@ RADAR_ID_PATTERN = r"^[A-Za-z0-9_.-]{1,32}$"
 PLOT_KINDS = ("psr", "ssr", "cmb", "modes")
 MAX_PLOTS_PER_BATCH = 20_000
 #: the default limit of a plot batch's payload, bytes ([bus] max_payload_bytes): the largest
-#: batch the contract allows, every field of every plot filled, is 4.6 MB
+#: batch the contract allows, every field of every plot filled, is 4.8 MB
 MAX_PLOT_BATCH_BYTES = 6 << 20
 
 
