@@ -338,7 +338,8 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
                 v = sim.truth_at(np.array([0]), np.array([t[i] - a_s]))
                 alt_m = v["alt_ft"][0] * 0.3048
                 wind_e, wind_n = scenario.atmosphere.wind_mps(np.array([alt_m]))
-                c = np.radians(sim.plane.factors_at(v["x_m"], v["y_m"])[0][0])  # grid = true − c
+                lat, lon = sim.plane.to_geodetic(v["x_m"], v["y_m"])
+                c = np.radians(sim.plane.to_plane_and_factors(lat, lon)[2][0])  # grid = true − c
                 wind = np.array(
                     [wind_e[0] * np.cos(c) - wind_n[0] * np.sin(c), wind_n[0] * np.cos(c) + wind_e[0] * np.sin(c)]
                 )

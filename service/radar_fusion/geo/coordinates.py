@@ -259,78 +259,40 @@ class SystemPlane:
             )
             - 0.5 * math.pi
         )
-        s0, c0 = math.sin(self.conformal_center_lat_rad), math.cos(self.conformal_center_lat_rad)
-        sin_chi, cos_chi = np.sin(chi), np.cos(chi)
-        sin_lam, cos_lam = np.sin(lam), np.cos(lam)
-        d = 1.0 + s0 * sin_chi + c0 * cos_chi * cos_lam
-        u = cos_chi * sin_lam  # x = 2 R_c u / d, y = 2 R_c v / d
-        v = c0 * sin_chi - s0 * cos_chi * cos_lam
+        d, u, v, convergence_deg = self._stereographic_terms(chi, lam)
         x_m: NDArray[np.float64] = 2.0 * self.conformal_radius_m * u / d
         y_m: NDArray[np.float64] = 2.0 * self.conformal_radius_m * v / d
-        d_chi = s0 * cos_chi - c0 * sin_chi * cos_lam  # dd/dchi; below d^2 times dx/dchi, dy/dchi (over 2 R_c)
-        dx = -sin_chi * sin_lam * d - u * d_chi
-        dy = (c0 * cos_chi + s0 * sin_chi * cos_lam) * d - v * d_chi
-        convergence_deg: NDArray[np.float64] = -np.degrees(np.arctan2(dx, dy))
         n_m = _WGS84_A_M / np.sqrt(1.0 - _WGS84_E2 * sin_phi * sin_phi)
-        k: NDArray[np.float64] = (2.0 / d) * self.conformal_radius_m * self._gauss_c * cos_chi / (n_m * np.cos(phi))
+        k: NDArray[np.float64] = (2.0 / d) * self.conformal_radius_m * self._gauss_c * np.cos(chi) / (n_m * np.cos(phi))
         return x_m, y_m, convergence_deg, k
 
-    def factors_at(self, x_m: Any, y_m: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """At plane points: the meridian convergence (degrees), the point scale factor k and
-        the geodetic latitude (degrees), what :meth:`to_geodetic` then
-        :meth:`to_plane_and_factors` give, in one pass: the plane point goes to the conformal
-        sphere (:meth:`to_conformal_sphere`), the latitude follows by to_geodetic's fixed
-        point, and the two factors by to_plane_and_factors' closed forms from (chi, Lambda)
-        directly, without the forward map back. For the velocities of Mode S reports, every
-        period (ground_velocity_to_plane)."""
-        x = np.asarray(x_m, dtype=float)
-        y = np.asarray(y_m, dtype=float)
-        chi, lam = self.to_conformal_sphere(x, y)
-        num = (np.tan(0.5 * chi + 0.25 * math.pi) / self._gauss_k) ** (1.0 / self._gauss_c)
-        e = math.sqrt(_WGS84_E2)
-        phi = np.array(chi, dtype=float, copy=True)
-        for _ in range(20):
-            es = e * np.sin(phi)
-            new = 2.0 * np.arctan(num * ((1.0 - es) / (1.0 + es)) ** (-0.5 * e)) - 0.5 * math.pi
-            done = not np.any(np.abs(new - phi) >= 1e-14)
-            phi = new
-            if done:
-                break
+    def _stereographic_terms(
+        self, chi: NDArray[np.float64], lam: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The conformal sphere's stereographic projection at (chi, Lambda): D (the scale is
+        2 / D), u and v (x = 2 R_c u / D, y = 2 R_c v / D), and the meridian convergence in
+        degrees, c = −atan2(dx/dchi, dy/dchi) (to_plane_and_factors' closed form)."""
         s0, c0 = math.sin(self.conformal_center_lat_rad), math.cos(self.conformal_center_lat_rad)
         sin_chi, cos_chi = np.sin(chi), np.cos(chi)
         sin_lam, cos_lam = np.sin(lam), np.cos(lam)
         d = 1.0 + s0 * sin_chi + c0 * cos_chi * cos_lam
         u = cos_chi * sin_lam
         v = c0 * sin_chi - s0 * cos_chi * cos_lam
-        d_chi = s0 * cos_chi - c0 * sin_chi * cos_lam
+        d_chi = s0 * cos_chi - c0 * sin_chi * cos_lam  # dD/dchi; below D² times dx/dchi, dy/dchi (over 2 R_c)
         dx = -sin_chi * sin_lam * d - u * d_chi
         dy = (c0 * cos_chi + s0 * sin_chi * cos_lam) * d - v * d_chi
-        convergence_deg: NDArray[np.float64] = -np.degrees(np.arctan2(dx, dy))
-        sin_phi = np.sin(phi)
-        n_m = _WGS84_A_M / np.sqrt(1.0 - _WGS84_E2 * sin_phi * sin_phi)
-        k: NDArray[np.float64] = (2.0 / d) * self.conformal_radius_m * self._gauss_c * cos_chi / (n_m * np.cos(phi))
-        return convergence_deg, k, np.asarray(np.degrees(phi), dtype=float)
+        return d, u, v, -np.degrees(np.arctan2(dx, dy))
 
     def velocity_frame(self, x_m: Any, y_m: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """At plane points, for velocities: the meridian convergence (degrees, exact, as
-        :meth:`factors_at`) and the point scale of the sphere's stereographic projection,
+        :meth:`to_plane_and_factors` gives it) and the point scale of the sphere's stereographic projection,
         k = 1 + r² / (4 R_c²), without the Gauss map's own scale, which is 1 to 2e-6 within
         600 km of the centre (tests/test_coordinates.py): no latitude, so no fixed point.
         For the Mode S velocities of every period (ground_velocity_to_plane), where 2e-6 is
         0.5 mm/s at 250 m/s against the reports' 0.5 m/s."""
         x = np.asarray(x_m, dtype=float)
         y = np.asarray(y_m, dtype=float)
-        chi, lam = self.to_conformal_sphere(x, y)
-        s0, c0 = math.sin(self.conformal_center_lat_rad), math.cos(self.conformal_center_lat_rad)
-        sin_chi, cos_chi = np.sin(chi), np.cos(chi)
-        sin_lam, cos_lam = np.sin(lam), np.cos(lam)
-        d = 1.0 + s0 * sin_chi + c0 * cos_chi * cos_lam
-        u = cos_chi * sin_lam
-        v = c0 * sin_chi - s0 * cos_chi * cos_lam
-        d_chi = s0 * cos_chi - c0 * sin_chi * cos_lam
-        dx = -sin_chi * sin_lam * d - u * d_chi
-        dy = (c0 * cos_chi + s0 * sin_chi * cos_lam) * d - v * d_chi
-        convergence_deg: NDArray[np.float64] = -np.degrees(np.arctan2(dx, dy))
+        convergence_deg = self._stereographic_terms(*self.to_conformal_sphere(x, y))[3]
         k: NDArray[np.float64] = 1.0 + (x * x + y * y) / (4.0 * self.conformal_radius_m**2)
         return convergence_deg, k
 
