@@ -827,10 +827,7 @@ class Engine:
             calm = np.hypot(acc[:, 0], acc[:, 1]) < p.wind_sample_max_accel_mps2
             r, k, acc = r[calm], k[calm], acc[calm]
             sample = (cl.dap_v_mps[k] + cl.dap_age_s[k, None] * acc) - (cl.air_v_mps[k] + cl.air_age_s[k, None] * acc)
-            own = self._own_wind_valid(r, cl.t_s[k])
-            layer = self._wind_layer(r)
-            ref = np.where(own[:, None], tr.wind_mps[r], self.layer_wind_mps[np.maximum(layer, 0)])
-            ref = np.where((own | (layer >= 0))[:, None], ref, np.nan)
+            ref, own = self._wind_to_use(r, cl.t_s[k])
             off = np.hypot(sample[:, 0] - ref[:, 0], sample[:, 1] - ref[:, 1])
             ok = (np.hypot(sample[:, 0], sample[:, 1]) <= p.wind_max_mps) & ~(off > p.wind_sample_gate_mps)
             self.counters["wind_samples_refused"] += int((~ok).sum())
@@ -845,16 +842,12 @@ class Engine:
         self._layer_winds(float(np.max(t_s)) if t_s.size else math.nan)
         # the air vector plus the wind, where no BDS 5,0 report measured the velocity
         a = np.flatnonzero(has_air & ~has_dap)
-        r = rows[a]
-        own = self._own_wind_valid(r, t_s[a])
-        layer = self._wind_layer(r)
-        shared = ~own & (layer >= 0)
-        shared[shared] = np.isfinite(self.layer_wind_mps[layer[shared], 0])
-        a, own, layer = a[own | shared], own[own | shared], layer[own | shared]
+        wind, own = self._wind_to_use(rows[a], t_s[a])
+        known = np.isfinite(wind[:, 0])
+        a, wind, own = a[known], wind[known], own[known]
         if not a.size:
             return rows[:0]
         r, k = rows[a], matched[a]
-        wind = np.where(own[:, None], tr.wind_mps[r], self.layer_wind_mps[np.maximum(layer, 0)])
         var = p.air_velocity_sigma_mps**2 + np.where(own, 0.0, p.wind_layer_sigma_mps**2)
         R = var[:, None, None] * np.eye(2)
         z = cl.air_v_mps[k] + wind
@@ -872,6 +865,15 @@ class Engine:
         keep = ~far
         self.counters["updates_velocity_air_layer_wind"] += int((~own[keep]).sum())
         return self._velocity_update_rows(r[keep], z[keep], R[keep], age[keep], "updates_velocity_air")
+
+    def _wind_to_use(self, rows: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The wind (n, 2) the tracks ``rows`` take at ``t_s``: their own where it is valid
+        (:meth:`_own_wind_valid`), else their layer's (:meth:`_wind_layer`, :meth:`_layer_winds`);
+        NaN with neither. And (n,) whether it is their own."""
+        own = self._own_wind_valid(rows, t_s)
+        layer = self._wind_layer(rows)
+        shared = np.where((layer >= 0)[:, None], self.layer_wind_mps[np.maximum(layer, 0)], np.nan)
+        return np.where(own[:, None], self.tracks.wind_mps[rows], shared), own
 
     def _own_wind_valid(self, rows: np.ndarray, t_s: np.ndarray) -> np.ndarray:
         """Whether the tracks ``rows`` have a wind of their own to use at ``t_s``: taken no
