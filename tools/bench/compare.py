@@ -242,24 +242,38 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     # simulator's with the register's rounding (2 kt and 90/512°, uniform: step²/12) along
     # and across the track.
     rates = sim.scenario.rates
-    age_lo_s, age_hi_s = rates.dap_age_s
-    age_mean_s, age_var_s2 = 0.5 * (age_lo_s + age_hi_s), (age_hi_s - age_lo_s) ** 2 / 12.0
+    kt_mps = 1852.0 / 3600.0
+
+    def aged_report(has: np.ndarray, age_range_s: tuple[float, float]):
+        """H (v − τ̄ a), the truth at the mean age τ̄ before the plots ``has``, its
+        acceleration (the velocity 1 s apart: a chord) and var(τ), τ uniform over the range."""
+        lo_s, hi_s = age_range_s
+        mean_s = 0.5 * (lo_s + hi_s)
+        Hr = np.zeros((int(has.sum()), 2, D))
+        Hr[:, 0, 1] = Hr[:, 1, 4] = 1.0
+        Hr[:, 0, 2] = Hr[:, 1, 5] = -mean_s
+        truth_r = sim.truth_at(tgt[has], t[has] - mean_s)
+        early, late = (sim.truth_at(tgt[has], t[has] - mean_s + d) for d in (-0.5, 0.5))
+        acc_r = np.stack([late["vx_mps"] - early["vx_mps"], late["vy_mps"] - early["vy_mps"]], axis=1)
+        return Hr, truth_r, acc_r, (hi_s - lo_s) ** 2 / 12.0
+
+    def report_cov(along_r, var_along_r, var_across_r, acc_r, age_var_s2):
+        """R of reports with ``var_along_r`` along the unit vectors ``along_r`` and
+        ``var_across_r`` across them, plus the ages' spread times the acceleration; and the
+        across unit vectors (along turned 90° right)."""
+        across_r = np.stack([along_r[:, 1], -along_r[:, 0]], axis=1)
+        R = var_along_r[..., None, None] * along_r[:, :, None] * along_r[:, None, :]
+        R += var_across_r[:, None, None] * across_r[:, :, None] * across_r[:, None, :]
+        R += age_var_s2 * acc_r[:, :, None] * acc_r[:, None, :]
+        return R, across_r
+
     has_v = np.isfinite(gs_mps)
-    Hv = np.zeros((int(has_v.sum()), 2, D))
-    Hv[:, 0, 1] = Hv[:, 1, 4] = 1.0
-    Hv[:, 0, 2] = Hv[:, 1, 5] = -age_mean_s
-    tv = sim.truth_at(tgt[has_v], t[has_v] - age_mean_s)
-    t_early, t_late = (sim.truth_at(tgt[has_v], t[has_v] - age_mean_s + d) for d in (-0.5, 0.5))
-    acc = np.stack([t_late["vx_mps"] - t_early["vx_mps"], t_late["vy_mps"] - t_early["vy_mps"]], axis=1)  # /1 s
+    Hv, tv, acc, age_var_s2 = aged_report(has_v, rates.dap_age_s)
     speed = np.maximum(np.hypot(tv["vx_mps"], tv["vy_mps"]), 1e-3)
     along = np.stack([tv["vx_mps"], tv["vy_mps"]], axis=1) / speed[:, None]
-    across = np.stack([along[:, 1], -along[:, 0]], axis=1)
-    kt_mps = 1852.0 / 3600.0
-    var_along = rates.sigma_ground_speed_mps**2 + (2.0 * kt_mps) ** 2 / 12.0
+    var_along = np.full(speed.size, rates.sigma_ground_speed_mps**2 + (2.0 * kt_mps) ** 2 / 12.0)
     var_across = speed**2 * np.radians(np.hypot(rates.sigma_track_angle_deg, (90.0 / 512.0) / math.sqrt(12.0))) ** 2
-    Rv = along[:, :, None] * along[:, None, :] * var_along
-    Rv += var_across[:, None, None] * across[:, :, None] * across[:, None, :]
-    Rv += age_var_s2 * acc[:, :, None] * acc[:, None, :]
+    Rv, _ = report_cov(along, var_along, var_across, acc, age_var_s2)
     # The aircraft's heading and airspeed (BDS 6,0) on the plots that carry them: the air
     # vector, the truth's velocity less the wind, of an age τ uniform over the simulator's
     # air_age_s (H picks v − τ̄ a; var(τ) a aᵀ as above). The layers' wind known: one field
@@ -272,15 +286,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     # register's 90/512° across the air vector, and its IAS σ with the 1 kt step along it
     # times dTAS/dIAS at the truth's height.
     has_a = np.isfinite(heading_deg)
-    air_lo_s, air_hi_s = rates.air_age_s
-    air_mean_s, air_var_s2 = 0.5 * (air_lo_s + air_hi_s), (air_hi_s - air_lo_s) ** 2 / 12.0
-    Ha = np.zeros((int(has_a.sum()), 2, D))
-    Ha[:, 0, 1] = Ha[:, 1, 4] = 1.0
-    Ha[:, 0, 2] = Ha[:, 1, 5] = -air_mean_s
+    Ha, ta, acc_a, air_var_s2 = aged_report(has_a, rates.air_age_s)
     Ha[:, 0, 6] = Ha[:, 1, 7] = -1.0
-    ta = sim.truth_at(tgt[has_a], t[has_a] - air_mean_s)
-    a_early, a_late = (sim.truth_at(tgt[has_a], t[has_a] - air_mean_s + d) for d in (-0.5, 0.5))
-    acc_a = np.stack([a_late["vx_mps"] - a_early["vx_mps"], a_late["vy_mps"] - a_early["vy_mps"]], axis=1)
     alt_a = ta["alt_ft"] * M_PER_FT
     # the wind (east, north: true) in the plane's grid: turned by the meridian convergence c
     # (a true bearing β is the grid bearing β − c)
@@ -294,13 +301,9 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     # the IAS's noise along the air vector: times dTAS/dIAS there (a central difference)
     ias_a = indicated_airspeed_mps(tas, alt_a, dev_k)
     tas_per_ias = true_airspeed_mps(ias_a + 0.5, alt_a, dev_k) - true_airspeed_mps(ias_a - 0.5, alt_a, dev_k)
-    a_along = air / tas[:, None]
-    a_across = np.stack([a_along[:, 1], -a_along[:, 0]], axis=1)
     var_a_along = tas_per_ias**2 * (rates.sigma_ias_mps**2 + kt_mps**2 / 12.0)
     var_a_across = tas**2 * np.radians(np.hypot(rates.sigma_heading_deg, (90.0 / 512.0) / math.sqrt(12.0))) ** 2
-    Ra = var_a_along[:, None, None] * a_along[:, :, None] * a_along[:, None, :]
-    Ra += var_a_across[:, None, None] * a_across[:, :, None] * a_across[:, None, :]
-    Ra += air_var_s2 * acc_a[:, :, None] * acc_a[:, None, :]
+    Ra, a_across = report_cov(air / tas[:, None], var_a_along, var_a_across, acc_a, air_var_s2)
     Ha[:, :, 8] = tas[:, None] * a_across
     v_row = np.full(n, -1)
     v_row[has_v] = np.arange(int(has_v.sum()))
