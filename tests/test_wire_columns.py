@@ -584,11 +584,17 @@ def test_ground_speed_and_track_are_read_where_sent_and_nan_where_not_by_every_r
     ],
 )
 def test_a_bad_ground_speed_or_track_is_refused_by_every_reader_and_spares_the_batch(name, value, reason):
+    other = "track_angle_deg" if name == "ground_speed_mps" else "ground_speed_mps"
+    _bad_optional_value_spares_the_batch(name, value, reason, other)
+
+
+def _bad_optional_value_spares_the_batch(name: str, value: object, reason: str, other: str) -> None:
+    """One plot's optional field ``name`` bad: every reader refuses that plot for ``reason``
+    and keeps the rest of the batch, the field's column as sent and ``other``'s untouched."""
     plot_list = [full_plot(**{name: 1.5}), full_plot(**{name: value}, azimuth_deg=7.5), full_plot(**{name: None})]
     plot_list += [full_plot(**{name: 2.5}, azimuth_deg=float(i)) for i in range(30)]  # the columns judge
     out = every_reader(batch(plot_list))
     assert out["bytes"] is None  # handed back: the general path gives the reason
-    other = "track_angle_deg" if name == "ground_speed_mps" else "ground_speed_mps"
     for reader, d in out.items():
         if d is None:
             continue
@@ -658,19 +664,8 @@ def test_heading_and_airspeed_are_read_where_sent_and_nan_where_not_by_every_rea
     ],
 )
 def test_a_bad_heading_or_airspeed_is_refused_by_every_reader_and_spares_the_batch(name, value, reason):
-    plot_list = [full_plot(**{name: 1.5}), full_plot(**{name: value}, azimuth_deg=7.5), full_plot(**{name: None})]
-    plot_list += [full_plot(**{name: 2.5}, azimuth_deg=float(i)) for i in range(30)]  # the columns judge
-    out = every_reader(batch(plot_list))
-    assert out["bytes"] is None  # handed back: the general path gives the reason
     other = "indicated_airspeed_mps" if name == "magnetic_heading_deg" else "magnetic_heading_deg"
-    for reader, d in out.items():
-        if d is None:
-            continue
-        assert d.rejected == {reason: 1}, reader
-        assert len(d) == len(plot_list) - 1 and 7.5 not in d.azimuth_deg.tolist()
-        col = getattr(d, name)
-        assert col[0] == 1.5 and math.isnan(col[1]) and (col[2:] == 2.5).all()
-        assert (getattr(d, other) == full_plot()[other]).all()
+    _bad_optional_value_spares_the_batch(name, value, reason, other)
 
 
 def test_a_batch_of_an_older_sender_without_heading_or_airspeed_decodes_with_them_nan():
