@@ -116,9 +116,7 @@ _PLOT_COLUMNS = (
 def _plot_columns(
     radar_id: str, radar_index: int, seq: int, t_pub_s: float, c: Mapping[str, np.ndarray]
 ) -> PlotColumns:
-    """A :class:`PlotColumns` of the columns ``c`` (keys :data:`_PLOT_COLUMNS`; the BDS 6,0
-    ones, ``magnetic_heading_deg`` and ``indicated_airspeed_mps``, may be missing: NaN)."""
-    none = np.full(c["t_s"].shape[0], np.nan)
+    """A :class:`PlotColumns` of the columns ``c`` (keys :data:`_PLOT_COLUMNS`)."""
     return PlotColumns(
         radar_id=radar_id,
         radar_index=radar_index,
@@ -135,8 +133,8 @@ def _plot_columns(
         roll_deg=c["roll_deg"],
         ground_speed_mps=c["ground_speed_mps"],
         track_angle_deg=c["track_angle_deg"],
-        magnetic_heading_deg=c.get("magnetic_heading_deg", none),
-        indicated_airspeed_mps=c.get("indicated_airspeed_mps", none),
+        magnetic_heading_deg=c["magnetic_heading_deg"],
+        indicated_airspeed_mps=c["indicated_airspeed_mps"],
         target_index=c["target_index"],
         wild=c["wild"],
     )
