@@ -524,6 +524,60 @@ def test_a_good_first_plot_survives_a_wild_second_of_its_radar(wild_along_m, wil
         assert got[k][0] < 50.0 and got[k][1] < 15.0, got
 
 
+def _one_radar_with_reports(offsets_m, report=True):
+    """Radar a alone (b silent), one plot a scan at T0 + 4k + 1 s, plot k ``offsets_m[k]``
+    (along, across the track, m) off the aircraft, each carrying the aircraft's BDS 5,0
+    (ground speed and track angle of V_MPS) where ``report``. Returns the engine after the
+    last period closed."""
+    eng = Engine(settings())
+    along = V_MPS / np.hypot(*V_MPS)
+    across = np.array([-along[1], along[0]])
+    for k, (d_along, d_across) in enumerate(offsets_m):
+        t = T0 + 4.0 * k + 1.0
+        p = _plot_at(eng, 0, k + 1, t, truth_xy(t) + d_along * along + d_across * across)
+        if report:
+            p.ground_speed_mps = np.array([np.hypot(*V_MPS)])
+            p.track_angle_deg = np.array([np.degrees(np.arctan2(V_MPS[0], V_MPS[1])) % 360.0])
+        eng.ingest_plots(p)
+        _heartbeats(eng, T0 + 4.0 * k + 3.9)
+    _heartbeats(eng, T0 + 4.0 * len(offsets_m) + 3.9)
+    return eng
+
+
+@pytest.mark.parametrize(
+    ("offsets_m", "counter"),
+    [
+        # the wild first plot 1.3 km across: the second (4 s later) too far from it for any
+        # aircraft, held; the third (8 s) within reach, so the held one was dropped as the
+        # wild one and the start was the wild and the third (160 m/s off)
+        ([(0.0, 1_300.0), (0.0, 0.0), (0.0, 0.0)], "tracks_first_refuted"),
+        # the wild first plot 1.6 km ahead: the second within reach, a start of 230 m/s
+        # backwards (400 m/s off); the report refutes it, the second is held, and the third
+        # chooses it
+        ([(1_600.0, 0.0), (0.0, 0.0), (0.0, 0.0)], "starts_refuted"),
+        # a good first plot, then two wild ones, 1.3 and 2.6 km across: each too far from the
+        # first for any aircraft, the two within reach of each other, so the track was started
+        # again from them (350 m/s off); the report refutes the pair, the second is held in
+        # its place, and the fourth plot starts the track from the first
+        ([(0.0, 0.0), (0.0, 1_300.0), (0.0, 2_600.0), (0.0, 0.0)], "pairs_refuted"),
+    ],
+)
+def test_the_aircrafts_reported_velocity_chooses_the_two_points_of_a_start(offsets_m, counter):
+    """A track's first scans on one radar with wild plots among them: where its plots
+    cannot tell which of two positions is wild, the aircraft's own velocity (BDS 5,0, here
+    exact) does (engine._first_refuted, _too_fast, _hold_far): the two-point start
+    (Shu §4) is made of the good plots, its velocity (noise-free plots, so the difference of
+    the two over their time, drawn a little towards the prior's 0, then updated by the
+    report) within a few m/s of the aircraft's. Without the reports the same plots give a
+    start 160-350 m/s off (as the code did before it asked the report)."""
+    eng = _one_radar_with_reports(offsets_m)
+    assert eng.counters[counter] == 1 and len(eng.tracks) == 1 and eng.tracks.initiated[0]
+    assert np.hypot(*(eng.tracks.x[0, [1, 4]] - V_MPS)) < 10.0, eng.tracks.x[0, [1, 4]]
+    blind = _one_radar_with_reports(offsets_m, report=False)
+    assert blind.counters[counter] == 0
+    assert np.hypot(*(blind.tracks.x[0, [1, 4]] - V_MPS)) > 40.0, blind.tracks.x[0, [1, 4]]
+
+
 def test_a_held_first_plot_past_its_window_is_not_reached_through():
     """As above (3 km across), but the third plot comes late in its period, 10.5 s after the
     held first plot, past the 10 s it is kept (``far_hold_scans`` 2.5 × the 4 s revisit):

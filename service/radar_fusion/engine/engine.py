@@ -1082,13 +1082,17 @@ class Engine:
         held = np.isfinite(tr.held_t_s[rows]) & (
             cl.t_s[k] - tr.held_t_s[rows] <= self.clustering.far_hold_scans * tr.revisit_s[rows]
         )
-        far = (cl.far[k] & tr.initiated[rows]) | self._too_fast(cl, k, rows)
+        far = (cl.far[k] & tr.initiated[rows]) | self._too_fast(cl, k, rows, held)
         # a track of one measurement with another of its time held beside it (not a far one,
         # which is later than the state): the new one chooses
         choose = held & ~far & ~tr.initiated[rows] & (tr.updates[rows] == 1)
+        refuted = choose & ~tr.held_alternative[rows]
         choose &= tr.held_alternative[rows]
         if choose.any():
             self._choose_first(cl, k[choose], rows[choose])
+        if refuted.any():
+            refuted[refuted] = self._first_refuted(cl, k[refuted], rows[refuted])
+            choose |= refuted
         near_after_held = held & ~far & ~choose
         if near_after_held.any():
             self.counters["plots_far_dropped"] += int(near_after_held.sum())
@@ -1107,6 +1111,18 @@ class Engine:
         alternative = tr.held_alternative[rf]
         pair &= ~alternative | ((cl.sources[kf] & ~tr.held_sources[rf]) != 0) | tr.held_own_radars[rf]
         if pair.any():
+            # the aircraft's own velocity refutes the pair: one of the two is wild as well
+            # (two wild plots in a row, 1,000×10 seed 1: a start 290 m/s off); the new one is held
+            p = np.flatnonzero(pair)
+            v, Rv = self._reported_velocity(cl, kf[p], rf[p])
+            d2 = self._start_d2(
+                tr.held_z_m[rf[p]], tr.held_R_m2[rf[p]], tr.held_t_s[rf[p]], cl.z_m[kf[p]], cl.R_m2[kf[p]],
+                cl.t_s[kf[p]], v, Rv,
+            )  # fmt: skip
+            refuted = np.isfinite(v[:, 0]) & (d2 > self.clustering.gate_chi2) & ~tr.initiated[rf[p]]
+            pair[p[refuted]] = False
+            self.counters["pairs_refuted"] += int(refuted.sum())
+        if pair.any():
             rp = rf[pair]
             self._initiate_from_held(cl, kf[pair], rp)
             tr.held_t_s[rp] = np.nan
@@ -1123,32 +1139,113 @@ class Engine:
         (``held_*``: two one-plot tracks of one address merged,
         track_management.merge_same_address), and their next clusters ``k``: the first
         measurement of the two-point initiation (Shu §4) is the one of the two nearer the new
-        cluster in the metric of a target without a track, each velocity component of
-        variance v_max²/3 (initiation.unknown_velocity_var_m2ps2):
-
-            d₀² = yᵀ S₀⁻¹ y,   y = z − z₀,   S₀ = R₀ + R + (v_max²/3) Δt₀² I,   Δt₀ = t − t₀,
-
-        the smaller d₀² (the nearest neighbour; the Gaussian likelihood's ln det S₀ would
-        favour the later of the two by its shorter Δt alone, and that prior is a gate's, not
-        a model of speeds). Two plots of one address 5 km apart in one period, one of them
-        wild, were a coin toss: the wild one kept, its two-point velocity with the
-        aircraft's next plot was 250 m/s off and the track 0.6-2.7 km off for 20 s (issue 15
-        item 7, 3 % wild plots). The held one chosen: the track is initiated from it (as
-        :meth:`_hold_far` re-initiates), counted ``tracks_first_replaced``."""
+        cluster by :meth:`_start_d2` (with the aircraft's own velocity where the cluster reports
+        it, else as a target without a track; the smaller d², the nearest neighbour: the
+        Gaussian likelihood's ln det S would favour the later of the two by its shorter Δt
+        alone, and that prior is a gate's, not a model of speeds). Two plots of one address 5 km
+        apart in one period, one of them wild, were a coin toss: the wild one kept, its
+        two-point velocity with the aircraft's next plot was 250 m/s off and the track 0.6-2.7 km
+        off for 20 s (issue 15 item 7, 3 % wild plots); without the report the nearer of two
+        one-plot positions was still the wild one for a start 342 m/s off (1,000×10 seed 1). The
+        held one chosen: the track is initiated from it (as :meth:`_hold_far` re-initiates),
+        counted ``tracks_first_replaced``."""
         tr = self.tracks
         z, R, t = cl.z_m[k], cl.R_m2[k], cl.t_s[k]
-
-        def d2(z0: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
-            S = R0 + R + (self.one_plot_vel_var_m2ps2 * (t - t0) ** 2)[:, None, None] * np.eye(2)
-            y = z - z0
-            return np.asarray(np.einsum("ki,kij,kj->k", y, inv_2x2(S), y))
-
-        better = d2(tr.held_z_m[rows], tr.held_R_m2[rows], tr.held_t_s[rows]) < d2(
-            tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows]
+        v, Rv = self._reported_velocity(cl, k, rows)
+        better = self._start_d2(tr.held_z_m[rows], tr.held_R_m2[rows], tr.held_t_s[rows], z, R, t, v, Rv) < (
+            self._start_d2(tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows], z, R, t, v, Rv)
         )
         if better.any():
             self._initiate_from_held(cl, k[better], rows[better])
             self.counters["tracks_first_replaced"] += int(better.sum())
+
+    def _start_d2(
+        self,
+        z0: np.ndarray,
+        R0: np.ndarray,
+        t0: np.ndarray,
+        z: np.ndarray,
+        R: np.ndarray,
+        t: np.ndarray,
+        v: np.ndarray,
+        Rv: np.ndarray,
+    ) -> np.ndarray:
+        """d² of a measurement z (R, at t) from an earlier one z₀ (R₀, at t₀) as the two points
+        of a two-point initiation (Shu §4), for an aircraft whose velocity is reported as v
+        (covariance R_v, :meth:`_reported_velocity`):
+
+            d² = yᵀ S⁻¹ y,   y = z − z₀ − v Δt,   S = R₀ + R + Δt² R_v,   Δt = t − t₀;
+
+        where v is NaN, as a target without a track: v = 0, R_v = (v_max²/3) I
+        (initiation.unknown_velocity_var_m2ps2). (n,)."""
+        known = np.isfinite(v[:, 0])
+        v = np.where(known[:, None], v, 0.0)
+        Rv = np.where(known[:, None, None], Rv, self.one_plot_vel_var_m2ps2 * np.eye(2))
+        dt = t - t0
+        y = z - z0 - v * dt[:, None]
+        S = R0 + R + (dt**2)[:, None, None] * Rv
+        return np.asarray(np.einsum("ki,kij,kj->k", y, inv_2x2(S), y))
+
+    def _first_refuted(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Tracks of one measurement (rows ``rows``) that hold a later one, too fast from the
+        first (:meth:`_too_fast`: one of the two is wild, or their baseline was short), and
+        their next clusters ``k``, within reach of the first: is the first refuted, the held
+        one not, by the aircraft's own velocity (:meth:`_reported_velocity`) where the cluster
+        reports it? Each is tested as the first point of the two-point initiation (Shu §4),
+
+            d² = yᵀ S⁻¹ y,   y = z − z₀ − v Δt₀,   S = R₀ + R + Δt₀² R_v,   Δt₀ = t − t₀,
+
+        against ``gate_chi2``; where the first is outside and the held one inside, the track is
+        initiated from the held one (:meth:`_initiate_from_held`, ``tracks_first_refuted``).
+        Without this the held one was dropped as the wild one, and a wild first plot 2.6 km
+        off gave the two-point start a velocity 229 m/s off and the track 2.5 km off for three
+        periods (issue 15 item 7, 3 % wild plots, 1,000×10 seed 0: 72 % of the velocity
+        excess over the clean twin). A misread register refutes both (their velocities differ
+        by the wild plot's error, not by the register's), so it keeps the first. (K,) bool."""
+        v, Rv = self._reported_velocity(cl, k, rows)
+        has = np.isfinite(v[:, 0])
+        out = np.zeros(k.size, bool)
+        if not has.any():
+            return out
+        tr = self.tracks
+        k, rows, v, Rv = k[has], rows[has], v[has], Rv[has]
+        z, R, t = cl.z_m[k], cl.R_m2[k], cl.t_s[k]
+        gate = self.clustering.gate_chi2
+        first = self._start_d2(tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows], z, R, t, v, Rv) > gate
+        held = self._start_d2(tr.held_z_m[rows], tr.held_R_m2[rows], tr.held_t_s[rows], z, R, t, v, Rv) <= gate
+        better = first & held
+        if better.any():
+            self._initiate_from_held(cl, k[better], rows[better])
+            self.counters["tracks_first_refuted"] += int(better.sum())
+        out[has] = better
+        return out
+
+    def _reported_velocity(
+        self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The aircraft's own ground velocity (n, 2) and its covariance (n, 2, 2) as the
+        clusters ``k`` of the tracks ``rows`` report it: BDS 5,0 (:meth:`_velocity_R` plus
+        ``velocity_birth_sigma_mps``², nothing has checked it yet), else the air vector plus
+        the wind the track would take (:meth:`_wind_to_use`; σ as in
+        :meth:`_air_velocity_and_wind`); NaN with neither (or without the IMM)."""
+        v = np.full((k.size, 2), np.nan)
+        Rv = np.full((k.size, 2, 2), np.nan)
+        if self.imm is None:
+            return v, Rv
+        p = self.imm.params
+        dap = np.zeros(k.size, bool) if cl.dap_v_mps is None else np.isfinite(cl.dap_v_mps[k, 0])
+        if dap.any():
+            assert cl.dap_v_mps is not None
+            v[dap] = cl.dap_v_mps[k[dap]]
+            Rv[dap] = self._velocity_R(v[dap]) + p.velocity_birth_sigma_mps**2 * np.eye(2)
+        a = np.zeros(0, np.intp) if cl.air_v_mps is None else np.flatnonzero(~dap & np.isfinite(cl.air_v_mps[k, 0]))
+        if a.size:
+            assert cl.air_v_mps is not None
+            wind, own = self._wind_to_use(rows[a], cl.t_s[k[a]])
+            v[a] = cl.air_v_mps[k[a]] + wind
+            var = p.air_velocity_sigma_mps**2 + np.where(own, 0.0, p.wind_layer_sigma_mps**2)
+            Rv[a] = var[:, None, None] * np.eye(2)
+        return v, Rv
 
     def _initiate_from_held(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> None:
         """Clusters ``k`` initiate their tracks (rows ``rows``) by the two-point initiation
@@ -1161,7 +1258,7 @@ class Engine:
         assert cl.z0_m is not None and cl.R0_m2 is not None
         cl.t0_s[k], cl.z0_m[k], cl.R0_m2[k] = tr.held_t_s[rows], tr.held_z_m[rows], tr.held_R_m2[rows]
 
-    def _too_fast(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    def _too_fast(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray, held: np.ndarray) -> np.ndarray:
         """Of the track clusters ``k`` (their tracks' rows ``rows``) that carry their track's
         Mode S address, those that would make a young track fly faster than any aircraft
         (``max_speed_mps``): held like far ones (:meth:`_hold_far`).
@@ -1186,6 +1283,18 @@ class Engine:
             dt_s = cl.t_s[k[one]] - tr.t_state_s[rows[one]]
             dist_m = np.hypot(*(cl.z_m[k[one]] - tr.z1_m[rows[one]]).T)
             out[one] = (dt_s > 0) & (dist_m > self.clustering.max_speed_mps * dt_s)
+            # the aircraft's own velocity refutes the two-point start (once: with a held one the
+            # next cluster chooses between the two, _first_refuted)
+            ask = one[(dt_s > 0) & ~out[one] & ~held[one]]
+            if ask.size:
+                r, kk = rows[ask], k[ask]
+                v, Rv = self._reported_velocity(cl, kk, r)
+                d2 = self._start_d2(
+                    tr.z1_m[r], tr.R1_m2[r], tr.t_state_s[r], cl.z_m[kk], cl.R_m2[kk], cl.t_s[kk], v, Rv
+                )
+                refuted = np.isfinite(v[:, 0]) & (d2 > self.clustering.gate_chi2)
+                out[ask[refuted]] = True
+                self.counters["starts_refuted"] += int(refuted.sum())
         young = np.flatnonzero(own & tr.initiated[rows] & (tr.updates[rows] < self.clustering.too_fast_young_updates))
         if young.size:
             r, kk = rows[young], k[young]
