@@ -524,21 +524,22 @@ def test_a_good_first_plot_survives_a_wild_second_of_its_radar(wild_along_m, wil
         assert got[k][0] < 50.0 and got[k][1] < 15.0, got
 
 
-def _one_radar_with_reports(offsets_m, report=True):
+def _one_radar_with_reports(offsets_m, report=True, misread_deg=0.0):
     """Radar a alone (b silent), one plot a scan at T0 + 4k + 1 s, plot k ``offsets_m[k]``
-    (along, across the track, m) off the aircraft, each carrying the aircraft's BDS 5,0
-    (ground speed and track angle of V_MPS) where ``report``. Returns the engine after the
-    last period closed."""
+    (along, across the track, m) off the aircraft (None: no plot that scan), each carrying
+    the aircraft's BDS 5,0 (ground speed and track angle of V_MPS, the angle ``misread_deg``
+    off) where ``report``. Returns the engine after the last period closed."""
     eng = Engine(settings())
     along = V_MPS / np.hypot(*V_MPS)
     across = np.array([-along[1], along[0]])
-    for k, (d_along, d_across) in enumerate(offsets_m):
+    for k, offset in enumerate(offsets_m):
         t = T0 + 4.0 * k + 1.0
-        p = _plot_at(eng, 0, k + 1, t, truth_xy(t) + d_along * along + d_across * across)
-        if report:
-            p.ground_speed_mps = np.array([np.hypot(*V_MPS)])
-            p.track_angle_deg = np.array([np.degrees(np.arctan2(V_MPS[0], V_MPS[1])) % 360.0])
-        eng.ingest_plots(p)
+        if offset is not None:
+            p = _plot_at(eng, 0, k + 1, t, truth_xy(t) + offset[0] * along + offset[1] * across)
+            if report:
+                p.ground_speed_mps = np.array([np.hypot(*V_MPS)])
+                p.track_angle_deg = np.array([(np.degrees(np.arctan2(V_MPS[0], V_MPS[1])) + misread_deg) % 360.0])
+            eng.ingest_plots(p)
         _heartbeats(eng, T0 + 4.0 * k + 3.9)
     _heartbeats(eng, T0 + 4.0 * len(offsets_m) + 3.9)
     return eng
@@ -576,6 +577,25 @@ def test_the_aircrafts_reported_velocity_chooses_the_two_points_of_a_start(offse
     blind = _one_radar_with_reports(offsets_m, report=False)
     assert blind.counters[counter] == 0
     assert np.hypot(*(blind.tracks.x[0, [1, 4]] - V_MPS)) > 40.0, blind.tracks.x[0, [1, 4]]
+
+
+@pytest.mark.parametrize("every_third_scan", [False, True])
+def test_a_misread_register_delays_a_start_by_one_scan_only(every_third_scan):
+    """Every report of the aircraft is misread (its track angle 90° off) and no plot is
+    wild: the report refutes the first two-point start, which waits one scan (held,
+    ``starts_refuted``), then the track starts as it would without the report, once per
+    track. Seen every third scan of its radar (12 s between plots) it starts all the same:
+    before the once-per-track rule, each second plot was held, the track ended unstarted and
+    the next began again (5 tracks in 30 periods). The velocity then converges to the
+    aircraft's (the misread reports are refused by the velocity gate once it is known)."""
+    plots = [(0.0, 0.0) if not every_third_scan or k % 3 == 0 else None for k in range(15)]
+    eng = _one_radar_with_reports(plots, misread_deg=90.0)
+    blind = _one_radar_with_reports(plots, report=False)
+    assert eng.counters["starts_refuted"] == 1 and eng.counters["tracks_initiated"] == 1
+    assert blind.counters["tracks_initiated"] == 1
+    assert len(eng.tracks) == 1 and eng.tracks.initiated[0]
+    assert eng.tracks.updates[0] == blind.tracks.updates[0] - 1  # the one plot held, not taken
+    assert np.hypot(*(eng.tracks.x[0, [1, 4]] - V_MPS)) < 5.0, eng.tracks.x[0, [1, 4]]
 
 
 def test_a_held_first_plot_past_its_window_is_not_reached_through():

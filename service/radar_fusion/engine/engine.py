@@ -1062,16 +1062,22 @@ class Engine:
         plot, a manoeuvre no model foresaw); fused at the gate's edge, one wild plot of a
         precise radar had a young track fly at 700-1,000 m/s for half a minute (issue 15
         item 7: 3 % wild plots at 1,000×10, settled velocity +82 %). So is a cluster that
-        would make a young track faster than any aircraft (:meth:`_too_fast`). Held instead:
+        would make a young track faster than any aircraft, or whose report refutes a young
+        track's first two-point start (:meth:`_too_fast`). Held instead:
 
         * the track coasts; the measurement is kept (``held_*``) for ``far_hold_scans`` of
           the track's revisit time;
         * a later cluster inside the gates: the held one was a wild plot, dropped and
-          counted (``plots_far_dropped``);
+          counted (``plots_far_dropped``), unless the track has one measurement and the
+          cluster's report refutes the start from it and not the start from the held one
+          (:meth:`_first_refuted`), or the held one is an alternative first point
+          (:meth:`_choose_first`);
         * a later far cluster within reach of the held one (the distance an aircraft at
           ``max_speed_mps`` flies between them, plus sqrt(gate_chi2) σ of their noise): the
           track was wrong; it is initiated again from the two by the two-point initiation
-          (Shu §4), keeping its id and identity (``tracks_far_reinitiated``);
+          (Shu §4), keeping its id and identity (``tracks_far_reinitiated``), unless the
+          track has one measurement and the cluster's report refutes the pair, once per track
+          (``pairs_refuted``: the new cluster is held in its place);
         * a later far cluster out of reach of the held one: that one replaces it.
         """
         if not self.clustering.far_hold or cl.far is None or not len(self.tracks):
@@ -1111,17 +1117,20 @@ class Engine:
         alternative = tr.held_alternative[rf]
         pair &= ~alternative | ((cl.sources[kf] & ~tr.held_sources[rf]) != 0) | tr.held_own_radars[rf]
         if pair.any():
-            # the aircraft's own velocity refutes the pair: one of the two is wild as well
-            # (two wild plots in a row, 1,000×10 seed 1: a start 290 m/s off); the new one is held
-            p = np.flatnonzero(pair)
-            v, Rv = self._reported_velocity(cl, kf[p], rf[p])
-            d2 = self._start_d2(
-                tr.held_z_m[rf[p]], tr.held_R_m2[rf[p]], tr.held_t_s[rf[p]], cl.z_m[kf[p]], cl.R_m2[kf[p]],
-                cl.t_s[kf[p]], v, Rv,
-            )  # fmt: skip
-            refuted = np.isfinite(v[:, 0]) & (d2 > self.clustering.gate_chi2) & ~tr.initiated[rf[p]]
-            pair[p[refuted]] = False
-            self.counters["pairs_refuted"] += int(refuted.sum())
+            # a track of one measurement, once: the aircraft's own velocity refutes the pair, so
+            # the held one is wild as well (two wild plots in a row, 1,000×10 seed 1: a start
+            # 290 m/s off); the new one is held in its place (a misread register costs a scan)
+            q = np.flatnonzero(pair & ~tr.initiated[rf] & ~tr.start_refuted[rf])
+            if q.size:
+                kq, rq = kf[q], rf[q]
+                v, Rv = self._reported_velocity(cl, kq, rq)
+                d2 = self._start_d2(
+                    tr.held_z_m[rq], tr.held_R_m2[rq], tr.held_t_s[rq], cl.z_m[kq], cl.R_m2[kq], cl.t_s[kq], v, Rv
+                )
+                refused = np.isfinite(v[:, 0]) & (d2 > self.clustering.gate_chi2)
+                pair[q[refused]] = False
+                tr.start_refuted[rq[refused]] = True
+                self.counters["pairs_refuted"] += int(refused.sum())
         if pair.any():
             rp = rf[pair]
             self._initiate_from_held(cl, kf[pair], rp)
@@ -1146,18 +1155,41 @@ class Engine:
         apart in one period, one of them wild, were a coin toss: the wild one kept, its
         two-point velocity with the aircraft's next plot was 250 m/s off and the track 0.6-2.7 km
         off for 20 s (issue 15 item 7, 3 % wild plots); without the report the nearer of two
-        one-plot positions was still the wild one for a start 342 m/s off (1,000×10 seed 1). The
-        held one chosen: the track is initiated from it (as :meth:`_hold_far` re-initiates),
+        one-plot positions was still the wild one for a start 342 m/s off (1,000×10 seed 1). A
+        report that refutes both is taken for a misread register and left out. The held one
+        chosen: the track is initiated from it (as :meth:`_hold_far` re-initiates),
         counted ``tracks_first_replaced``."""
-        tr = self.tracks
-        z, R, t = cl.z_m[k], cl.R_m2[k], cl.t_s[k]
-        v, Rv = self._reported_velocity(cl, k, rows)
-        better = self._start_d2(tr.held_z_m[rows], tr.held_R_m2[rows], tr.held_t_s[rows], z, R, t, v, Rv) < (
-            self._start_d2(tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows], z, R, t, v, Rv)
-        )
+        d2_held, d2_first, _, _ = self._held_or_first_d2(cl, k, rows)
+        better = d2_held < d2_first
         if better.any():
             self._initiate_from_held(cl, k[better], rows[better])
             self.counters["tracks_first_replaced"] += int(better.sum())
+
+    def _held_or_first_d2(
+        self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For tracks of one measurement (rows ``rows``) that hold another (``held_*``) and
+        their next clusters ``k``: :meth:`_start_d2` of the cluster from the held measurement
+        and from the first, with the cluster's reported velocity (:meth:`_reported_velocity`).
+        A report that refutes both (each beyond ``gate_chi2``) is no word on either, a misread
+        register: those rows are taken as without a report. Returns d²(held), d²(first), whether
+        a report was used, and whether one was set aside as misread."""
+        tr = self.tracks
+        z, R, t = cl.z_m[k], cl.R_m2[k], cl.t_s[k]
+        v, Rv = self._reported_velocity(cl, k, rows)
+
+        def both() -> np.ndarray:
+            return np.stack([
+                self._start_d2(tr.held_z_m[rows], tr.held_R_m2[rows], tr.held_t_s[rows], z, R, t, v, Rv),
+                self._start_d2(tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows], z, R, t, v, Rv),
+            ])  # fmt: skip
+
+        d2_held, d2_first = both()
+        misread = np.isfinite(v[:, 0]) & (np.minimum(d2_held, d2_first) > self.clustering.gate_chi2)
+        if misread.any():
+            v[misread] = np.nan
+            d2_held, d2_first = np.where(misread, both(), (d2_held, d2_first))
+        return d2_held, d2_first, np.isfinite(v[:, 0]), misread
 
     def _start_d2(
         self,
@@ -1200,25 +1232,17 @@ class Engine:
         Without this the held one was dropped as the wild one, and a wild first plot 2.6 km
         off gave the two-point start a velocity 229 m/s off and the track 2.5 km off for three
         periods (issue 15 item 7, 3 % wild plots, 1,000×10 seed 0: 72 % of the velocity
-        excess over the clean twin). A misread register refutes both (their velocities differ
-        by the wild plot's error, not by the register's), so it keeps the first. (K,) bool."""
-        v, Rv = self._reported_velocity(cl, k, rows)
-        has = np.isfinite(v[:, 0])
-        out = np.zeros(k.size, bool)
-        if not has.any():
-            return out
-        tr = self.tracks
-        k, rows, v, Rv = k[has], rows[has], v[has], Rv[has]
-        z, R, t = cl.z_m[k], cl.R_m2[k], cl.t_s[k]
+        excess over the clean twin). Where the report refutes both (a misread register), the
+        nearer of the two is chosen as :meth:`_choose_first` chooses without a report (keeping
+        the first, a wild first plot and a misread register gave a start 100 m/s off); with no
+        report, or one that refutes neither, the first is kept, as before. (K,) bool."""
+        d2_held, d2_first, reported, misread = self._held_or_first_d2(cl, k, rows)
         gate = self.clustering.gate_chi2
-        first = self._start_d2(tr.z1_m[rows], tr.R1_m2[rows], tr.t_state_s[rows], z, R, t, v, Rv) > gate
-        held = self._start_d2(tr.held_z_m[rows], tr.held_R_m2[rows], tr.held_t_s[rows], z, R, t, v, Rv) <= gate
-        better = first & held
+        better = (reported & (d2_first > gate) & (d2_held <= gate)) | (misread & (d2_held < d2_first))
         if better.any():
             self._initiate_from_held(cl, k[better], rows[better])
             self.counters["tracks_first_refuted"] += int(better.sum())
-        out[has] = better
-        return out
+        return better
 
     def _reported_velocity(
         self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray
@@ -1261,14 +1285,19 @@ class Engine:
     def _too_fast(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray, held: np.ndarray) -> np.ndarray:
         """Of the track clusters ``k`` (their tracks' rows ``rows``) that carry their track's
         Mode S address, those that would make a young track fly faster than any aircraft
-        (``max_speed_mps``): held like far ones (:meth:`_hold_far`).
+        (``max_speed_mps``): held like far ones (:meth:`_hold_far`). ``held``: the tracks that
+        hold a measurement in its window.
 
         * A track of one update: its two-point velocity (Shu §4, before the prior of
           ``[tracking] two_point_prior`` draws it towards zero) would be the distance from
           its first measurement over the time between them. Two plots 2-3 s apart from two
           radars give a velocity of σ ~150 m/s, and with a wild one among them the track flew
           at 350-750 m/s (1,000x10, 3 % wild plots). A good pair that seems too fast only
-          because it is short waits a scan and pairs over a longer baseline.
+          because it is short waits a scan and pairs over a longer baseline. So does, once per
+          track, a pair whose start the cluster's own velocity report refutes
+          (:meth:`_reported_velocity`, :meth:`_start_d2` beyond ``gate_chi2``; counted
+          ``starts_refuted``): one of the two is wild, and the next cluster chooses
+          (:meth:`_first_refuted`); a misread register costs that scan.
         * A track of fewer than ``too_fast_young_updates`` updates: its velocity still rests on
           those few measurements, and its gates are so wide that a wild plot 3 km off lies
           inside them (d² 9.8 on one traced track); the update is tried on a copy of the
@@ -1283,9 +1312,11 @@ class Engine:
             dt_s = cl.t_s[k[one]] - tr.t_state_s[rows[one]]
             dist_m = np.hypot(*(cl.z_m[k[one]] - tr.z1_m[rows[one]]).T)
             out[one] = (dt_s > 0) & (dist_m > self.clustering.max_speed_mps * dt_s)
-            # the aircraft's own velocity refutes the two-point start (once: with a held one the
-            # next cluster chooses between the two, _first_refuted)
-            ask = one[(dt_s > 0) & ~out[one] & ~held[one]]
+            self.counters["plots_too_fast"] += int(out.sum())
+            # the aircraft's own velocity refutes the two-point start: held, once per track (then
+            # the next cluster starts it as before, so a misread register costs one scan); with
+            # a measurement held, the cluster chooses between the two instead (_first_refuted)
+            ask = one[(dt_s > 0) & ~out[one] & ~tr.start_refuted[rows[one]] & ~held[one]]
             if ask.size:
                 r, kk = rows[ask], k[ask]
                 v, Rv = self._reported_velocity(cl, kk, r)
@@ -1294,6 +1325,7 @@ class Engine:
                 )
                 refuted = np.isfinite(v[:, 0]) & (d2 > self.clustering.gate_chi2)
                 out[ask[refuted]] = True
+                tr.start_refuted[r[refuted]] = True
                 self.counters["starts_refuted"] += int(refuted.sum())
         young = np.flatnonzero(own & tr.initiated[rows] & (tr.updates[rows] < self.clustering.too_fast_young_updates))
         if young.size:
@@ -1305,8 +1337,9 @@ class Engine:
             else:
                 xp, Pp = self.manoeuvres.predict(self.filter, tr.x[r], tr.P[r], dt_s, tr.manoeuvre[r])
                 x = self.filter.update(xp, Pp, cl.z_m[kk], cl.R_m2[kk])[0]
-            out[young] = np.hypot(*velocity_mps(x).T) > self.clustering.max_speed_mps
-        self.counters["plots_too_fast"] += int(out.sum())
+            fast = np.hypot(*velocity_mps(x).T) > self.clustering.max_speed_mps
+            out[young] = fast
+            self.counters["plots_too_fast"] += int(fast.sum())
         return out
 
     # ---------------------------------------------------------------- update
@@ -1673,10 +1706,13 @@ class Engine:
         if self.rules.end_miss_probability > 0 and len(tr):
             xy_m = position_m(tr.x) + velocity_mps(tr.x) * (t_ref_s - tr.t_state_s)[:, None]
             swept_until_s = np.minimum(self.buffer.watermark_s, t_ref_s)  # deterministic: not past the period
+            # a measurement held far from the track (_hold_far) is its address seen, not missed
+            far_held = np.isfinite(tr.held_t_s) & ~tr.held_alternative
+            seen_t_s = np.where(far_held, np.fmax(tr.last_update_t_s, tr.held_t_s), tr.last_update_t_s)
             log_miss = log_miss_probability(
                 tr.seen_by,
                 xy_m,
-                tr.last_update_t_s,
+                seen_t_s,
                 swept_until_s,
                 self.site_xy_m,
                 self.max_range_m,

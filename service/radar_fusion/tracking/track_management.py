@@ -183,6 +183,9 @@ _FIELDS = {
     "held_R_m2": ((2, 2), float, np.nan),
     "held_t_s": ((), float, np.nan),
     "held_sources": ((), np.uint64, 0),  # its radars (bit mask)
+    # the aircraft's reported velocity has refused one of its two-point starts already
+    # (engine._too_fast, _hold_far: once per track, so that a misread register costs one scan)
+    "start_refuted": ((), bool, False),
     # the Mode S roll reports' check (IMM, engine._update): a fading sum of their log Bayes
     # factors against the positions (imm.Evidence), and whether they are set aside
     "roll_check": ((), float, 0.0),
@@ -198,7 +201,7 @@ _FIELDS = {
 #: with their fill (engine/state.py)
 OPTIONAL_FIELDS = (
     "held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources", "roll_check", "roll_distrust",
-    "wind_mps", "wind_t_s", "wind_fl",
+    "wind_mps", "wind_t_s", "wind_fl", "start_refuted",
 )  # fmt: skip
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
@@ -244,6 +247,7 @@ class TrackTable:
     held_R_m2: NDArray[np.float64]  # (N, 2, 2) its covariance
     held_t_s: NDArray[np.float64]  # its time, NaN: none held
     held_sources: NDArray[np.uint64]  # its radars (bit mask)
+    start_refuted: NDArray[np.bool_]  # a report refused one of its starts already (engine._too_fast)
     roll_check: NDArray[np.float64]  # fading sum of the roll reports' log Bayes factors (imm.Evidence)
     roll_distrust: NDArray[np.bool_]  # the track's roll reports are set aside
     wind_mps: NDArray[np.float64]  # (N, 2) the wind at the aircraft (plane x, y), NaN: none yet
@@ -510,6 +514,7 @@ _STATE_COLUMNS = (
     "held_R_m2",
     "held_t_s",
     "held_sources",
+    "start_refuted",
 )
 
 
