@@ -579,22 +579,24 @@ def test_the_aircrafts_reported_velocity_chooses_the_two_points_of_a_start(offse
     assert np.hypot(*(blind.tracks.x[0, [1, 4]] - V_MPS)) > 40.0, blind.tracks.x[0, [1, 4]]
 
 
-@pytest.mark.parametrize("every_third_scan", [False, True])
-def test_a_misread_register_delays_a_start_by_one_scan_only(every_third_scan):
+@pytest.mark.parametrize(("every_nth_scan", "refused"), [(1, True), (3, False), (4, False)])
+def test_a_misread_register_delays_a_start_by_one_scan_only(every_nth_scan, refused):
     """Every report of the aircraft is misread (its track angle 90° off) and no plot is
-    wild: the report refutes the first two-point start, which waits one scan (held,
-    ``starts_refuted``), then the track starts as it would without the report, once per
-    track. Seen every third scan of its radar (12 s between plots) it starts all the same:
-    before the once-per-track rule, each second plot was held, the track ended unstarted and
-    the next began again (5 tracks in 30 periods). The velocity then converges to the
-    aircraft's (the misread reports are refused by the velocity gate once it is known)."""
-    plots = [(0.0, 0.0) if not every_third_scan or k % 3 == 0 else None for k in range(15)]
+    wild. Seen every scan of its radar, the report refutes the first two-point start, which
+    waits one scan (held, ``starts_refuted``), then the track starts as it would without the
+    report (once per track). Seen every third or fourth scan (12 or 16 s between plots,
+    beyond the 10 s a held plot is kept) the start is not refused: held, the plot would lapse
+    unused. Before these rules each second plot was held, the track ended unstarted and the
+    next began again (5 tracks in 30 periods every third scan, in 40 every fourth). The
+    velocity then converges to the aircraft's (the misread reports are refused by the
+    velocity gate once it is known)."""
+    plots = [(0.0, 0.0) if k % every_nth_scan == 0 else None for k in range(40)]
     eng = _one_radar_with_reports(plots, misread_deg=90.0)
     blind = _one_radar_with_reports(plots, report=False)
-    assert eng.counters["starts_refuted"] == 1 and eng.counters["tracks_initiated"] == 1
+    assert eng.counters["starts_refuted"] == int(refused) and eng.counters["tracks_initiated"] == 1
     assert blind.counters["tracks_initiated"] == 1
     assert len(eng.tracks) == 1 and eng.tracks.initiated[0]
-    assert eng.tracks.updates[0] == blind.tracks.updates[0] - 1  # the one plot held, not taken
+    assert eng.tracks.updates[0] == blind.tracks.updates[0] - int(refused)  # the plot held, not taken
     assert np.hypot(*(eng.tracks.x[0, [1, 4]] - V_MPS)) < 5.0, eng.tracks.x[0, [1, 4]]
 
 

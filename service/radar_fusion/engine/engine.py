@@ -1069,9 +1069,9 @@ class Engine:
           the track's revisit time;
         * a later cluster inside the gates: the held one was a wild plot, dropped and
           counted (``plots_far_dropped``), unless the track has one measurement and the
-          cluster's report refutes the start from it and not the start from the held one
-          (:meth:`_first_refuted`), or the held one is an alternative first point
-          (:meth:`_choose_first`);
+          cluster's report refutes the start from it and not the start from the held one, or
+          refutes both and the held one is the nearer (:meth:`_first_refuted`), or the held
+          one is an alternative first point (:meth:`_choose_first`);
         * a later far cluster within reach of the held one (the distance an aircraft at
           ``max_speed_mps`` flies between them, plus sqrt(gate_chi2) σ of their noise): the
           track was wrong; it is initiated again from the two by the two-point initiation
@@ -1294,10 +1294,11 @@ class Engine:
           radars give a velocity of σ ~150 m/s, and with a wild one among them the track flew
           at 350-750 m/s (1,000x10, 3 % wild plots). A good pair that seems too fast only
           because it is short waits a scan and pairs over a longer baseline. So does, once per
-          track, a pair whose start the cluster's own velocity report refutes
-          (:meth:`_reported_velocity`, :meth:`_start_d2` beyond ``gate_chi2``; counted
-          ``starts_refuted``): one of the two is wild, and the next cluster chooses
-          (:meth:`_first_refuted`); a misread register costs that scan.
+          track and within ``far_hold_scans`` revisit times of the first, a pair whose start
+          the cluster's own velocity report refutes (:meth:`_reported_velocity`,
+          :meth:`_start_d2` beyond ``gate_chi2``; counted ``starts_refuted``): one of the two is
+          wild, and the next cluster chooses (:meth:`_first_refuted`); a misread register
+          costs that scan.
         * A track of fewer than ``too_fast_young_updates`` updates: its velocity still rests on
           those few measurements, and its gates are so wide that a wild plot 3 km off lies
           inside them (d² 9.8 on one traced track); the update is tried on a copy of the
@@ -1313,10 +1314,13 @@ class Engine:
             dist_m = np.hypot(*(cl.z_m[k[one]] - tr.z1_m[rows[one]]).T)
             out[one] = (dt_s > 0) & (dist_m > self.clustering.max_speed_mps * dt_s)
             self.counters["plots_too_fast"] += int(out.sum())
-            # the aircraft's own velocity refutes the two-point start: held, once per track (then
-            # the next cluster starts it as before, so a misread register costs one scan); with
-            # a measurement held, the cluster chooses between the two instead (_first_refuted)
-            ask = one[(dt_s > 0) & ~out[one] & ~tr.start_refuted[rows[one]] & ~held[one]]
+            # the aircraft's own velocity refutes the two-point start: held, once per track and
+            # only within the time a held measurement is kept (a plot at that spacing comes
+            # while it is held, and chooses between the two, _first_refuted; past it the held
+            # one would lapse unused while the track ages towards its end); with a measurement
+            # held, the cluster chooses instead
+            window_s = self.clustering.far_hold_scans * tr.revisit_s[rows[one]]
+            ask = one[(dt_s > 0) & (dt_s <= window_s) & ~out[one] & ~tr.start_refuted[rows[one]] & ~held[one]]
             if ask.size:
                 r, kk = rows[ask], k[ask]
                 v, Rv = self._reported_velocity(cl, kk, r)
