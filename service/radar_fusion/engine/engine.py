@@ -1092,13 +1092,13 @@ class Engine:
         # a track of one measurement with another of its time held beside it (not a far one,
         # which is later than the state): the new one chooses
         choose = held & ~far & ~tr.initiated[rows] & (tr.updates[rows] == 1)
-        refuted = choose & ~tr.held_alternative[rows]
+        later = choose & ~tr.held_alternative[rows]  # held after the state: too fast from it
         choose &= tr.held_alternative[rows]
         if choose.any():
             self._choose_first(cl, k[choose], rows[choose])
-        if refuted.any():
-            refuted[refuted] = self._first_refuted(cl, k[refuted], rows[refuted])
-            choose |= refuted
+        if later.any():
+            later[later] = self._first_refuted(cl, k[later], rows[later])
+            choose |= later
         near_after_held = held & ~far & ~choose
         if near_after_held.any():
             self.counters["plots_far_dropped"] += int(near_after_held.sum())
@@ -1122,15 +1122,9 @@ class Engine:
             # 290 m/s off); the new one is held in its place (a misread register costs a scan)
             q = np.flatnonzero(pair & ~tr.initiated[rf] & ~tr.start_refuted[rf])
             if q.size:
-                kq, rq = kf[q], rf[q]
-                v, Rv = self._reported_velocity(cl, kq, rq)
-                d2 = self._start_d2(
-                    tr.held_z_m[rq], tr.held_R_m2[rq], tr.held_t_s[rq], cl.z_m[kq], cl.R_m2[kq], cl.t_s[kq], v, Rv
-                )
-                refused = np.isfinite(v[:, 0]) & (d2 > self.clustering.gate_chi2)
-                pair[q[refused]] = False
-                tr.start_refuted[rq[refused]] = True
-                self.counters["pairs_refuted"] += int(refused.sum())
+                rq = rf[q]
+                held_point = (tr.held_z_m[rq], tr.held_R_m2[rq], tr.held_t_s[rq])
+                pair[q[self._start_refuted(cl, kf[q], rq, held_point, "pairs_refuted")]] = False
         if pair.any():
             rp = rf[pair]
             self._initiate_from_held(cl, kf[pair], rp)
@@ -1244,6 +1238,26 @@ class Engine:
             self.counters["tracks_first_refuted"] += int(better.sum())
         return better
 
+    def _start_refuted(
+        self,
+        cl: ClusterMeasurements,
+        k: np.ndarray,
+        rows: np.ndarray,
+        point: tuple[np.ndarray, np.ndarray, np.ndarray],
+        counter: str,
+    ) -> np.ndarray:
+        """Does the aircraft's own velocity, as the clusters ``k`` report it
+        (:meth:`_reported_velocity`), refute the two-point start of their tracks ``rows`` from
+        ``point`` (z₀, R₀, t₀) to them: :meth:`_start_d2` beyond ``gate_chi2``? A track so
+        refused is marked (``start_refuted``: once per track, :meth:`_too_fast`, :meth:`_hold_far`)
+        and counted under ``counter``. (K,) bool; False without a report."""
+        v, Rv = self._reported_velocity(cl, k, rows)
+        d2 = self._start_d2(*point, cl.z_m[k], cl.R_m2[k], cl.t_s[k], v, Rv)
+        refuted: np.ndarray = np.isfinite(v[:, 0]) & (d2 > self.clustering.gate_chi2)
+        self.tracks.start_refuted[rows[refuted]] = True
+        self.counters[counter] += int(refuted.sum())
+        return refuted
+
     def _reported_velocity(
         self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -1322,15 +1336,9 @@ class Engine:
             window_s = self.clustering.far_hold_scans * tr.revisit_s[rows[one]]
             ask = one[(dt_s > 0) & (dt_s <= window_s) & ~out[one] & ~tr.start_refuted[rows[one]] & ~held[one]]
             if ask.size:
-                r, kk = rows[ask], k[ask]
-                v, Rv = self._reported_velocity(cl, kk, r)
-                d2 = self._start_d2(
-                    tr.z1_m[r], tr.R1_m2[r], tr.t_state_s[r], cl.z_m[kk], cl.R_m2[kk], cl.t_s[kk], v, Rv
-                )
-                refuted = np.isfinite(v[:, 0]) & (d2 > self.clustering.gate_chi2)
-                out[ask[refuted]] = True
-                tr.start_refuted[r[refuted]] = True
-                self.counters["starts_refuted"] += int(refuted.sum())
+                r = rows[ask]
+                first_point = (tr.z1_m[r], tr.R1_m2[r], tr.t_state_s[r])
+                out[ask[self._start_refuted(cl, k[ask], r, first_point, "starts_refuted")]] = True
         young = np.flatnonzero(own & tr.initiated[rows] & (tr.updates[rows] < self.clustering.too_fast_young_updates))
         if young.size:
             r, kk = rows[young], k[young]
