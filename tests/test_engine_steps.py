@@ -600,6 +600,85 @@ def test_a_misread_register_delays_a_start_by_one_scan_only(every_nth_scan, refu
     assert np.hypot(*(eng.tracks.x[0, [1, 4]] - V_MPS)) < 5.0, eng.tracks.x[0, [1, 4]]
 
 
+def _ssr_one_radar(offsets_m, code_alternatives=True, codes=None):
+    """As _one_radar_with_reports, for an SSR-only aircraft: no Mode S address, no report,
+    Mode 3/A code 4321 (``codes[k]`` for plot k where given). Returns the engine and, per
+    closed period, (its time, the ids of the tracks, the confirmed ones)."""
+    raw = settings().model_dump()
+    raw["clustering"]["code_alternatives"] = code_alternatives
+    eng = Engine(settings_from_dict(raw))
+    along = V_MPS / np.hypot(*V_MPS)
+    across = np.array([-along[1], along[0]])
+    seen = []
+    for k, offset in enumerate(offsets_m):
+        t = T0 + 4.0 * k + 1.0
+        p = _plot_at(eng, 0, k + 1, t, truth_xy(t) + offset[0] * along + offset[1] * across)
+        p.mode_s = np.array([-1])
+        p.mode3a = np.array([0o4321 if codes is None else codes[k]])
+        eng.ingest_plots(p)
+        for hb_s in (T0 + 4.0 * k + 3.9,) if k + 1 < len(offsets_m) else (T0 + 4.0 * k + 3.9, T0 + 4.0 * k + 7.9):
+            for out in _heartbeats(eng, hb_s):
+                tracks = out.track_batch["tracks"]
+                shown = {x["track_id"] for x in tracks if x["status"] != "tentative"}
+                seen.append((out.t_s, {x["track_id"] for x in tracks}, shown))
+    return eng, seen
+
+
+@pytest.mark.parametrize(
+    ("offsets_m", "counters"),
+    [
+        # the second plot wild, 2 km ahead: too far from the first for any aircraft (350 m/s
+        # over 4 s), and the third is nearer to it (as the association measures one-plot
+        # tracks) than to the first; the fourth restarts the track from the first
+        (
+            [(0.0, 0.0), (2_000.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)],
+            {"tracks_code_alternatives": 1, "tracks_code_restarted": 1},
+        ),
+        # the first plot wild, 1.5 km behind: the third joins the second's track, the right
+        # choice; the first one's plot is held and not needed
+        ([(-1_500.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)], {"tracks_code_alternatives": 1}),
+        # the second plot wild, 900 m across: within reach of the first, so the two made a
+        # start 225 m/s off; the third missed it and started a track, and the fourth, on the
+        # line from the first plot through the third, starts that track from the first
+        ([(0.0, 0.0), (0.0, 900.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)], {"tracks_code_first": 1}),
+    ],
+)
+def test_a_wild_plot_among_an_ssr_aircrafts_first_two_costs_one_scan(offsets_m, counters):
+    """An SSR-only aircraft (a Mode 3/A code, no address, no velocity report) seen by one
+    radar, one of its first two plots wild, which no plot before the fourth can tell
+    (engine._code_alternatives). The aircraft is confirmed at its fourth plot, the period
+    after a plot later than the clean run, as one track with its velocity (noise-free
+    plots). Without the rules a wrong start's next plot missed its gate: here the first
+    plot's track took it, or it started another, and the aircraft was confirmed a scan
+    later; behind a 12 s radar, whose one-plot tracks had ended by then, three scans
+    later (1,000×10 seeds 2 and 3, 3 % wild plots)."""
+    eng, seen = _ssr_one_radar(offsets_m)
+    for name in ("tracks_code_alternatives", "tracks_code_restarted", "tracks_code_first"):
+        assert eng.counters[name] == counters.get(name, 0), name
+    assert len(eng.tracks) == 1 and eng.tracks.status[0] == CONFIRMED
+    assert np.hypot(*(eng.tracks.x[0, [1, 4]] - V_MPS)) < 5.0, eng.tracks.x[0, [1, 4]]
+    confirmed_at = [t for t, _, shown in seen if shown]
+    assert confirmed_at[0] == T0 + 16.0  # the period of the fourth plot (T0 + 13 s)
+    assert all(len(shown) <= 1 for _, _, shown in seen)
+    assert eng.tracks.track_id[0] == 1  # the oldest id
+    _, blind_seen = _ssr_one_radar(offsets_m, code_alternatives=False)
+    blind_confirmed_at = [t for t, _, shown in blind_seen if shown]
+    wrong_start = "tracks_code_restarted" in counters or "tracks_code_first" in counters
+    assert blind_confirmed_at[0] == T0 + (20.0 if wrong_start else 16.0), blind_confirmed_at
+
+
+def test_two_one_plot_tracks_of_different_codes_are_left_alone():
+    """The same plots, the wild one carrying another code: no identity ties the two, so the
+    rule keeps nothing and the run is the one without it, to the track."""
+    codes = [0o4321, 0o4322, 0o4321, 0o4321, 0o4321]
+    offsets_m = [(0.0, 0.0), (2_000.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)]
+    eng, seen = _ssr_one_radar(offsets_m, codes=codes)
+    blind, blind_seen = _ssr_one_radar(offsets_m, code_alternatives=False, codes=codes)
+    assert eng.counters["tracks_code_alternatives"] == eng.counters["tracks_code_restarted"] == 0
+    assert seen == blind_seen
+    np.testing.assert_array_equal(eng.tracks.x, blind.tracks.x)
+
+
 def test_a_held_first_plot_past_its_window_is_not_reached_through():
     """As above (3 km across), but the third plot comes late in its period, 10.5 s after the
     held first plot, past the 10 s it is kept (``far_hold_scans`` 2.5 × the 4 s revisit):
@@ -974,6 +1053,9 @@ def test_two_contradicting_plots_without_an_address_are_split_not_fused(one_upda
     assert len(last) == 1 and last.status[0] == CONFIRMED and _first_outputs({13: outs[13]})[13][0] < 50.0
     raw = settings().model_dump()
     raw["clustering"]["split_contradicting_factor"] = 0.0
+    # the split rule alone: with code_alternatives the aircraft's next track, on the line from
+    # the fused track's first plot, takes the fused one over a period sooner
+    raw["clustering"]["code_alternatives"] = False
     fused_eng, fused_outs = _far_run(**kw, periods=14, eng=Engine(settings_from_dict(raw)))
     assert fused_eng.counters["plots_contradicting_split"] == 0
     fused = fused_outs[k_wild + 1].track_columns

@@ -20,7 +20,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from .singer_filter import POS_IDX, STATE_DIM, as_tracks
 
-__all__ = ["floor_covariance", "one_point_initiation", "two_point_initiation", "unknown_velocity_var_m2ps2"]
+__all__ = [
+    "floor_covariance",
+    "one_point_initiation",
+    "three_point_d2",
+    "two_point_initiation",
+    "unknown_velocity_var_m2ps2",
+]
 
 Float = NDArray[np.float64]
 
@@ -154,6 +160,46 @@ def two_point_initiation(
     P[:, vel[:, None], vel[None, :]] = vv
     P[:, 2, 2] = P[:, 5, 5] = sigma_m_mps2**2
     return x, P
+
+
+def three_point_d2(
+    z1_m: Float,
+    R1_m2: Float,
+    t1_s: Float,
+    z2_m: Float,
+    R2_m2: Float,
+    t2_s: Float,
+    z3_m: Float,
+    R3_m2: Float,
+    t3_s: Float,
+    q_m2ps3: float,
+) -> Float:
+    """Mahalanobis d² of a third position z₃ from the straight line at constant speed that the
+    two-point initiation (Shu §4) draws through z₁ and z₂ (t₁ < t₂ < t₃): do the three
+    measurements belong to one aircraft in near-constant-velocity flight?
+
+    The line predicts ẑ₃ = z₂ + (z₂ − z₁) a with a = τ₂/τ₁, τ₁ = t₂ − t₁, τ₂ = t₃ − t₂. The
+    residual y = z₃ − (1 + a) z₂ + a z₁ is zero on any straight path flown at constant
+    speed; its covariance is the three measurements' noise,
+
+        S = R₃ + (1 + a)² R₂ + a² R₁ + Q,
+
+    plus what a white acceleration of density q (m²/s³ per axis, the near-constant-velocity
+    model's) adds. y is then ∫ K(s) w(s) ds with K(s) = a (s − t₁) on [t₁, t₂], t₃ − s on
+    [t₂, t₃] and 0 before t₁, so Q = q (a² τ₁³ + τ₂³) / 3 on each axis. d² = yᵀS⁻¹y is χ²
+    with 2 degrees of freedom when the three are the aircraft's.
+
+    Shapes: z (N, 2), R (N, 2, 2), t (N,). Returns (N,).
+    """
+    z1, z2, z3 = (np.asarray(z, dtype=float) for z in (z1_m, z2_m, z3_m))
+    R1, R2, R3 = (np.asarray(R, dtype=float) for R in (R1_m2, R2_m2, R3_m2))
+    tau1 = np.asarray(t2_s, dtype=float) - np.asarray(t1_s, dtype=float)
+    tau2 = np.asarray(t3_s, dtype=float) - np.asarray(t2_s, dtype=float)
+    a = tau2 / tau1
+    y = z3 - (1.0 + a)[:, None] * z2 + a[:, None] * z1
+    q = float(q_m2ps3) * (a**2 * tau1**3 + tau2**3) / 3.0
+    S = R3 + ((1.0 + a) ** 2)[:, None, None] * R2 + (a**2)[:, None, None] * R1 + q[:, None, None] * np.eye(2)
+    return np.asarray(np.einsum("ki,kij,kj->k", y, np.linalg.inv(S), y))
 
 
 def floor_covariance(P: Float, floor_m2: Float) -> Float:

@@ -170,6 +170,7 @@ _FIELDS = {
     "last_update_t_s": ((), float, np.nan),
     "z1_m": ((2,), float, np.nan),  # first fused measurement, for two-point initiation
     "R1_m2": ((2, 2), float, np.nan),
+    "t1_s": ((), float, np.nan),  # its time (NaN in a state saved before it was kept)
     "mode_s": ((), np.int64, -1),
     "mode3a": ((), np.int64, -1),
     "sources": ((), np.uint64, 0),  # radars that contributed in the latest period (bit mask)
@@ -201,7 +202,7 @@ _FIELDS = {
 #: with their fill (engine/state.py)
 OPTIONAL_FIELDS = (
     "held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources", "roll_check", "roll_distrust",
-    "wind_mps", "wind_t_s", "wind_fl", "start_refuted",
+    "wind_mps", "wind_t_s", "wind_fl", "start_refuted", "t1_s",
 )  # fmt: skip
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
@@ -235,6 +236,7 @@ class TrackTable:
     last_update_t_s: NDArray[np.float64]  # reference time of the period of the latest update
     z1_m: NDArray[np.float64]  # (N, 2) first fused measurement, for two-point initiation
     R1_m2: NDArray[np.float64]  # (N, 2, 2)
+    t1_s: NDArray[np.float64]  # (N,) the time of z1_m
     mode_s: NDArray[np.int64]  # 24-bit address, -1 unknown
     mode3a: NDArray[np.int64]  # -1 unknown
     sources: NDArray[np.uint64]  # radars that contributed in the latest period (bit mask)
@@ -501,6 +503,7 @@ _STATE_COLUMNS = (
     "last_update_t_s",
     "z1_m",
     "R1_m2",
+    "t1_s",
     "mode3a",
     "sources",
     "update_sources",
