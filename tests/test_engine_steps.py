@@ -679,6 +679,76 @@ def test_two_one_plot_tracks_of_different_codes_are_left_alone():
     np.testing.assert_array_equal(eng.tracks.x, blind.tracks.x)
 
 
+def _turning_ssr_on_a_12_s_radar(turn_deg_s, overrule=True, wild_at=None, scans=12, v_mps=230.0):
+    """An SSR-only aircraft (code 4321, radar track number 7) seen by radar a alone, turned
+    to a 12 s rotation, live wild-plot gate on: 60 s straight east at ``v_mps``, then a left
+    turn at ``turn_deg_s`` (0: straight on); noise-free plots, the plot of scan ``wild_at``
+    2 km off to the right. ``overrule`` False: the live gate's refusals stand
+    (engine._track_expects never expects). Returns the engine and, per scan, the track ids
+    and their errors (m) just after the scan's plot."""
+    raw = settings().model_dump()
+    raw["radars"][0]["rotation_period_s"] = 12.0
+    raw["outliers"]["enabled"] = True
+    eng = Engine(settings_from_dict(raw))
+    if not overrule:
+        eng._track_expects = lambda raw, idx, pred, t_ref_s: np.zeros(idx.size, bool)
+
+    def path(t_s):
+        t = t_s - T0
+        if t <= 60.0 or turn_deg_s == 0:
+            return np.array([-20_000.0 + v_mps * t, -3_000.0])
+        w = np.radians(turn_deg_s)
+        return np.array([-20_000.0 + v_mps * 60.0, -3_000.0]) + v_mps / w * np.array(
+            [np.sin(w * (t - 60.0)), 1.0 - np.cos(w * (t - 60.0))]
+        )
+
+    per_scan = []
+    for k in range(scans):
+        t = T0 + 12.0 * k + 1.0
+        xy = path(t) + (np.array([0.0, -2_000.0]) if k == wild_at else 0.0)
+        p = _plot_at(eng, 0, k + 1, t, xy)
+        p.mode_s, p.mode3a, p.track_no = np.array([-1]), np.array([0o4321]), np.array([7])
+        eng.ingest_plots(p)
+        for out in _heartbeats(eng, t + 4.5):  # the plot's period closes
+            c = out.track_columns
+            times = c.t_track_s if c.t_track_s is not None else np.full(len(c), out.t_s)
+            err = np.hypot(*(c.x[:, [0, 3]] - np.array([path(tt) for tt in times]).reshape(-1, 2)).T)
+            per_scan.append((list(c.track_id), err))
+        _heartbeats(eng, t + 8.5)
+        _heartbeats(eng, t + 10.9)
+    return eng, per_scan
+
+
+@pytest.mark.parametrize(("turn_deg_s", "v_mps"), [(1.5, 230.0), (2.0, 230.0), (3.0, 130.0)])
+def test_a_plot_the_gate_refuses_in_a_turn_is_kept_where_its_track_expects_it(turn_deg_s, v_mps):
+    """The live gate sees one radar's recent plots and no turn: 12 s scans into a turn of
+    6-8 m/s² (1.5-2°/s at 230 m/s, 3°/s at 130 m/s) take a plot 0.6-0.9 km off its straight
+    window, refused as wild. The aircraft's track, of the plot's code, has a turn model that
+    expects it (engine._track_expects): the plot is kept (``plots_wild_overruled``), and the
+    track stays within 150 m through the turn. With the refusal standing the track coasted
+    24 s, 0.68-0.86 km off."""
+    eng, per_scan = _turning_ssr_on_a_12_s_radar(turn_deg_s, v_mps=v_mps)
+    assert eng.counters["plots_wild_overruled"] == 1 and eng.counters["plots_wild"] == 0
+    assert all(ids == [1] for ids, _ in per_scan[2:])
+    assert max(float(err.max()) for _, err in per_scan[2::2]) < 150.0  # the periods of the plots
+    blind, blind_scans = _turning_ssr_on_a_12_s_radar(turn_deg_s, overrule=False, v_mps=v_mps)
+    assert blind.counters["plots_wild"] == 1
+    assert max(float(err.min()) for _, err in blind_scans[2::2]) > 600.0
+
+
+@pytest.mark.parametrize(("turn_deg_s", "turn_plots_kept"), [(0.0, 0), (2.0, 1)])
+def test_a_wild_plot_in_straight_flight_or_a_turn_stays_refused(turn_deg_s, turn_plots_kept):
+    """As above, the plot of scan 9 (straight on, or 36 s into the 2°/s turn) 2 km off to the
+    right: none of the track's models but its widest, the manoeuvre model (σ_m 10 m/s², a
+    gate of kilometres over 12 s), expects it, and the gate's refusal stands (through the
+    manoeuvre model it was taken, and in the turn the track was lost, 2.8-9 km off)."""
+    eng, per_scan = _turning_ssr_on_a_12_s_radar(turn_deg_s, wild_at=9)
+    assert eng.counters["plots_wild"] == 1 and eng.counters["plots_wild_overruled"] == turn_plots_kept
+    assert all(ids == [1] for ids, _ in per_scan[2:])
+    after_plots = [err for k, (_, err) in enumerate(per_scan) if k >= 2 and k % 2 == 0 and k != 2 * 9]
+    assert max(float(err.max()) for err in after_plots) < 150.0
+
+
 def test_a_held_first_plot_past_its_window_is_not_reached_through():
     """As above (3 km across), but the third plot comes late in its period, 10.5 s after the
     held first plot, past the 10 s it is kept (``far_hold_scans`` 2.5 × the 4 s revisit):

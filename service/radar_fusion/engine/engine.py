@@ -63,7 +63,7 @@ from ..tracking.fusion import (
     fuse_common_velocity,
     leave_one_out_outliers,
 )
-from ..tracking.imm import QUIET, Evidence, IMMFilter, IMMState
+from ..tracking.imm import MANOEUVRE, QUIET, Evidence, IMMFilter, IMMState
 from ..tracking.initiation import (
     floor_covariance,
     one_point_initiation,
@@ -294,8 +294,12 @@ class Engine:
                     self.sites.sigma_range_m[radar],
                     self.sites.sigma_azimuth_rad[radar],
                 )
-                if not ok.all():
-                    wild = has_key[~ok]
+                wild = has_key[~ok]
+                if wild.size:  # a track of the plot's identity may expect it (a turn the gate cannot see)
+                    expected = self._track_expects(raw, wild, pred, t_ref_s)
+                    self.counters["plots_wild_overruled"] += int(expected.sum())
+                    wild = wild[~expected]
+                if wild.size:
                     self.counters["plots_wild"] += int(wild.size)
                     for r, n in zip(*np.unique(raw.radar[wild], return_counts=True)):
                         self.radars[int(r)].wild += int(n)
@@ -380,6 +384,63 @@ class Engine:
             raw.magnetic_heading_deg,
             raw.indicated_airspeed_mps,
         )
+
+    def _track_expects(self, raw: PlotChunk, idx: np.ndarray, pred: Prediction, t_ref_s: float) -> np.ndarray:
+        """Of the plots ``idx`` the live gate refused, those a track of their identity expects:
+        inside ``gate_chi2`` of its prediction (aligned to the period's time with its
+        velocity, association.align_to_reference), of any of its IMM models where it is
+        established, as the association gates (:meth:`_gate_models`). The identity: the
+        plot's Mode S address; without one, its identity code (Mode 3/A, not an emergency or
+        conspicuity code) on a track without an address. The gate sees one radar's recent
+        plots and no turn until it has refused one: a 12 s radar's aircraft 27 s into a
+        1.5°/s turn was 1.2 km off its straight window, refused at 6.5 noise scales, and its
+        SSR-only track, 24 s without a plot, was lost (4,000×10, A00981: 19 % of the turning
+        error). Measured over every refusal (4,000×10 60 s; 1,000×10 120 s with 3 % wild
+        plots, seeds 0 and 2): of the good plots refused 28 of 29, 42 of 42 and 44 of 44 lie in
+        such a gate, of the wild ones 0 of 143, 6 of 1,340 and 7 of 1,374. (K,) bool."""
+        out = np.zeros(idx.size, bool)
+        tr = self.tracks
+        if not len(tr) or not idx.size:
+            return out
+        ms, code = raw.mode_s[idx], raw.mode3a[idx]
+        by_address = (ms[:, None] >= 0) & (ms[:, None] == tr.mode_s[None, :])
+        by_code = (
+            (ms[:, None] < 0)
+            & self._identity_code(code)[:, None]
+            & (code[:, None] == tr.mode3a[None, :])
+            & (tr.mode_s[None, :] < 0)
+        )
+        k, rows = np.nonzero(by_address | by_code)
+        if not k.size:
+            return out
+        i = idx[k]
+        range_m, azimuth_deg, t_s = self.registration.correct(
+            raw.radar[i], raw.range_m[i], raw.azimuth_deg[i], raw.t_s[i], bias=self.registration.correction()
+        )
+        assert t_s is not None
+        x_m, y_m, cov_m2, _ = polar_to_plane(
+            self.plane,
+            self.sites,
+            raw.radar[i],
+            range_m,
+            azimuth_deg,
+            flight_level_to_altitude_m(raw.fl[i]),
+            assumed_altitude_m=self.assumed_altitude_m,
+        )
+        z, R = association.align_to_reference(
+            np.column_stack([x_m, y_m]), cov_m2, t_s, t_ref_s, velocity_mps(pred.x[rows]), cov_vel(pred.P[rows])
+        )
+        models = self._gate_models(pred)
+        if models is None:
+            xy, cov = position_m(pred.x[rows])[:, None, :], cov_pos_m2(pred.P[rows])[:, None]
+        else:
+            turns = np.arange(models[0].shape[1]) != MANOEUVRE
+            xy, cov = models[0][rows][:, turns], models[1][rows][:, turns]
+        y = z[:, None, :] - xy
+        S = cov + R[:, None]
+        d2 = np.einsum("kmi,kmij,kmj->km", y, inv_2x2(S.reshape(-1, 2, 2)).reshape(S.shape), y).min(axis=1)
+        np.logical_or.at(out, k, d2 <= self.clustering.gate_chi2)
+        return out
 
     # --------------------------------------------------------------- predict
     def _predict_rows(self, rows: Any, dt_s: np.ndarray) -> Prediction:
