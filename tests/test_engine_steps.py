@@ -605,7 +605,8 @@ def _ssr_one_radar(offsets_m, code_alternatives=True, codes=None):
     Mode 3/A code 4321 (``codes[k]`` for plot k where given). Returns the engine and, per
     closed period, (its time, the ids of the tracks, the confirmed ones)."""
     raw = settings().model_dump()
-    raw["clustering"]["code_alternatives"] = code_alternatives
+    if not code_alternatives:  # on by default
+        raw["clustering"]["code_alternatives"] = False
     eng = Engine(settings_from_dict(raw))
     along = V_MPS / np.hypot(*V_MPS)
     across = np.array([-along[1], along[0]])
@@ -667,16 +668,48 @@ def test_a_wild_plot_among_an_ssr_aircrafts_first_two_costs_one_scan(offsets_m, 
     assert blind_confirmed_at[0] == T0 + (20.0 if wrong_start else 16.0), blind_confirmed_at
 
 
-def test_two_one_plot_tracks_of_different_codes_are_left_alone():
-    """The same plots, the wild one carrying another code: no identity ties the two, so the
-    rule keeps nothing and the run is the one without it, to the track."""
-    codes = [0o4321, 0o4322, 0o4321, 0o4321, 0o4321]
+@pytest.mark.parametrize(
+    "codes",
+    [
+        [0o4321, 0o4322, 0o4321, 0o4321, 0o4321],  # the wild plot carries another code
+        [0o7700] * 5,  # an emergency code: no identity (association.NON_IDENTITY_MODE3A)
+        [0o7000] * 5,  # the VFR conspicuity code
+    ],
+)
+def test_two_one_plot_tracks_without_one_identity_code_are_left_alone(codes):
+    """The plots of the first case above, without one identity code on them: nothing ties
+    the two one-plot tracks, so the rules keep nothing and the run is the one without
+    them, to the track."""
     offsets_m = [(0.0, 0.0), (2_000.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)]
     eng, seen = _ssr_one_radar(offsets_m, codes=codes)
     blind, blind_seen = _ssr_one_radar(offsets_m, code_alternatives=False, codes=codes)
     assert eng.counters["tracks_code_alternatives"] == eng.counters["tracks_code_restarted"] == 0
     assert seen == blind_seen
     np.testing.assert_array_equal(eng.tracks.x, blind.tracks.x)
+
+
+def test_two_aircraft_of_one_code_far_apart_keep_their_tracks():
+    """Two SSR-only aircraft squawking one code 30 km apart (a code reused across sectors),
+    each seen by radar a: their first plots start two one-plot tracks of the code, out of
+    reach of each other, and the first one's second plot joins its own while the second
+    aircraft misses that scan. Its track is out of reach of that plot, so it is not taken for
+    the first one's wild plot (engine._hold_code_alternative): both tracks are confirmed,
+    none started again.""" 
+    eng = Engine(settings())
+    offset = np.array([0.0, 30_000.0])
+    for k in range(5):
+        t = T0 + 4.0 * k + 1.0
+        for j, shift in enumerate((0.0, offset)):
+            if j == 1 and k == 1:
+                continue  # the second aircraft missed a scan: its track waits, unmatched
+            p = _plot_at(eng, 0, 2 * k + j + 1, t + 0.5 * j, truth_xy(t + 0.5 * j) + shift)
+            p.mode_s, p.mode3a = np.array([-1]), np.array([0o4321])
+            eng.ingest_plots(p)
+        _heartbeats(eng, T0 + 4.0 * k + 3.9)
+    _heartbeats(eng, T0 + 23.9)
+    assert eng.counters["tracks_code_alternatives"] == eng.counters["tracks_code_first"] == 0
+    assert len(eng.tracks) == 2 and (eng.tracks.status == CONFIRMED).all()
+    assert eng.counters["tracks_initiated"] == 2
 
 
 def _turning_ssr_on_a_12_s_radar(turn_deg_s, overrule=True, wild_at=None, scans=12, v_mps=230.0):
