@@ -694,7 +694,7 @@ def test_two_aircraft_of_one_code_far_apart_keep_their_tracks():
     reach of each other, and the first one's second plot joins its own while the second
     aircraft misses that scan. Its track is out of reach of that plot, so it is not taken for
     the first one's wild plot (engine._hold_code_alternative): both tracks are confirmed,
-    none started again.""" 
+    none started again."""
     eng = Engine(settings())
     offset = np.array([0.0, 30_000.0])
     for k in range(5):
