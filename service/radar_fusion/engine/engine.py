@@ -388,15 +388,17 @@ class Engine:
     def _track_expects(self, raw: PlotChunk, idx: np.ndarray, pred: Prediction, t_ref_s: float) -> np.ndarray:
         """Of the plots ``idx`` the live gate refused, those a track of their identity expects:
         inside ``gate_chi2`` of its prediction (aligned to the period's time with its
-        velocity, association.align_to_reference), of any of its IMM models where it is
-        established, as the association gates (:meth:`_gate_models`). The identity: the
+        velocity, association.align_to_reference): where it is established, of any of its IMM
+        models but the manoeuvre model, whose gate at a 12 s scan spans kilometres (through it
+        a plot 2 km off was taken in straight flight, and in a turn lost the track); where it
+        is tentative, of its combined prediction (:meth:`_gate_models`). The identity: the
         plot's Mode S address; without one, its identity code (Mode 3/A, not an emergency or
         conspicuity code) on a track without an address. The gate sees one radar's recent
         plots and no turn until it has refused one: a 12 s radar's aircraft 27 s into a
         1.5°/s turn was 1.2 km off its straight window, refused at 6.5 noise scales, and its
         SSR-only track, 24 s without a plot, was lost (4,000×10, A00981: 19 % of the turning
         error). Measured over every refusal (4,000×10 60 s; 1,000×10 120 s with 3 % wild
-        plots, seeds 0 and 2): of the good plots refused 28 of 29, 42 of 42 and 44 of 44 lie in
+        plots, seeds 0 and 2): of the good plots refused 28 of 29, 41 of 42 and 44 of 44 lie in
         such a gate, of the wild ones 0 of 143, 6 of 1,340 and 7 of 1,374. (K,) bool."""
         out = np.zeros(idx.size, bool)
         tr = self.tracks
