@@ -588,3 +588,7 @@ class Prediction:
     # filter = "imm": each model's predicted position (N, M, 2) and its covariance (N, M, 2, 2)
     gate_xy: np.ndarray | None = None
     gate_cov: np.ndarray | None = None
+
+    def select(self, keep: np.ndarray) -> Prediction:
+        """The rows ``keep`` (a mask or indices) of the state, without the gates."""
+        return Prediction(self.x[keep], self.P[keep], self.alt_x[keep], self.alt_P[keep])

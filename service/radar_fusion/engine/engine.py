@@ -252,7 +252,7 @@ class Engine:
         ended = self._manage(t_ref_s)
         if ended.size:
             alive = ~np.isin(ids, ended)
-            out = Prediction(out.x[alive], out.P[alive], out.alt_x[alive], out.alt_P[alive])
+            out = out.select(alive)
         columns = self._output(period, t_ref_s, np.concatenate([merged, ended]), out)
         # the safety nets judge every track that is not tentative (safety_nets.prediction.eligible)
         alerts = self.safety_nets.update(t_ref_s, columns) if self.safety_nets is not None else []
@@ -408,7 +408,7 @@ class Engine:
         by_address = (ms[:, None] >= 0) & (ms[:, None] == tr.mode_s[None, :])
         by_code = (
             (ms[:, None] < 0)
-            & self._identity_code(code)[:, None]
+            & association.is_identity_code(code)[:, None]
             & (code[:, None] == tr.mode3a[None, :])
             & (tr.mode_s[None, :] < 0)
         )
@@ -440,7 +440,7 @@ class Engine:
             xy, cov = models[0][rows][:, turns], models[1][rows][:, turns]
         y = z[:, None, :] - xy
         S = cov + R[:, None]
-        d2 = np.einsum("kmi,kmij,kmj->km", y, inv_2x2(S.reshape(-1, 2, 2)).reshape(S.shape), y).min(axis=1)
+        d2 = association.mahalanobis2_2x2(y.reshape(-1, 2), S.reshape(-1, 2, 2)).reshape(y.shape[:2]).min(axis=1)
         np.logical_or.at(out, k, d2 <= self.clustering.gate_chi2)
         return out
 
@@ -1277,7 +1277,7 @@ class Engine:
         dt = t - t0
         y = z - z0 - v * dt[:, None]
         S = R0 + R + (dt**2)[:, None, None] * Rv
-        return np.asarray(np.einsum("ki,kij,kj->k", y, inv_2x2(S), y))
+        return association.mahalanobis2_2x2(y, S)
 
     def _first_refuted(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Tracks of one measurement (rows ``rows``) that hold a later one, too fast from the
@@ -1710,10 +1710,6 @@ class Engine:
         first = self._first_from_code_track(cl, matched)
         return np.concatenate([first, self._hold_code_alternative(cl, matched)])
 
-    def _identity_code(self, code: np.ndarray) -> np.ndarray:
-        """(n,) bool: a Mode 3/A code that names an aircraft (not an emergency or conspicuity code)."""
-        return np.asarray((code >= 0) & ~np.isin(code, association.NON_IDENTITY_MODE3A))
-
     def _on_line(
         self,
         first: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -1767,7 +1763,7 @@ class Engine:
             & (tr.updates[rows] == 1)
             & (tr.mode_s[rows] < 0)
             & (cl.mode_s[k] < 0)
-            & self._identity_code(tr.mode3a[rows])
+            & association.is_identity_code(tr.mode3a[rows])
             & (cl.mode3a[k] == tr.mode3a[rows])
         )
         return k[sel], rows[sel]
@@ -1781,7 +1777,7 @@ class Engine:
         tr = self.tracks
         cand = np.flatnonzero(
             tr.initiated & (tr.updates == 2) & (tr.status == TENTATIVE) & (tr.mode_s < 0) & tr.held_alternative
-            & ~matched & self._identity_code(tr.mode3a)
+            & ~matched & association.is_identity_code(tr.mode3a)
         )  # fmt: skip
         new = np.flatnonzero(cl.valid & (cl.track_row < 0) & (cl.mode_s < 0))
         if not cand.size or not new.size:
@@ -1819,7 +1815,7 @@ class Engine:
         k, rows = self._code_clusters_of_one_plot_tracks(cl)
         cand = np.flatnonzero(
             tr.initiated & (tr.updates == 2) & (tr.status == TENTATIVE) & (tr.mode_s < 0) & ~matched
-            & np.isfinite(tr.t1_s) & self._identity_code(tr.mode3a)
+            & np.isfinite(tr.t1_s) & association.is_identity_code(tr.mode3a)
         )  # fmt: skip
         if not k.size or not cand.size:
             return np.empty(0, np.int64)
@@ -1870,15 +1866,9 @@ class Engine:
             c = lone[(tr.mode3a[lone] == tr.mode3a[r]) & ~np.isin(lone, absorbed)]
             if not c.size:
                 continue
-            n = c.size
-            apart = self._beyond_reach(
-                tr.z1_m[c], tr.R1_m2[c], tr.t_state_s[c],
-                np.repeat(tr.z1_m[r][None], n, 0), np.repeat(tr.R1_m2[r][None], n, 0), np.full(n, tr.t_state_s[r]),
-            )  # fmt: skip
-            reach = ~self._beyond_reach(
-                tr.z1_m[c], tr.R1_m2[c], tr.t_state_s[c],
-                np.repeat(cl.z_m[kk][None], n, 0), np.repeat(cl.R_m2[kk][None], n, 0), np.full(n, cl.t_s[kk]),
-            )  # fmt: skip
+            other = (tr.z1_m[c], tr.R1_m2[c], tr.t_state_s[c])
+            apart = self._beyond_reach(*other, tr.z1_m[r], tr.R1_m2[r], tr.t_state_s[r])
+            reach = ~self._beyond_reach(*other, cl.z_m[kk], cl.R_m2[kk], cl.t_s[kk])
             c = c[apart & reach]
             if not c.size:
                 continue
@@ -1899,7 +1889,8 @@ class Engine:
         R_b_m2: np.ndarray,
         t_b_s: np.ndarray,
     ) -> np.ndarray:
-        """Pairs of measurements (n, 2) with covariances (n, 2, 2) further apart than an
+        """Pairs of measurements (n, 2) with covariances (n, 2, 2) (either side may be one
+        measurement (2,), (2, 2) for all n) further apart than an
         aircraft flies between their times at ``max_speed_mps``, plus sqrt(gate_chi2)
         standard deviations of their noise along its largest direction (the largest
         eigenvalue of R_a + R_b): no one aircraft's."""
@@ -1993,11 +1984,11 @@ class Engine:
             keep[absorbed] = False
             gone = self.tracks.track_id[absorbed].copy()
             self.tracks.keep(keep)
-            out = Prediction(out.x[keep], out.P[keep], out.alt_x[keep], out.alt_P[keep])
+            out = out.select(keep)
         keep, merged = merge_same_address(self.tracks, self.rules.confirm_updates, (out.x, out.P, out.alt_x, out.alt_P))
         if merged.size:
             self.counters["tracks_merged"] += int(merged.size)
-            out = Prediction(out.x[keep], out.P[keep], out.alt_x[keep], out.alt_P[keep])
+            out = out.select(keep)
         return out, np.concatenate([gone, merged])
 
     # ---------------------------------------------------------------- manage

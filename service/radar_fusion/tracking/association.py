@@ -134,6 +134,13 @@ def _min_model_d2(
 NON_IDENTITY_MODE3A = np.array([0o7700, 0o7600, 0o7500, 0o7000, 0o2000, 0o1200, 0o0000], dtype=np.int64)
 
 
+def is_identity_code(code: np.ndarray) -> np.ndarray:
+    """(n,) bool: a known Mode 3/A code that names an aircraft (not one of
+    :data:`NON_IDENTITY_MODE3A`)."""
+    code = np.asarray(code)
+    return np.asarray((code >= 0) & ~np.isin(code, NON_IDENTITY_MODE3A))
+
+
 def identity_compatible(s1: np.ndarray, s2: np.ndarray, a1: np.ndarray, a2: np.ndarray, use_mode3a: bool) -> np.ndarray:
     """May two reports be one aircraft by their identities (−1 unknown)?
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .association import mahalanobis2_2x2
 from .singer_filter import POS_IDX, STATE_DIM, as_tracks
 
 __all__ = [
@@ -199,7 +200,7 @@ def three_point_d2(
     y = z3 - (1.0 + a)[:, None] * z2 + a[:, None] * z1
     q = float(q_m2ps3) * (a**2 * tau1**3 + tau2**3) / 3.0
     S = R3 + ((1.0 + a) ** 2)[:, None, None] * R2 + (a**2)[:, None, None] * R1 + q[:, None, None] * np.eye(2)
-    return np.asarray(np.einsum("ki,kij,kj->k", y, np.linalg.inv(S), y))
+    return mahalanobis2_2x2(y, S)
 
 
 def floor_covariance(P: Float, floor_m2: Float) -> Float:

@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from .association import NON_IDENTITY_MODE3A
+from .association import is_identity_code
 
 TENTATIVE, CONFIRMED, COASTING = 0, 1, 2
 STATUS_NAMES = ("tentative", "confirmed", "coasting")
@@ -432,10 +432,7 @@ def beside_own_code(table: TrackTable, rows: np.ndarray, radius_m: float) -> np.
     confirmed or coasting track within ``radius_m`` carries (its position at its own time)."""
     out = np.zeros(len(table), bool)
     code = table.mode3a
-    cand = np.flatnonzero(rows & (table.mode_s < 0) & (code >= 0))
-    if not cand.size:
-        return out
-    cand = cand[~np.isin(code[cand], NON_IDENTITY_MODE3A)]
+    cand = np.flatnonzero(rows & (table.mode_s < 0) & is_identity_code(code))
     shown = np.flatnonzero((table.status != TENTATIVE) & (code >= 0))
     cand = cand[np.isin(code[cand], code[shown])]
     if not cand.size:
