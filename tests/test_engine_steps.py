@@ -731,6 +731,36 @@ def test_two_aircraft_of_one_code_far_apart_keep_their_tracks():
     assert eng.counters["tracks_initiated"] == 2
 
 
+@pytest.mark.parametrize(
+    ("offset_m", "v2_mps"),
+    [((0.0, 5_000.0), V_MPS), ((-3_000.0, 0.0), V_MPS), ((2_000.0, 4_000.0), np.array([-80.0, 150.0]))],
+    ids=["5 km abreast", "3 km in trail", "crossing"],
+)
+def test_a_second_aircraft_of_one_code_beside_a_shown_one_is_confirmed(offset_m, v2_mps):
+    """Two SSR-only aircraft squawking one code at one level, seen by radar a alone; the
+    second comes into coverage three scans after the first was confirmed, within [life_cycle]
+    duplicate_code_radius_m of it. Radar a sees both in each scan, so the first is not the
+    second's wild plot (track_management.beside_own_code): both are shown, at their third
+    plot. Before, the second stayed tentative for as long as they flew within 20 km."""
+    eng = Engine(settings())
+    start = truth_xy(T0) + np.asarray(offset_m)
+    for k in range(9):
+        t = T0 + 4.0 * k + 1.0
+        paths = [truth_xy(t)] + ([start + v2_mps * (t - T0)] if k >= 3 else [])
+        for j, xy in enumerate(paths):
+            p = _plot_at(eng, 0, 2 * k + j + 1, t + 0.3 * j, xy)
+            p.mode_s, p.mode3a = np.array([-1]), np.array([0o4321])
+            eng.ingest_plots(p)
+        _heartbeats(eng, T0 + 4.0 * k + 3.9)
+        if k == 4:  # the second aircraft's second plot: not confirmed yet
+            assert (eng.tracks.status == CONFIRMED).sum() == 1
+    assert len(eng.tracks) == 2 and (eng.tracks.status == CONFIRMED).all()
+    assert eng.counters["tracks_initiated"] == 2
+    t_s = eng.tracks.t_state_s
+    assert np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(t_s[0]))) < 150.0
+    assert np.hypot(*(eng.tracks.x[1, [0, 3]] - (start + v2_mps * (t_s[1] - T0)))) < 150.0
+
+
 def _turning_ssr_on_a_12_s_radar(turn_deg_s, overrule=True, wild_at=None, scans=12, v_mps=230.0):
     """An SSR-only aircraft (code 4321, radar track number 7) seen by radar a alone, turned
     to a 12 s rotation, live wild-plot gate on: 60 s straight east at ``v_mps``, then a left

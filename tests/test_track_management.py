@@ -160,6 +160,30 @@ def test_a_one_radar_track_beside_a_shown_track_of_its_code_is_not_confirmed():
     assert table.status[2] == C
 
 
+def test_a_one_radar_track_shown_to_be_another_aircraft_of_its_code_is_confirmed():
+    """The same withheld track (radar 2, code 2341, 5 km from a shown track of that code) is
+    confirmed when the shown track is another aircraft: radar 2 saw both in this period
+    (``sources``; a wild plot would have taken the place of the aircraft's own), or their
+    Mode C levels lie more than duplicate_code_level_gap_ft (300 ft) apart. Two levels 200 ft
+    apart, radar 2 seeing only the tentative track this period, or a level unknown: withheld."""
+    t = 100.0
+    # per case: the shown track's sources this period, its FL, the tentative track's FL
+    cases = [(0b001, 350.0, 350.0), (0b100, 350.0, 350.0), (0b101, 350.0, 351.0), (0b001, 350.0, 354.0),
+             (0b001, 350.0, 346.0), (0b001, 350.0, 352.0), (0b001, np.nan, 360.0), (0b000, 350.0, np.nan)]  # fmt: skip
+    got = []
+    for shown_sources, shown_fl, fl in cases:
+        table = table_of([row(C, 0.0, t_s=t), row(T, 0.0, t_s=t, updates=3)])
+        table.mode3a[:] = 0o2341
+        table.mode_s[:] = -1
+        table.seen_by[:] = [0b101, 0b100]
+        table.sources[:] = [shown_sources, 0b100]
+        table.alt_x[:, 0] = [shown_fl, fl]
+        table.x[:, 0], table.x[:, 3] = [0.0, 3_000.0], [0.0, 4_000.0]
+        apply_life_cycle(table, t, rules(duplicate_code_radius_m=20_000.0, duplicate_code_level_gap_ft=300.0))
+        got.append(int(table.status[1]))
+    assert got == [T, C, C, C, C, T, T, T]
+
+
 # ------------------------------------------------------------------ coasting
 
 
