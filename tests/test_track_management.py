@@ -126,16 +126,25 @@ def test_confirmation_counts_the_rule_not_a_fixed_three():
 
 def test_first_update_confirms_at_once_on_an_address_or_two_radars_with_a_reply():
     """Issue 15 item 5: a track is confirmed in its first period when a Mode S address, or
-    two radars, agree; at its first update two radars' plots confirm it only beside a
-    transponder reply (Mode S or 3/A): two radars' clutter can coincide once, rarely twice."""
+    two radars, agree; two radars' plots confirm it only beside a transponder reply (Mode S
+    or 3/A), at its first update and later: two radars' primary clutter can coincide, and
+    did in primary-high at a second update too. M-of-N still confirms such a track."""
     t = 100.0
-    table = table_of([row(T, 0.0, t_s=t, updates=1) for _ in range(5)] + [row(T, 0.0, t_s=t, updates=2)])
-    table.sources[:] = [0b001, 0b011, 0b011, 0b011, 0b001, 0b011]
-    table.mode_s[:] = [0x4B1234, -1, -1, -1, -1, -1]
-    table.mode3a[:] = [-1, -1, 0o2341, -1, -1, -1]
+    table = table_of(
+        [row(T, 0.0, t_s=t, updates=1) for _ in range(5)] + [row(T, 0.0, t_s=t, updates=2) for _ in range(3)]
+    )
+    table.sources[:] = [0b001, 0b011, 0b011, 0b011, 0b001, 0b011, 0b011, 0b001]
+    table.mode_s[:] = -1
+    table.mode_s[0] = 0x4B1234
+    table.mode3a[:] = [-1, -1, 0o2341, -1, -1, -1, 0o2341, -1]
+    table.initiated[5:] = True  # a velocity from the second update on
     apply_life_cycle(table, t, rules(confirm_radars=2, confirm_mode_s=True, confirm_agreed_updates=1))
-    # address; two radars, no reply; two radars and 3/A; two radars, no reply; one radar; two radars, 2nd update
-    assert table.status.tolist() == [C, T, C, T, T, C]
+    # address; two radars, no reply; two radars and 3/A; two radars, no reply; one radar;
+    # 2nd update: two radars, no reply; two radars and 3/A; one radar
+    assert table.status.tolist() == [C, T, C, T, T, T, C, T]
+    table.updates[5] = 3
+    apply_life_cycle(table, t, rules(confirm_radars=2, confirm_mode_s=True, confirm_agreed_updates=1))
+    assert table.status[5] == C  # M-of-N
 
 
 def test_a_one_radar_track_beside_a_shown_track_of_its_code_is_not_confirmed():

@@ -71,9 +71,10 @@ class LifeCycle(BaseModel):
         description="A tentative track is confirmed at once when this many radars agree on it in one period "
         "(their plots form one cluster); 0 = off. Default 2: two radars' clutter hardly ever coincides, while an "
         "aircraft seen by two radars is real (issue 15: a track was shown only after three periods, 8-12 s, where "
-        "a plot-at-a-time tracker confirms from three plots of three radars within one rotation). At a track's "
-        "first update they also need a transponder reply (Mode S or 3/A) in the cluster: primary clutter of two "
-        "radars coincided once in 2 of 16 primary-high runs",
+        "a plot-at-a-time tracker confirms from three plots of three radars within one rotation). They also need a "
+        "transponder reply (Mode S or 3/A) on the track: primary clutter of two radars coincided at a track's first "
+        "update in 2 of 16 primary-high runs, and at its second in one more (shown 16 s); a track of primary plots "
+        "alone is confirmed by M-of-N",
     )
     confirm_mode_s: bool = Field(
         True,
@@ -404,11 +405,12 @@ def apply_life_cycle(
     # confirmed at once: several radars, or a Mode S address, in the update of this period
     agree = np.zeros(len(table), bool)
     if rules.confirm_radars:
-        # at a track's first update two radars' clutter can coincide (primary-high, 16 runs:
-        # two such one-period clutter tracks confirmed): there radars alone need a
-        # transponder reply (Mode S or 3/A) beside them; from the second update on they do not
+        # two radars' primary clutter can coincide, at a track's first update (primary-high,
+        # 16 runs: two one-period clutter tracks confirmed) and at its second (one more, shown
+        # 16 s): radars alone confirm only beside a transponder reply (Mode S or 3/A); a
+        # track of primary plots alone is confirmed by M-of-N
         by_radars = radar_count(table.sources) >= rules.confirm_radars
-        agree |= by_radars & (table.velocity_known | (table.mode_s >= 0) | (table.mode3a >= 0))
+        agree |= by_radars & ((table.mode_s >= 0) | (table.mode3a >= 0))
     if rules.confirm_mode_s:
         agree |= table.mode_s >= 0
     confirm |= (status == TENTATIVE) & agree & (since_update <= 0.0) & (table.updates >= rules.confirm_agreed_updates)
