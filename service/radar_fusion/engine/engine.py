@@ -904,6 +904,7 @@ class Engine:
             tr.wind_mps[r] = prior + gain[:, None] * (sample - prior)
             tr.wind_t_s[r] = cl.t_s[k]
             tr.wind_fl[r] = tr.alt_x[r, 0]
+            tr.wind_air_deg[r] = np.degrees(np.arctan2(cl.air_v_mps[k, 0], cl.air_v_mps[k, 1]))
             self.counters["wind_samples"] += int(r.size)
         self._layer_winds(float(np.max(t_s)) if t_s.size else math.nan)
         # the air vector plus the wind, where no BDS 5,0 report measured the velocity
@@ -914,7 +915,7 @@ class Engine:
         if not a.size:
             return rows[:0]
         r, k = rows[a], matched[a]
-        var = p.air_velocity_sigma_mps**2 + np.where(own, 0.0, p.wind_layer_sigma_mps**2)
+        var = self._air_velocity_var(r, cl.air_v_mps[k], own)
         R = var[:, None, None] * np.eye(2)
         z = cl.air_v_mps[k] + wind
         age = cl.air_age_s[k]
@@ -931,6 +932,23 @@ class Engine:
         keep = ~far
         self.counters["updates_velocity_air_layer_wind"] += int((~own[keep]).sum())
         return self._velocity_update_rows(r[keep], z[keep], R[keep], age[keep], "updates_velocity_air")
+
+    def _air_velocity_var(self, rows: np.ndarray, air_v_mps: np.ndarray, own: np.ndarray) -> np.ndarray:
+        """(n,) variance per axis, m²/s², of the air vector ``air_v_mps`` (n, 2) plus the wind of
+        the tracks ``rows`` as a velocity: ``air_velocity_sigma_mps``², and where the wind is
+        the track's ``own`` (:meth:`_wind_to_use`) the part of the air vector's own error it no
+        longer absorbs. That error, ε |v_a| (ε = ``air_rotation_error_rel``: the day's
+        temperature off ISA scales the airspeed, a heading error turns it), turns with the
+        heading; the wind took it up at the heading ψ₀ of its latest sample (``wind_air_deg``),
+        so at ψ it leaves |ε v_a (e^{i(ψ−ψ₀)} − 1)| = 2 |sin((ψ − ψ₀)/2)| ε |v_a|. Where the
+        wind is the layer's, it holds none of this aircraft's error: ``wind_layer_sigma_mps``²
+        instead."""
+        assert self.imm is not None
+        p = self.imm.params
+        psi_deg = np.degrees(np.arctan2(air_v_mps[:, 0], air_v_mps[:, 1]))
+        half_turn = np.radians(psi_deg - self.tracks.wind_air_deg[rows]) / 2.0
+        turned = np.nan_to_num(2.0 * np.sin(half_turn) * p.air_rotation_error_rel * np.hypot(*air_v_mps.T))
+        return np.asarray(p.air_velocity_sigma_mps**2 + np.where(own, turned**2, p.wind_layer_sigma_mps**2))
 
     def _wind_to_use(self, rows: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The wind (n, 2) the tracks ``rows`` take at ``t_s``: their own where it is valid
@@ -1348,8 +1366,7 @@ class Engine:
             assert cl.air_v_mps is not None
             wind, own = self._wind_to_use(rows[a], cl.t_s[k[a]])
             v[a] = cl.air_v_mps[k[a]] + wind
-            var = p.air_velocity_sigma_mps**2 + np.where(own, 0.0, p.wind_layer_sigma_mps**2)
-            Rv[a] = var[:, None, None] * np.eye(2)
+            Rv[a] = self._air_velocity_var(rows[a], cl.air_v_mps[k[a]], own)[:, None, None] * np.eye(2)
         return v, Rv
 
     def _initiate_from_held(self, cl: ClusterMeasurements, k: np.ndarray, rows: np.ndarray) -> None:

@@ -500,6 +500,17 @@ class IMMParams(BaseModel):
         "wind varies over a layer and across the coverage, and the layer's mean does not hold the aircraft's "
         "own errors of the air vector (the day's temperature off ISA is 1 % of the airspeed along the heading)",
     )
+    air_rotation_error_rel: float = Field(
+        0.02,
+        ge=0,
+        description="the air vector's own error that a track's wind absorbs, relative to the airspeed: the day's "
+        "temperature off ISA (1 % for 5 K) and the aircraft's heading error (1 % for 0.6°) make an error along "
+        "and across the heading that turns with it. Its wind, taken at one heading, then misses it by "
+        "2 sin(Δψ/2) times that at a heading Δψ away, and the measurement's σ per axis grows by as much "
+        "(engine._air_velocity_and_wind): in a turn the error is systematic over the turn's every report, and "
+        "taken at its straight-flight σ the reports (90 % of the Mode S plots) slowed the track's speed by 1-3 "
+        "m/s and left it 50 m behind (50x3, a 25° bank turn seen by three radars). Default 2 %",
+    )
     wind_max_age_s: float = Field(
         60.0,
         gt=0,

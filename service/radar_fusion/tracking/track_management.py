@@ -206,13 +206,14 @@ _FIELDS = {
     "wind_mps": ((2,), float, np.nan),
     "wind_t_s": ((), float, np.nan),
     "wind_fl": ((), float, np.nan),  # the track's flight level then
+    "wind_air_deg": ((), float, np.nan),  # the direction of its air vector then (plane grid bearing)
 }
 
 #: columns added after the state format's first release: a state without them is read
 #: with their fill (engine/state.py)
 OPTIONAL_FIELDS = (
     "held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources", "roll_check", "roll_distrust",
-    "wind_mps", "wind_t_s", "wind_fl", "start_refuted", "t1_s",
+    "wind_mps", "wind_t_s", "wind_fl", "start_refuted", "t1_s", "wind_air_deg",
 )  # fmt: skip
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
@@ -265,6 +266,7 @@ class TrackTable:
     wind_mps: NDArray[np.float64]  # (N, 2) the wind at the aircraft (plane x, y), NaN: none yet
     wind_t_s: NDArray[np.float64]  # the time of its latest sample
     wind_fl: NDArray[np.float64]  # the track's flight level then, NaN: unknown
+    wind_air_deg: NDArray[np.float64]  # the direction of its air vector then, degrees (grid), NaN: unknown
     x_models: NDArray[np.float64]  # (N, M, 6) each IMM model's state at t_state_s
     P_models: NDArray[np.float64]  # (N, M, 6, 6)
     mu: NDArray[np.float64]  # (N, M) IMM mode probabilities
