@@ -761,6 +761,45 @@ def test_a_second_aircraft_of_one_code_beside_a_shown_one_is_confirmed(offset_m,
     assert np.hypot(*(eng.tracks.x[1, [0, 3]] - (start + v2_mps * (t_s[1] - T0)))) < 150.0
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("start_from_redundant", [True, False])
+@pytest.mark.parametrize("offset_m", [(0.0, 2_000.0), (-1_000.0, 0.0)], ids=["2 km abreast", "1 km in trail"])
+def test_a_second_aircraft_of_one_code_inside_a_tracks_gate_gets_a_track(offset_m, start_from_redundant, seed):
+    """Two SSR-only aircraft squawking one code at one level behind a 12 s radar, the second
+    coming into coverage three scans after the first, 1-2 km from it (noise 40 m, 0.05°): inside
+    the first track's gate (its models' reach over 12 s). Radar a's plot of the first is
+    already in that track's cluster, so the second's was left out as redundant every scan and
+    it was never tracked. With [clustering] start_from_redundant it starts a track of its own,
+    confirmed at its third plot, and each track stays on its aircraft."""
+    raw = settings().model_dump()
+    raw["radars"][0]["rotation_period_s"] = 12.0
+    raw["clustering"]["start_from_redundant"] = start_from_redundant
+    eng = Engine(settings_from_dict(raw))
+    rng = np.random.default_rng(seed)
+    start = truth_xy(T0) + np.asarray(offset_m)
+    for k in range(10):
+        t = T0 + 12.0 * k + 1.0
+        paths = [truth_xy(t)] + ([start + V_MPS * (t - T0)] if k >= 3 else [])
+        for j, xy in enumerate(paths):
+            p = _plot_at(eng, 0, 2 * k + j + 1, t + 0.01 * j, xy)
+            p.range_m = p.range_m + rng.normal(0.0, 40.0)  # radar a's noise (40 m, 0.05°)
+            p.azimuth_deg = p.azimuth_deg + rng.normal(0.0, 0.05)
+            p.mode_s, p.mode3a = np.array([-1]), np.array([0o4321])
+            eng.ingest_plots(p)
+        for hb_s in (t + 4.5, t + 8.5, t + 10.9):
+            _heartbeats(eng, hb_s)
+    confirmed = eng.tracks.status == CONFIRMED
+    if not start_from_redundant:
+        assert confirmed.sum() == 1 and eng.counters["plots_redundant"] >= 6
+        return
+    assert len(eng.tracks) == 2 and confirmed.all() and eng.counters["plots_redundant"] == 0
+    t_s = eng.tracks.t_state_s
+    err_first = np.hypot(*(eng.tracks.x[:, [0, 3]] - np.array([truth_xy(t) for t in t_s])).T)
+    err_second = np.hypot(*(eng.tracks.x[:, [0, 3]] - np.array([start + V_MPS * (t - T0) for t in t_s])).T)
+    assert err_first.min() < 150.0 and err_second.min() < 150.0, (err_first, err_second)
+    assert np.argmin(err_first) != np.argmin(err_second)
+
+
 def _turning_ssr_on_a_12_s_radar(turn_deg_s, overrule=True, wild_at=None, scans=12, v_mps=230.0):
     """An SSR-only aircraft (code 4321, radar track number 7) seen by radar a alone, turned
     to a 12 s rotation, live wild-plot gate on: 60 s straight east at ``v_mps``, then a left
