@@ -448,8 +448,8 @@ def beside_own_code(table: TrackTable, rows: np.ndarray, radius_m: float, level_
     * its radar saw both in this period (``sources``: a period is shorter than a scan, so
       one scan): a wild plot takes the place of the aircraft's own in that radar's scan,
       a second aircraft of the code replies beside it;
-    * their Mode C levels (``alt_x``) differ by more than ``level_gap_ft``: a wild plot
-      carries its aircraft's own Mode C.
+    * their Mode C levels (``alt_x``), both updated in this period, differ by more than
+      ``level_gap_ft``: a wild plot carries its aircraft's own Mode C.
 
     Without these, a second SSR-only aircraft of one code that came into a radar's
     coverage within ``radius_m`` of the first was never shown (in the review's runs of two
@@ -467,7 +467,10 @@ def beside_own_code(table: TrackTable, rows: np.ndarray, radius_m: float, level_
     for j, i in enumerate(cand):
         other = (code[shown] == code[i]) & (shown != i)
         other &= (table.sources[shown] & table.sources[i]) == 0  # not one scan of its radar
-        other &= ~(np.abs(table.alt_x[shown, 0] - table.alt_x[i, 0]) > level_gap_ft / FT_PER_FL)  # NaN: unknown
+        # levels of one period only: a track not updated holds its last level, and a climbing
+        # aircraft's wild run, left behind by a scan, lay 300 ft below its own track (4,000x10)
+        apart = np.abs(table.alt_x[shown, 0] - table.alt_x[i, 0]) > level_gap_ft / FT_PER_FL  # NaN: unknown
+        other &= ~(apart & (table.sources[shown] != 0) & (table.sources[i] != 0))
         d_m = np.hypot(xy_shown[other, 0] - xy_cand[j, 0], xy_shown[other, 1] - xy_cand[j, 1])
         out[i] = bool((d_m <= radius_m).any())
     return out
