@@ -402,23 +402,13 @@ def test_close_new_targets_without_tracks_are_split_one_plot_per_radar():
 
 
 def test_duplicate_plot_in_track_gate_is_redundant_not_a_new_cluster():
-    """Radar 0 reports twice inside one track's gate; the nearer plot joins the track. The
-    farther one, with the track's Mode S address, is redundant (left out): the address is the
-    track's aircraft. Without an address it starts a new target (start_from_redundant: another
-    aircraft as far as it can tell), or with that off is left out as in Shu §3."""
-    track = make_tracks([[10e3, 10e3]], mode_s=[0x4B1234])
+    track = make_tracks([[10e3, 10e3]])
     xy = [[10e3 + 50, 10e3], [10e3 - 200, 10e3 + 100], [10e3, 10e3 - 60], [10e3 + 30, 10e3 + 30]]
     rad = [0, 0, 1, 2]  # radar 0 reports twice
-    res = run(make_plots(xy, rad, mode_s=[0x4B1234] * 4), track)
+    res = run(make_plots(xy, rad), track)
     assert res.n_clusters == 1 and res.cluster_track[0] == 0
     assert res.labels.tolist() == [0, -1, 0, 0]  # the farther duplicate is left out
     assert res.redundant.tolist() == [False, True, False, False]
-    res = run(make_plots(xy, rad), make_tracks([[10e3, 10e3]]))
-    assert res.n_clusters == 2 and res.cluster_track.tolist() == [0, -1]
-    assert res.labels.tolist() == [0, 1, 0, 0] and not res.redundant.any()
-    np.testing.assert_allclose(res.aligned_xy_m[1], xy[1])  # a new target's: zero velocity
-    res = run(make_plots(xy, rad), make_tracks([[10e3, 10e3]]), ClusteringParams(start_from_redundant=False))
-    assert res.labels.tolist() == [0, -1, 0, 0] and res.redundant.tolist() == [False, True, False, False]
 
 
 def test_time_alignment_lands_on_truth():

@@ -171,11 +171,11 @@ def test_a_one_radar_track_beside_a_shown_track_of_its_code_is_not_confirmed():
 
 def test_a_one_radar_track_shown_to_be_another_aircraft_of_its_code_is_confirmed():
     """The same withheld track (radar 2, code 2341, 5 km from a shown track of that code) is
-    confirmed when the shown track is another aircraft: radar 2 saw both in this period
-    (``sources``; a wild plot would have taken the place of the aircraft's own), or their
-    Mode C levels, both of this period, lie more than duplicate_code_level_gap_ft (300 ft)
-    apart. Two levels 200 ft apart, radar 2 seeing only the tentative track this period, a
-    level unknown, or the shown track's level of an earlier period: withheld."""
+    confirmed when the shown track is another aircraft: their Mode C levels, both of this
+    period, lie more than duplicate_code_level_gap_ft (300 ft) apart (a wild plot or a
+    reflection carries its aircraft's own). Radar 2 seeing both in this period is no proof (a
+    reflection comes in the aircraft's own scan); two levels 200 ft apart, a level unknown, or
+    the shown track's level of an earlier period: withheld."""
     t = 100.0
     # per case: the shown track's sources this period, its FL, the tentative track's FL
     cases = [(0b001, 350.0, 350.0), (0b100, 350.0, 350.0), (0b101, 350.0, 351.0), (0b001, 350.0, 354.0),
@@ -193,7 +193,7 @@ def test_a_one_radar_track_shown_to_be_another_aircraft_of_its_code_is_confirmed
         apply_life_cycle(table, t, rules(duplicate_code_radius_m=20_000.0, duplicate_code_level_gap_ft=300.0))
         got.append(int(table.status[1]))
     # the last: levels apart, but the shown track's is of an earlier period (not updated in this one)
-    assert got == [T, C, C, C, C, T, T, T, T]
+    assert got == [T, T, T, C, C, T, T, T, T]
 
 
 # ------------------------------------------------------------------ coasting

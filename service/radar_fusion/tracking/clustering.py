@@ -51,8 +51,7 @@ track clusters, are in association.py, step 6, the new targets, here:
    per radar per cluster are filtered to a set touching each cluster at most once (each
    move must be the best-gain move of both its source and its target cluster), so their
    gains add exactly and E strictly decreases; repeat until no move or ``max_iterations``.
-6. Plots outside every track gate (and gated plots without a Mode S address that no track
-   took, ``start_from_redundant``): zero-velocity alignment and a new-target gate in
+6. Plots outside every track gate: zero-velocity alignment and a new-target gate in
    metres widened by the motion allowance ``max_speed_mps·|t_p − t_q|`` between two plots;
    connected components of the compatibility graph that are cliques with one plot per
    radar become one cluster each (vectorised); the rare other components are clustered
@@ -177,15 +176,6 @@ class ClusteringParams(BaseModel):
         "makes a second track of one aircraft, and in the clean twins of 1,000x10 seeds 0-2 one good pair lay "
         "at d² 14 (876 m, radar biases not yet registered) while every wild pair lay beyond 200. 0 = off.",
     )
-    start_from_redundant: bool = Field(
-        True,
-        description="a plot inside a track's gate that the track does not take, since that radar's plot of the "
-        "period is in its cluster already, and that carries no Mode S address, joins the new targets (a "
-        "tentative track of its own) instead of being dropped as redundant (Shu §3 keeps one plot per radar per "
-        "cluster). Two SSR aircraft of one code 1-2 km apart behind a 12 s radar lie inside each other's gates: "
-        "the one that came second was never tracked (8 of 192 in the review's two-aircraft runs, none now). A "
-        "plot with an address stays redundant: the address is the track's aircraft. False: dropped",
-    )
     far_hold: bool = Field(
         True,
         description="A track's cluster whose every plot joined by its Mode S address alone, d² beyond "
@@ -275,9 +265,7 @@ class ClusterResult:
     sse_m2:             E of eq. 2 for the final clusters, each track cluster counting its
                         predicted point with weight ``track_anchor_weight``.
     redundant:          (M,) bool, plot inside some track's gate but left out because
-                        that radar's slot in every such cluster is taken (duplicate) and it
-                        carries a Mode S address (without one it joins the new targets:
-                        ``start_from_redundant``).
+                        that radar's slot in every such cluster is taken (duplicate).
     plot_d2:            (M,) squared Mahalanobis distance of each plot in a track cluster to
                         that track's prediction (NaN for other plots); above ``gate_chi2``
                         only for a plot that joined by its Mode S address.
@@ -706,10 +694,7 @@ def cluster_plots(
     # 6: new targets, plots outside every gate, aligned with zero velocity.
     in_gate = np.zeros(n_plots, dtype=bool)
     in_gate[pair_plot] = True
-    # a gated plot no track took (its radar's plot of the period is there already) and without
-    # an address: another aircraft of the code, or of none, as far as it can tell
-    to_new = plot_ok & in_gate & (assign < 0) & (plot_ms < 0) if params.start_from_redundant else ~plot_ok
-    new_idx = np.flatnonzero(plot_ok & (~in_gate | to_new))
+    new_idx = np.flatnonzero(plot_ok & ~in_gate)
     new_seed, new_labels, new_sweeps = _cluster_new_targets(
         plot_xy[new_idx],
         plot_t[new_idx],
@@ -726,13 +711,12 @@ def cluster_plots(
     v_var = unknown_velocity_var_m2ps2(params.max_speed_mps)
     aligned_xy, aligned_cov = align_to_reference(plot_xy, plot_cov, plot_t, t_ref, np.zeros(2), v_var * np.eye(2))
     if pair_plot.size:
-        keep_zero = to_new[pair_plot[best]]
-        aligned_xy[pair_plot[best][~keep_zero]] = pair_xy[best][~keep_zero]
-        aligned_cov[pair_plot[best][~keep_zero]] = pair_cov[best][~keep_zero]
+        aligned_xy[pair_plot[best]] = pair_xy[best]
+        aligned_cov[pair_plot[best]] = pair_cov[best]
     used = np.flatnonzero(assign >= 0)
     aligned_xy[used] = pair_xy[assign[used]]
     aligned_cov[used] = pair_cov[assign[used]]
-    redundant = in_gate & (assign < 0) & ~to_new
+    redundant = in_gate & (assign < 0)
     plot_d2 = np.full(n_plots, np.nan)
     plot_d2[used] = d2[assign[used]]
     plot_d2_gate = np.full(n_plots, np.nan)

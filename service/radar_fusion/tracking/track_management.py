@@ -126,8 +126,9 @@ class LifeCycle(BaseModel):
         "aircraft's (issue 15 item 7: the three false tracks of 4,000x10 with 3 % wild plots, one of them a 3.5 "
         "deg azimuth error at 297 km, 17 km beside). It ends unconfirmed; two radars agreeing on it, or the other "
         "track ending, confirm it as before. Default 20 km: in the clean twins of 1,000x10 and 4,000x10 it "
-        "withheld no confirmation. Not withheld from a track that the other is shown to be another aircraft "
-        "(beside_own_code: both in one scan of its radar, or Mode C levels apart). 0: off",
+        "withheld no confirmation. Not withheld where the two tracks' Mode C levels of one period lie more than "
+        "duplicate_code_level_gap_ft apart (beside_own_code: a wild plot or a reflection carries its aircraft's "
+        "level). 0: off",
     )
     duplicate_code_level_gap_ft: float = Field(
         300.0,
@@ -443,17 +444,11 @@ def beside_own_code(table: TrackTable, rows: np.ndarray, radius_m: float, level_
     """(N,) bool: the tracks of ``rows`` (a bool mask) without a Mode S address, seen by one
     radar only, whose identity code (Mode 3/A, not in association.NON_IDENTITY_MODE3A) a
     confirmed or coasting track within ``radius_m`` carries (its position at its own time),
-    unless that track is shown to be another aircraft:
-
-    * its radar saw both in this period (``sources``: a period is shorter than a scan, so
-      one scan): a wild plot takes the place of the aircraft's own in that radar's scan,
-      a second aircraft of the code replies beside it;
-    * their Mode C levels (``alt_x``), both updated in this period, differ by more than
-      ``level_gap_ft``: a wild plot carries its aircraft's own Mode C.
-
-    Without these, a second SSR-only aircraft of one code that came into a radar's
-    coverage within ``radius_m`` of the first was never shown (in the review's runs of two
-    such aircraft on one radar, 63 of the 96 that came second)."""
+    unless their Mode C levels (``alt_x``), both updated in this period, differ by more than
+    ``level_gap_ft``: a wild plot or a reflection carries its aircraft's own Mode C, a second
+    aircraft of the code at another level is not one. (Both in one scan of the radar is no
+    proof: a reflection comes in the same scan as the aircraft's own reply. A second
+    aircraft of the code at the same level that one radar alone sees stays unconfirmed.)"""
     out = np.zeros(len(table), bool)
     code = table.mode3a
     cand = np.flatnonzero(rows & (table.mode_s < 0) & is_identity_code(code))
@@ -466,7 +461,6 @@ def beside_own_code(table: TrackTable, rows: np.ndarray, radius_m: float, level_
     xy_cand, xy_shown = position_m(table.x[cand]), position_m(table.x[shown])
     for j, i in enumerate(cand):
         other = (code[shown] == code[i]) & (shown != i)
-        other &= (table.sources[shown] & table.sources[i]) == 0  # not one scan of its radar
         # levels of one period only: a track not updated holds its last level, and a climbing
         # aircraft's wild run, left behind by a scan, lay 300 ft below its own track (4,000x10)
         apart = np.abs(table.alt_x[shown, 0] - table.alt_x[i, 0]) > level_gap_ft / FT_PER_FL  # NaN: unknown
