@@ -773,6 +773,7 @@ def test_a_second_aircraft_of_one_code_at_another_level_is_confirmed(offset_m, v
             assert (eng.tracks.status == CONFIRMED).sum() == 1
     assert len(eng.tracks) == 2 and eng.counters["tracks_initiated"] == 2
     assert eng.tracks.status.tolist() == [CONFIRMED, CONFIRMED if shown else TENTATIVE]
+    assert (eng.counters["tracks_withheld_beside_code"] > 0) == (not shown)
     t_s = eng.tracks.t_state_s
     assert np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(t_s[0]))) < 150.0
     assert np.hypot(*(eng.tracks.x[1, [0, 3]] - (start + v2_mps * (t_s[1] - T0)))) < 150.0
@@ -799,6 +800,7 @@ def test_a_reflection_in_the_same_scan_as_the_aircrafts_reply_is_not_confirmed()
             c = out.track_columns
             assert (c.status != TENTATIVE).sum() <= 1, (k, c.status)
     assert (eng.tracks.status == CONFIRMED).sum() == 1 and eng.counters["tracks_initiated"] >= 2
+    assert eng.counters["tracks_withheld_beside_code"] >= 5  # on health, period after period
 
 
 def _turning_ssr_on_a_12_s_radar(turn_deg_s, overrule=True, wild_at=None, scans=12, v_mps=230.0):

@@ -161,9 +161,11 @@ def test_a_one_radar_track_beside_a_shown_track_of_its_code_is_not_confirmed():
     east_m = [0.0, 0.0, 15_000.0, 25_000.0, 15_000.0, 15_000.0, 15_000.0, 3_000.0]
     north_m = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 4_000.0]
     table.x[:, 0], table.x[:, 3] = east_m, north_m
-    apply_life_cycle(table, t, rules(duplicate_code_radius_m=20_000.0))
+    counters: dict[str, int] = {}
+    apply_life_cycle(table, t, rules(duplicate_code_radius_m=20_000.0), counters=counters)
     # within 20 km: withheld; 25 km; an address; two radars; conspicuity 7000; another code
     assert table.status.tolist() == [C, C, T, C, C, C, C, C]
+    assert counters == {"tracks_withheld_beside_code": 1}  # on health: it may be a second aircraft
     table.status[2] = T
     apply_life_cycle(table, t, rules(duplicate_code_radius_m=0.0))
     assert table.status[2] == C

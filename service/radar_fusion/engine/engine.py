@@ -2040,7 +2040,7 @@ class Engine:
                 self.rotation_s,
                 self.pd,
             )
-        ended = apply_life_cycle(tr, t_ref_s, self.rules, log_miss)
+        ended = apply_life_cycle(tr, t_ref_s, self.rules, log_miss, self.counters)
         self.counters["tracks_ended"] += int(ended.size)
         if self.rules.reacquire_within_s > 0:
             if ended.size:

@@ -388,14 +388,21 @@ def radar_count(sources: np.ndarray) -> np.ndarray:
 
 
 def apply_life_cycle(
-    table: TrackTable, t_s: float, rules: LifeCycle, log_miss_probability: np.ndarray | None = None
+    table: TrackTable,
+    t_s: float,
+    rules: LifeCycle,
+    log_miss_probability: np.ndarray | None = None,
+    counters: dict[str, int] | None = None,
 ) -> np.ndarray:
     """Confirm, coast and end tracks at time ``t_s``; returns the ids of ended tracks.
 
     ``log_miss_probability`` (N,): ln of the probability that the radars which should see
     each track all missed it since its last update (:func:`log_miss_probability`); with
     it, a confirmed or coasting track also ends when that is below
-    ``ln(rules.end_miss_probability)`` and ``rules.end_min_scans`` have passed."""
+    ``ln(rules.end_miss_probability)`` and ``rules.end_min_scans`` have passed.
+    ``counters``: ``tracks_withheld_beside_code`` grows by the tracks the duplicate-code
+    rule kept from confirmation this time (:func:`beside_own_code`; one count per track and
+    period), so that health shows a withheld track, which may be a second aircraft."""
     since_update = t_s - table.last_update_t_s
     age = t_s - table.first_t_s
     status = table.status
@@ -418,7 +425,12 @@ def apply_life_cycle(
         agree |= table.mode_s >= 0
     confirm |= (status == TENTATIVE) & agree & (since_update <= 0.0) & (table.updates >= rules.confirm_agreed_updates)
     if rules.duplicate_code_radius_m > 0 and confirm.any():
-        confirm &= ~beside_own_code(table, confirm, rules.duplicate_code_radius_m, rules.duplicate_code_level_gap_ft)
+        withheld = beside_own_code(table, confirm, rules.duplicate_code_radius_m, rules.duplicate_code_level_gap_ft)
+        confirm &= ~withheld
+        if counters is not None:
+            counters["tracks_withheld_beside_code"] = counters.get("tracks_withheld_beside_code", 0) + int(
+                withheld.sum()
+            )
     status[confirm] = CONFIRMED
     recovered = (status == COASTING) & (since_update <= 0.0)
     status[recovered] = CONFIRMED
