@@ -491,6 +491,37 @@ def test_the_velocity_of_a_plot_whose_position_the_live_gate_refused_still_updat
     assert np.mean(with_v) < 0.7 * np.mean(without_v)
 
 
+def _turning_traffic(seed: int, turn_s: float, **atmosphere: float):
+    """The bench's simulated traffic (scenario_for_benchmark: 40 aircraft, 3 radars, 150 s),
+    every aircraft 40 s straight, ``turn_s`` turning at 2°/s, then straight on; ``atmosphere``
+    changes fields of its Atmosphere. Returns the scenario and run(**imm) -> (engine, scores):
+    the engine on its messages with those [tracking.imm] settings, scored against its truth."""
+    import dataclasses
+    import tomllib
+
+    from radar_fusion.tools import evaluate as ev
+    from radar_fusion.tools import simulate as sim
+    from radar_fusion.tools.replay import replay_into_engine
+    from radar_fusion.tools.simulate.scenario import Leg
+
+    scenario = sim.scenario_for_benchmark(40, 3, 150.0, seed)
+    legs = (Leg(40.0, 0.0), Leg(turn_s, 2.0), Leg(110.0, 0.0))
+    targets = [dataclasses.replace(tg, plan=dataclasses.replace(tg.plan, legs=legs)) for tg in scenario.targets]
+    scenario = dataclasses.replace(
+        scenario, targets=targets, atmosphere=dataclasses.replace(scenario.atmosphere, **atmosphere)
+    )
+    simulation = sim.simulate(scenario)
+
+    def run(**imm):
+        cfg = tomllib.loads(sim.config_toml(scenario))
+        cfg.setdefault("tracking", {})["imm"] = imm
+        engine = Engine(settings_from_dict(cfg))
+        batches = [o.track_batch for o in replay_into_engine(engine, simulation.messages)]
+        return engine, ev.evaluate(batches, simulation.truth)
+
+    return scenario, run
+
+
 def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
     """Simulated traffic (40 aircraft, 3 radars; the simulator's BDS 5,0 on a quarter of the
     Mode S plots, BDS 6,0 on 90 %, a wind of 5-35 m/s growing with height, a day 5 K off ISA),
@@ -502,27 +533,7 @@ def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
     the scenario's within 2.5 m/s (median; 6 at most: each aircraft has its own departure
     from the wind and heading error, Atmosphere.aircraft_errors); tracks without a wind of
     their own take their layer's."""
-    import dataclasses
-    import tomllib
-
-    from radar_fusion.tools import evaluate as ev
-    from radar_fusion.tools import simulate as sim
-    from radar_fusion.tools.replay import replay_into_engine
-    from radar_fusion.tools.simulate.scenario import Leg
-
-    scenario = sim.scenario_for_benchmark(40, 3, 150.0, 4)
-    legs = (Leg(40.0, 0.0), Leg(60.0, 2.0), Leg(110.0, 0.0))
-    targets = [dataclasses.replace(tg, plan=dataclasses.replace(tg.plan, legs=legs)) for tg in scenario.targets]
-    scenario = dataclasses.replace(scenario, targets=targets)
-    simulation = sim.simulate(scenario)
-
-    def run(**imm):
-        cfg = tomllib.loads(sim.config_toml(scenario))
-        cfg.setdefault("tracking", {})["imm"] = imm
-        engine = Engine(settings_from_dict(cfg))
-        batches = [o.track_batch for o in replay_into_engine(engine, simulation.messages)]
-        return engine, ev.evaluate(batches, simulation.truth)
-
+    scenario, run = _turning_traffic(4, 60.0)
     on, s_on = run()
     off, s_off = run(velocity_air=False)
     print(
@@ -587,28 +598,7 @@ def test_a_turn_takes_the_air_vectors_error_the_wind_absorbed_into_account(seed)
     5 K off ISA, it cost straight flight 0.8 m where the wind holds, which the heading's turn
     leaves alone.) Each wind sample's heading is the air vector's grid bearing: at the end,
     in straight flight, within 15° of the track's course (the wind's drift angle)."""
-    import dataclasses
-    import tomllib
-
-    from radar_fusion.tools import evaluate as ev
-    from radar_fusion.tools import simulate as sim
-    from radar_fusion.tools.replay import replay_into_engine
-    from radar_fusion.tools.simulate.scenario import Leg
-
-    scenario = sim.scenario_for_benchmark(40, 3, 150.0, seed)
-    legs = (Leg(40.0, 0.0), Leg(90.0, 2.0), Leg(110.0, 0.0))
-    targets = [dataclasses.replace(tg, plan=dataclasses.replace(tg.plan, legs=legs)) for tg in scenario.targets]
-    atmosphere = dataclasses.replace(scenario.atmosphere, temperature_deviation_k=15.0, heading_bias_sigma_deg=1.0)
-    scenario = dataclasses.replace(scenario, targets=targets, atmosphere=atmosphere)
-    simulation = sim.simulate(scenario)
-
-    def run(**imm):
-        cfg = tomllib.loads(sim.config_toml(scenario))
-        cfg.setdefault("tracking", {})["imm"] = imm
-        engine = Engine(settings_from_dict(cfg))
-        batches = [o.track_batch for o in replay_into_engine(engine, simulation.messages)]
-        return engine, ev.evaluate(batches, simulation.truth)
-
+    _, run = _turning_traffic(seed, 90.0, temperature_deviation_k=15.0, heading_bias_sigma_deg=1.0)
     (engine, counted), (_, not_counted) = run(), run(air_rotation_error_rel=0.0)
     tr = engine.tracks
     recent = np.flatnonzero(tr.wind_t_s >= float(np.nanmax(tr.wind_t_s)) - 20.0)
