@@ -281,6 +281,9 @@ class Engine:
         with the spread added. (Spreading every such plot's covariance over the heights,
         polar_to_plane_unknown_height, was measured on the demo: 85 -> 98 m position RMS,
         its wide radial gates letting clutter in.)"""
+        # registration (registration.py): each radar's estimated biases, removed from the plots
+        # below (and from those the live gate refuses, _track_expects)
+        self._reg_applied = self.registration.correction()
         if self.outlier_gate is not None and len(raw):
             keys = radar_track_keys(raw.radar, raw.track_no, raw.mode_s)
             has_key = np.flatnonzero(keys >= 0)
@@ -307,8 +310,6 @@ class Engine:
                     keep[wild] = False
                     self._refused_velocity = self._refused_with_velocity(raw, ~keep)
                     raw = raw.select(keep)
-        # registration (registration.py): each radar's estimated biases removed first
-        self._reg_applied = self.registration.correction()
         range_m, azimuth_deg, t_s = self.registration.correct(
             raw.radar, raw.range_m, raw.azimuth_deg, raw.t_s, bias=self._reg_applied
         )
@@ -417,7 +418,7 @@ class Engine:
             return out
         i = idx[k]
         range_m, azimuth_deg, t_s = self.registration.correct(
-            raw.radar[i], raw.range_m[i], raw.azimuth_deg[i], raw.t_s[i], bias=self.registration.correction()
+            raw.radar[i], raw.range_m[i], raw.azimuth_deg[i], raw.t_s[i], bias=self._reg_applied
         )
         assert t_s is not None
         x_m, y_m, cov_m2, _ = polar_to_plane(

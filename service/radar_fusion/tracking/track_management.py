@@ -452,7 +452,7 @@ def apply_life_cycle(
     return ended
 
 
-def beside_own_code(table: TrackTable, rows: np.ndarray, radius_m: float, level_gap_ft: float = 300.0) -> np.ndarray:
+def beside_own_code(table: TrackTable, rows: np.ndarray, radius_m: float, level_gap_ft: float) -> np.ndarray:
     """(N,) bool: the tracks of ``rows`` (a bool mask) without a Mode S address, seen by one
     radar only, whose identity code (Mode 3/A, not in association.NON_IDENTITY_MODE3A) a
     confirmed or coasting track within ``radius_m`` carries (its position at its own time),
