@@ -229,8 +229,8 @@ class RadarHealth(BaseModel):
     registration: dict[str, float | bool | None] | None = Field(
         None,
         description="the radar's estimated biases (online registration): range_offset_m, range_gain_ppm, "
-        "azimuth_offset_deg, time_offset_s, each with its <name>_sigma, plots, applied, applied_share (the share "
-        "of the estimates the correction removes)",
+        "azimuth_offset_deg, time_offset_s, each with its <name>_sigma and applied_<name> (what the correction "
+        "removes of it), plots, applied, applied_share (the share of the estimates the correction removes)",
     )
 
 
