@@ -377,6 +377,94 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
     assert f["pcrb_velocity_pos_rms_m"] < 0.8 * f["pcrb_pos_rms_m"]
 
 
+def test_pcrb_with_the_radars_offsets_unknown_against_a_joint_kalman_filter():
+    """The bound with the radars' range and azimuth offsets unknown recomputed: two aircraft
+    seen by two radars (no Mode S velocity reports, so the plots alone), one dense Kalman
+    filter over both aircraft's Singer states (Φ and Q by Van Loan) and the radars' two
+    offsets each (prior: the engine's [registration] prior sigmas), the plots in time order,
+    each measuring its aircraft's position plus J b of its radar, J by finite differences of
+    polar_to_plane; an aircraft enters at its first plot with a position variance of 1e10 m²
+    (the bound puts it at the plot exactly). Predicted to every settled period time: the same
+    RMS as measurement_floor's. The offsets known (a prior of a millimetre) give the plots'
+    own bound back, and unknown ones raise it."""
+    import dataclasses
+
+    from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
+    from radar_fusion.geo.units import M_PER_FT
+    from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
+
+    scenario, _sim, settings = _steady_flight(2, 2, 60.0, 3, 0.0, roll_prob=0.0)
+    scenario = dataclasses.replace(scenario, rates=dataclasses.replace(scenario.rates, heading_prob=0.0))
+    sim = sm.simulate(scenario, encode=False)
+    settle_s = 20.0
+    f = compare.measurement_floor(sim, settings, settle_s=settle_s)
+    assert f["pcrb_velocity_reports"] == 0 and f["pcrb_air_reports"] == 0
+    assert f["pcrb_velocity_pos_rms_m"] == f["pcrb_pos_rms_m"]
+
+    cols = [c for c in sim.plot_columns if len(c)]
+    cat = lambda name: np.concatenate([getattr(c, name) for c in cols])
+    radar = np.concatenate([np.full(len(c), c.radar_index) for c in cols])
+    keep = (cat("target_index") >= 0) & ~cat("wild")
+    t, tgt, rng_m, az_deg = cat("t_s")[keep], cat("target_index")[keep], cat("range_m")[keep], cat("azimuth_deg")[keep]
+    radar, alt_m = radar[keep], flight_level_to_altitude_m(cat("fl")[keep])
+    assumed_m = settings.tracking.assumed_altitude_ft * M_PER_FT
+    convert = lambda r, a: polar_to_plane(sim.plane, sim.sites, radar, r, a, alt_m, assumed_altitude_m=assumed_m)
+    x, y, cov, _g = convert(rng_m, az_deg)
+    # J by finite differences: a metre of range, a thousandth of a degree of azimuth
+    dr, da = convert(rng_m + 1.0, az_deg)[:2], convert(rng_m, az_deg + 1e-3)[:2]
+    J = np.stack([np.stack([dr[0] - x, dr[1] - y], 1), np.stack([(da[0] - x) / 1e-3, (da[1] - y) / 1e-3], 1)], 2)
+    order = np.argsort(t, kind="stable")
+    imm, reg = settings.tracking.imm, settings.registration
+    alpha, sigma_m = imm.quiet_alpha_per_s, imm.quiet_sigma_m_mps2
+    assert set(np.unique(tgt)) == {0, 1} and set(np.unique(radar)) == {0, 1}
+
+    def joint(prior_range_m: float, prior_az_deg: float) -> float:
+        n = 2 * 6 + 2 * 2
+        P = np.zeros((n, n))
+        P[12:, 12:] = np.diag([prior_range_m**2, prior_az_deg**2] * 2)
+        last = [None, None]
+        history: list[list[tuple[float, np.ndarray]]] = [[], []]
+        for i in order:
+            a, r = int(tgt[i]), int(radar[i])
+            s = slice(6 * a, 6 * a + 6)
+            if last[a] is None:
+                P[s, :] = P[:, s] = 0.0
+                P[s, s] = np.diag([1e10, unknown_velocity_var_m2ps2(settings.clustering.max_speed_mps), sigma_m**2] * 2)
+            else:
+                phi, q = _singer_van_loan(t[i] - last[a], alpha, sigma_m)
+                F, Q = np.eye(n), np.zeros((n, n))
+                F[s, s], Q[s, s] = np.kron(np.eye(2), phi), np.kron(np.eye(2), q)
+                P = F @ P @ F.T + Q
+            H = np.zeros((2, n))
+            H[0, 6 * a] = H[1, 6 * a + 3] = 1.0
+            H[:, 12 + 2 * r : 14 + 2 * r] = J[i]
+            K = P @ H.T @ np.linalg.inv(H @ P @ H.T + cov[i])
+            P = (np.eye(n) - K @ H) @ P
+            P = 0.5 * (P + P.T)
+            last[a] = t[i]
+            history[a].append((t[i], P[s, s].copy()))
+        period = settings.system.period_s
+        q = np.arange(math.ceil(scenario.start_t_s / period), math.floor((scenario.start_t_s + 60.0) / period) + 1)
+        q = q * period
+        total, count = 0.0, 0
+        for a in (0, 1):
+            times = np.array([h[0] for h in history[a]])
+            for tq in q[q >= times[0] + settle_s]:
+                j = np.searchsorted(times, tq, side="right") - 1
+                phi, qq = _singer_van_loan(tq - times[j], alpha, sigma_m)
+                F, Q = np.kron(np.eye(2), phi), np.kron(np.eye(2), qq)
+                Pq = F @ history[a][j][1] @ F.T + Q
+                total += Pq[0, 0] + Pq[3, 3]
+                count += 1
+        return math.sqrt(total / count)
+
+    unknown = joint(reg.prior_sigma_range_offset_m, reg.prior_sigma_azimuth_offset_deg)
+    assert f["pcrb_offsets_pos_rms_m"] == pytest.approx(unknown, rel=1e-4)
+    assert f["pcrb_offsets_pos_rms_m"] > 1.02 * f["pcrb_pos_rms_m"]
+    known = joint(1e-3, 1e-6)
+    assert known == pytest.approx(f["pcrb_pos_rms_m"], rel=1e-4)
+
+
 @pytest.mark.parametrize("turn_rate_dps", [0.0, 2.0])
 def test_the_bounds_velocity_report_model_matches_the_simulated_reports(turn_rate_dps):
     """The measurement model the bound gives each velocity report (measurement_floor: the

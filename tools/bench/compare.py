@@ -37,6 +37,9 @@ from .engine_run import (
 from .report import compare_tables, machine_lines, truth_lines, write_report
 
 COMPARE_SIZES = [(50, 3), (100, 3), (1000, 10), (4000, 30)]
+#: the PCRB with the radars' offsets unknown is one covariance over all the aircraft's states
+#: (9 each): evaluated up to this many aircraft (at 100, a 900-by-900 matrix updated per plot)
+JOINT_BOUND_MAX_AIRCRAFT = 100
 """50×3 first: Stone Soup finishes it within the budget, and the larger sizes are estimated from it."""
 SCORE_FIELDS = (
     "pos_rms_m",
@@ -214,6 +217,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     )
     t, x, y, cov, tgt = t[valid], x[valid], y[valid], cov[valid], tgt[valid]
     gs_mps, heading_deg = gs_mps[valid], heading_deg[valid]
+    radar, rng, az, fl = radar[valid], rng[valid], az[valid], fl[valid]
     truth = sim.truth_at(tgt, t)
     err2 = (x - truth["x_m"]) ** 2 + (y - truth["y_m"]) ** 2
     out = {
@@ -230,6 +234,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         alpha, sigma_m = trk.alpha_per_s, trk.sigma_m_mps2
     order = np.lexsort((t, tgt))
     t, cov, tgt, gs_mps, heading_deg = t[order], cov[order], tgt[order], gs_mps[order], heading_deg[order]
+    radar, rng, az, fl, x, y = radar[order], rng[order], az[order], fl[order], x[order], y[order]
     n = t.size
     atmosphere = sim.scenario.atmosphere
     D = 9  # the Singer state (6), the aircraft's own wind departure (2) and heading error (1)
@@ -371,17 +376,90 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
             velocity_update(idx)
         return P
 
-    # the plots' bound and the bound with the velocity reports (the same where none carries one)
+    def joint_recursion() -> np.ndarray:
+        """The bound with the velocity reports and the radars' range and azimuth offsets
+        unknown: one covariance over every aircraft's state and every radar's two offsets,
+        the plots of all aircraft in time order. A plot of radar r measures its aircraft's
+        position plus J_r b_r (J_r: registration.RegistrationGeometry.jacobian, the columns
+        of the two offsets the simulator injects), so it informs the offsets, and through
+        them every other aircraft that radar sees. Each aircraft's block is kept at the time
+        of its last plot (predicted, rows and columns, when its next one comes); a new or
+        restarted aircraft's position is its first plot less J_r b_r, which ties it to the
+        offsets from the start. The offsets' prior is the engine's own
+        (``[registration] prior_sigma_*``: weak, a few times the simulator's biases); no
+        gain or time offset (the simulator has none, though the engine estimates them, so
+        this bound is still below what a tracker that does not know that can reach).
+        Returns each plot's marginal block (n, D, D), as ``recursion``."""
+        from radar_fusion.tracking.registration import AZIMUTH_OFFSET, RANGE_OFFSET, RegistrationGeometry
+
+        _targets, blk = np.unique(tgt, return_inverse=True)
+        n_radars = len(sc.radars)
+        reg = settings.registration
+        jac = RegistrationGeometry(sim.plane, sim.sites).jacobian(
+            radar,
+            rng,
+            az,
+            flight_level_to_altitude_m(fl),
+            x,
+            y,
+            assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT,
+        )[:, :, [RANGE_OFFSET, AZIMUTH_OFFSET]]
+        b0 = _targets.size * D
+        N = b0 + 2 * n_radars
+        P = np.zeros((N, N))
+        P[b0:, b0:] = np.diag(
+            np.tile([reg.prior_sigma_range_offset_m**2, reg.prior_sigma_azimuth_offset_deg**2], n_radars)
+        )
+        out = np.zeros((n, D, D))
+
+        def update(PH: np.ndarray, S: np.ndarray) -> None:
+            P[...] -= PH @ np.linalg.solve(S, PH.T)  # P − P Hᵀ S⁻¹ H P
+
+        for step, j in enumerate(np.argsort(t, kind="stable")):
+            s0 = int(blk[j]) * D
+            st, pos = slice(s0, s0 + D), [s0, s0 + 3]
+            b = b0 + 2 * int(radar[j])
+            bs, Jb = slice(b, b + 2), jac[j]
+            if rank[j] == 0 or t[j] - t[j - 1] > gap_s:
+                P[st, :] = 0.0
+                P[:, st] = 0.0
+                P[st, st] = prior(np.array([j]))[0]
+                c = -Jb @ P[bs, :]  # the position z − J b − n against everything
+                P[pos, :] = c
+                P[:, pos] = c.T
+                P[np.ix_(pos, pos)] = cov[j] + Jb @ P[bs, bs] @ Jb.T
+            else:
+                F, Q = (m[0] for m in transition(np.array([t[j] - t[j - 1]])))
+                P[st, :] = F @ P[st, :]
+                P[:, st] = P[:, st] @ F.T
+                P[st, st] += Q
+                PH = P[:, pos] + P[:, bs] @ Jb.T
+                update(PH, PH[pos] + Jb @ PH[bs] + cov[j])
+            for row, Hm, Rm in ((v_row[j], Hv, Rv), (a_row[j], Ha, Ra)):
+                if row >= 0:
+                    PH = P[:, st] @ Hm[row].T
+                    update(PH, Hm[row] @ PH[st] + Rm[row])
+            if step % 256 == 255:
+                P[...] = 0.5 * (P + P.T)
+            out[j] = P[st, st]
+        return out
+
+    # the plots' bound and the bound with the velocity reports (the same where none carries one);
+    # with few aircraft, that one with the radars' offsets unknown too (its covariance grows
+    # with the square of the aircraft)
     bounds = [recursion(with_velocity=False), recursion(with_velocity=True)]
+    sc = sim.scenario
+    joint = np.unique(tgt).size <= JOINT_BOUND_MAX_AIRCRAFT
+    if joint:
+        bounds.append(joint_recursion())
     # evaluation at the period times
     period_s = float(settings.system.period_s)
-    sc = sim.scenario
     times = np.arange(math.ceil(sc.start_t_s / period_s), math.floor((sc.start_t_s + sc.duration_s) / period_s) + 1)
     times = times * period_s
     tr = sim.truth
-    var_sum, count = np.zeros(2), 0
-    straight_sum, straight_count = np.zeros(2), 0
-    turning_sum, turning_count = np.zeros(2), 0
+    var_sum, count = np.zeros(len(bounds)), 0
+    straight_sum, straight_count = np.zeros(len(bounds)), 0
+    turning_sum, turning_count = np.zeros(len(bounds)), 0
     for k, s in enumerate(start.tolist()):
         e = start[k + 1] if k + 1 < start.size else n
         target = int(tgt[s])
@@ -419,10 +497,18 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         straight_count += int(straight.sum())
         turning_count += int(turning.sum())
     rms = lambda total, c: [math.sqrt(x / c) if c else math.nan for x in total]
-    out["pcrb_pos_rms_m"], out["pcrb_velocity_pos_rms_m"] = rms(var_sum, count)
+    out["pcrb_pos_rms_m"], out["pcrb_velocity_pos_rms_m"], *bias = rms(var_sum, count)
     out["pcrb_points"] = count
-    out["pcrb_straight_pos_rms_m"], out["pcrb_velocity_straight_pos_rms_m"] = rms(straight_sum, straight_count)
-    out["pcrb_turning_pos_rms_m"], out["pcrb_velocity_turning_pos_rms_m"] = rms(turning_sum, turning_count)
+    out["pcrb_straight_pos_rms_m"], out["pcrb_velocity_straight_pos_rms_m"], *bias_straight = rms(
+        straight_sum, straight_count
+    )
+    out["pcrb_turning_pos_rms_m"], out["pcrb_velocity_turning_pos_rms_m"], *bias_turning = rms(
+        turning_sum, turning_count
+    )
+    if joint:
+        out["pcrb_offsets_pos_rms_m"] = bias[0]
+        out["pcrb_offsets_straight_pos_rms_m"] = bias_straight[0]
+        out["pcrb_offsets_turning_pos_rms_m"] = bias_turning[0]
     out["pcrb_turning_points"] = turning_count
     out["pcrb_velocity_reports"] = int(has_v.sum())
     out["pcrb_air_reports"] = int(has_a.sum())

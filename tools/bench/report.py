@@ -582,6 +582,14 @@ def goal_lines_issue15(rows: list[dict[str, Any]]) -> list[str]:
                 f"{label}: straight flight {straight:.0f} m, {r:.2f}× its PCRB {pcrb:.0f} m {which}"
                 f"(≤ {GOAL15_STRAIGHT_PCRB:g}×) -> {_verdict(r <= GOAL15_STRAIGHT_PCRB)}"
             )
+            offsets = sim.get("pcrb_offsets_straight_pos_rms_m")
+            if offsets and math.isfinite(offsets):
+                # beside the goal, not instead of it: how much of the bound the radars'
+                # unknown offsets raise, and so how much the registration could still win
+                out.append(
+                    f"  the same bound with the radars' range and azimuth offsets unknown: {offsets:.1f} m "
+                    f"({straight / offsets:.2f}× it; the goal's bound, {pcrb:.1f} m, has them known)"
+                )
         turning = o.get("pos_rms_turning_m", math.nan)
         if o.get("n_pairs_turning") and not math.isnan(turning) and not math.isnan(straight):
             r = turning / straight
