@@ -1371,6 +1371,66 @@ def test_an_aircraft_far_from_its_track_twice_re_initiates_it_from_the_two():
     assert np.isnan(eng.tracks.held_t_s[0])
 
 
+def _address_run(eng, wild_m_by_period, missed=(), missed_b=(), periods=22):
+    """The aircraft of these tests seen by radar a (and by b outside ``missed_b``); in period k
+    a's plot lies ``wild_m_by_period[k]`` metres across its beam, or is missing for k in
+    ``missed``. Heartbeats close every period for both radars. Returns the outputs by period."""
+    outs = {}
+    for k in range(periods):
+        t = T0 + 4.0 * k
+        if k in missed:
+            eng.ingest_status(RadarStatus(radar_id="a", t=t + 3.9, kind="heartbeat"))
+        else:
+            p = plot_of(eng, 0, k + 1, t + 1.0)
+            p.azimuth_deg = p.azimuth_deg + np.degrees(wild_m_by_period.get(k, 0.0) / p.range_m)
+            eng.ingest_plots(p)
+        if k in missed_b:
+            eng.ingest_status(RadarStatus(radar_id="b", t=t + 3.9, kind="heartbeat"))
+        else:
+            eng.ingest_plots(plot_of(eng, 1, k + 1, t + 3.0))
+        for out in eng.poll():
+            outs[round((out.t_s - T0) / 4.0)] = out
+    return outs
+
+
+def test_wild_plots_of_the_address_are_no_misses_for_the_early_end():
+    """Radar a alone (Pd 0.95) sees the aircraft; from period 14 its plots lie 6 km off across
+    the beam, alternately to either side, for three scans of four (the second missed): the
+    live gate refuses them as wild. No plot updates the track for four scans, and by the
+    radar's Pd alone it has missed the aircraft four times (0.05⁴, below
+    life_cycle.end_miss_probability): the early end would take the track off the display for
+    a period, the aircraft's next plot starting it again. But the refused plots carry the
+    track's Mode S address: the aircraft replied, the radar did not miss it. The track stays,
+    coasting, and takes the good plots from period 18 on."""
+    raw = settings().model_dump()
+    raw["outliers"]["enabled"] = True
+    raw["radars"][0]["pd"] = 0.95
+    eng = Engine(settings_from_dict(raw))
+    wild = {14: -6_000.0, 16: 6_000.0, 17: -6_000.0}
+    outs = _address_run(eng, wild, missed=(15,), missed_b=range(22))
+    assert eng.counters["plots_wild"] == 3
+    assert eng.counters["tracks_ended"] == 0 and eng.counters["tracks_initiated"] == 1
+    assert all(o.track_columns.track_id.tolist() == [1] for k, o in outs.items() if k >= 3)
+    assert outs[18].track_columns.status.tolist() != [CONFIRMED]  # coasted
+    assert outs[21].track_columns.status.tolist() == [CONFIRMED] and _track_error_m(outs[21]) < 30.0
+    assert eng.tracks.address_seen_t_s[0] == pytest.approx(T0 + 4.0 * 17 + 1.0)
+
+
+def test_a_plot_of_the_address_beyond_the_sanity_gate_is_no_miss_either():
+    """Both radars miss three scans; then radar a's plot lies 9 km across its beam, farther than
+    the aircraft could have flown (the identity's sanity gate): it starts a track of its own,
+    which merges into the aircraft's (one address, one track) and is dropped. The address
+    was seen in that scan: the early end does not take the track off (it did, and the
+    aircraft was missing from the display for a period), and the next plots continue it."""
+    raw = settings().model_dump()
+    raw["radars"][0]["pd"] = raw["radars"][1]["pd"] = 0.95
+    eng = Engine(settings_from_dict(raw))
+    outs = _address_run(eng, {13: 9_000.0}, missed=(10, 11, 12), missed_b=(10, 11, 12, 13), periods=17)
+    assert eng.counters["tracks_merged"] == 1 and eng.counters["tracks_ended"] == 0
+    assert all(o.track_columns.track_id.tolist() == [1] for k, o in outs.items() if k >= 3)
+    assert _track_error_m(outs[16]) < 30.0
+
+
 def test_a_held_measurement_survives_a_restart_and_a_state_from_before_it_loads():
     """The held measurement is track state (engine/state.py): an engine restored from a
     snapshot taken while one is held holds it too, and drops it when the next plots are in

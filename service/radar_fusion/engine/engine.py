@@ -304,6 +304,7 @@ class Engine:
                     wild = wild[~expected]
                 if wild.size:
                     self.counters["plots_wild"] += int(wild.size)
+                    self._address_seen(raw.mode_s[wild], raw.t_s[wild])
                     for r, n in zip(*np.unique(raw.radar[wild], return_counts=True)):
                         self.radars[int(r)].wild += int(n)
                     keep = np.ones(len(raw), bool)
@@ -385,6 +386,22 @@ class Engine:
             raw.magnetic_heading_deg,
             raw.indicated_airspeed_mps,
         )
+
+    def _address_seen(self, mode_s: np.ndarray, t_s: np.ndarray) -> None:
+        """Plots refused as wild (the live gate, a consensus outlier) that carry the Mode S
+        address of a track: the aircraft replied to that radar, which has not missed it. Their
+        time is the track's ``address_seen_t_s``, which :meth:`_manage`'s early end counts as
+        seen (1,000×10 with 3 % wild plots: a 6 s radar's aircraft whose two plots in three
+        scans were wild and the one between missed lost its track, shown again 8 s later)."""
+        tr = self.tracks
+        has = mode_s >= 0
+        if not has.any() or not len(tr):
+            return
+        order = np.argsort(tr.mode_s, kind="stable")
+        known = tr.mode_s[order]
+        pos = np.minimum(np.searchsorted(known, mode_s[has]), known.size - 1)
+        match = known[pos] == mode_s[has]
+        np.fmax.at(tr.address_seen_t_s, order[pos[match]], t_s[has][match])
 
     def _track_expects(self, raw: PlotChunk, idx: np.ndarray, pred: Prediction, t_ref_s: float) -> np.ndarray:
         """Of the plots ``idx`` the live gate refused, those a track of their identity expects:
@@ -676,6 +693,7 @@ class Engine:
             lab, z_plot, R_plot, res.plot_d2[used] > self.clustering.suspect_chi2, n_clusters, self.clustering.gate_chi2
         )
         if outlier.any():
+            self._address_seen(plots.mode_s[used][outlier], plots.t_s[used][outlier])
             by_address = int((plots.mode_s[used][outlier] >= 0).sum())
             self.counters["plots_identity_outliers"] += by_address
             self.counters["plots_model_gate_outliers"] += int(outlier.sum()) - by_address
@@ -2031,6 +2049,7 @@ class Engine:
             # a measurement held far from the track (_hold_far) is its address seen, not missed
             far_held = np.isfinite(tr.held_t_s) & ~tr.held_alternative
             seen_t_s = np.where(far_held, np.fmax(tr.last_update_t_s, tr.held_t_s), tr.last_update_t_s)
+            seen_t_s = np.fmax(seen_t_s, tr.address_seen_t_s)  # its address refused as wild: seen
             log_miss = log_miss_probability(
                 tr.seen_by,
                 xy_m,

@@ -208,13 +208,16 @@ _FIELDS = {
     "wind_t_s": ((), float, np.nan),
     "wind_fl": ((), float, np.nan),  # the track's flight level then
     "wind_air_deg": ((), float, np.nan),  # the direction of its air vector then (plane grid bearing)
+    # the latest plot of its Mode S address refused as wild (the live gate, a consensus
+    # outlier): the aircraft replied to that radar, which has not missed it (engine._manage)
+    "address_seen_t_s": ((), float, np.nan),
 }
 
 #: columns added after the state format's first release: a state without them is read
 #: with their fill (engine/state.py)
 OPTIONAL_FIELDS = (
     "held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources", "roll_check", "roll_distrust",
-    "wind_mps", "wind_t_s", "wind_fl", "start_refuted", "t1_s", "wind_air_deg",
+    "wind_mps", "wind_t_s", "wind_fl", "start_refuted", "t1_s", "wind_air_deg", "address_seen_t_s",
 )  # fmt: skip
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
@@ -268,6 +271,7 @@ class TrackTable:
     wind_t_s: NDArray[np.float64]  # the time of its latest sample
     wind_fl: NDArray[np.float64]  # the track's flight level then, NaN: unknown
     wind_air_deg: NDArray[np.float64]  # the direction of its air vector then, degrees (grid), NaN: unknown
+    address_seen_t_s: NDArray[np.float64]  # its address refused as wild, latest plot time; NaN: none
     x_models: NDArray[np.float64]  # (N, M, 6) each IMM model's state at t_state_s
     P_models: NDArray[np.float64]  # (N, M, 6, 6)
     mu: NDArray[np.float64]  # (N, M) IMM mode probabilities
@@ -569,7 +573,9 @@ def merge_same_address(
     state kept is a single measurement, the latest other member's of the same period and no
     later than it is held beside it (``held_*``, at or before the state's time) for the next
     measurement to choose from; without one, the latest one-plot member of an earlier period
-    from the same radars (that radar's previous scan). It is
+    from the same radars (that radar's previous scan). When the state kept is an established
+    one and a member is newer (a plot of the address beyond the kept track's sanity gate
+    started it), its time is the survivor's ``address_seen_t_s``: the address was seen. It is
     confirmed when any member was. The other rows are removed. Rows of ``outputs``
     (arrays row-aligned with the table) are copied the same way but not removed: the
     caller drops them with the returned mask. Returns (keep mask over the table's former
@@ -603,7 +609,19 @@ def merge_same_address(
             best = pool[votes == votes.max()]
             newest = best[np.argmax(table.t_state_s[best])]
         alt = None
-        if not velocity_known[newest]:
+        seen_t_s = np.fmax.reduce(table.address_seen_t_s[members])
+        if established.size:
+            # A younger member newer than the kept state: a plot of the address beyond the
+            # kept track's sanity gate (association.identity_pairs: farther than the aircraft
+            # could have flown) started it. Its plot is dropped with it (a wild plot, or a
+            # reflection: held for a pairing, a run of them would pull the track off), but the
+            # address was seen: the track's radars have not missed the aircraft
+            # (engine._manage's early end; dropped unseen, a wild plot after a gap in cover
+            # ended the aircraft's track, shown again 8 s later: 1,000x10, 3 % wild plots).
+            newer = members[table.t_state_s[members] > table.t_state_s[newest]]
+            if newer.size:
+                seen_t_s = np.fmax(seen_t_s, table.t_state_s[newer].max())
+        if not established.size and not velocity_known[newest]:
             # One-plot tracks of one address started in one period, each of one cluster:
             # their first measurements contradict each other (else they had been one
             # cluster), and one plot cannot tell which is wild. The latest of the others is
@@ -643,6 +661,7 @@ def merge_same_address(
         if alt is not None:
             table.held_z_m[oldest], table.held_R_m2[oldest], table.held_t_s[oldest], table.held_sources[oldest] = alt
         table.updates[oldest] = table.updates[members].max()
+        table.address_seen_t_s[oldest] = seen_t_s
         table.seen_by[oldest] = np.bitwise_or.reduce(table.seen_by[members])
         table.status[oldest] = CONFIRMED if (table.status[members] != TENTATIVE).any() else TENTATIVE
         keep[members[1:]] = False
