@@ -232,6 +232,7 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
         setattr(reg, name, value)
     for name, count in counts.items():
         setattr(reg, name, count)
+    reg.refresh_covariance()  # the correction's empirical Bayes step reads it
     reg.t_last_s = None if t_last_s is None else float(t_last_s)
     engine._reg_next_t_s = -math.inf if next_update_t_s is None else float(next_update_t_s)
     if gate is not None:

@@ -492,10 +492,15 @@ class RadarRegistration:
         vec -= g.T @ h
         return 0.5 * (info + info.T), vec
 
-    def _solve(self) -> None:
+    def refresh_covariance(self) -> None:
+        """``covariance`` = Λ⁻¹ of the current information (after :meth:`update`, and after a
+        restart loads the information: engine/state.py)."""
         cov = np.linalg.inv(self.information)
-        cov = 0.5 * (cov + cov.T)
-        self.covariance = cov
+        self.covariance = 0.5 * (cov + cov.T)
+
+    def _solve(self) -> None:
+        self.refresh_covariance()
+        cov = self.covariance
         self.bias = (cov @ self.information_vector).reshape(self.n_radars, N_BIAS)
         self.sigma = np.sqrt(np.maximum(np.diag(cov), 0.0)).reshape(self.n_radars, N_BIAS)
         if self.params.reference_radar_id is None and self.n_radars > 1:
