@@ -1286,12 +1286,15 @@ def test_a_plot_the_other_radar_contradicts_is_dropped_inside_the_gate_too():
     """Both radars miss three scans; then radar a's plot lies 400 m across its beam and b's
     where the aircraft is. a's plot is inside the coasted track's 99.9 % gate but beyond its
     95 % (clustering.suspect_chi2), and b's plot contradicts it beyond the gate: dropped as a
-    consensus outlier (fusion.consensus_outliers), the track stays on the aircraft. Checked
+    consensus outlier (fusion.consensus_outliers), the track stays on the aircraft, and the
+    plot's time is the track's address_seen_t_s (the aircraft replied then). Checked
     only beyond the gate (suspect_chi2 = gate_chi2), it is fused: the track ~140 m off."""
     kw = {"offset_m_by_period": {10: None, 11: None, 12: None, 13: 400.0}, "skip_b": (10, 11, 12), "periods": 16}
     eng, outs = _far_run(**kw)
     assert eng.counters["plots_identity_outliers"] == 1
     assert _first_outputs(outs)[14][0] < 10.0
+    # the dropped plot carried the address: the aircraft was seen then (the early end's)
+    assert eng.tracks.address_seen_t_s[0] == pytest.approx(T0 + 4.0 * 13 + 1.0)
     raw = settings().model_dump()
     raw["clustering"]["suspect_chi2"] = raw["clustering"]["gate_chi2"]
     gate_eng, gate_outs = _far_run(**kw, eng=Engine(settings_from_dict(raw)))

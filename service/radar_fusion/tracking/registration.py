@@ -558,15 +558,25 @@ class RadarRegistration:
 
             τ_k² = max(0, b_k² − σ_k²),        b_EB = (Λ + D)⁻¹ η,   D = diag(1 / τ_k²),
 
-        D being 0 on the range and azimuth offsets (left as estimated). A component with
+        D being 0 on the range and azimuth offsets (left as estimated). Without a reference
+        radar a time offset's b and σ are those relative to the radars' mean (the common
+        offset is not observable, and the absolute σ is the prior's). A component with
         τ_k² = 0 (within its noise of 0) is held at 0 (infinite precision: it is dropped from
         the system, and the others are solved given it), as is a time offset not estimated.
         A component well above its noise is barely moved (τ² ≫ σ² adds little precision)."""
         b = self.bias.reshape(-1)
         var = np.diag(self.covariance)
-        tau2 = np.maximum(b * b - var, 0.0)
+        b_seen, var_seen = b.copy(), var.copy()
+        if self.params.reference_radar_id is None and self.n_radars > 1:
+            # the time offsets are known only relative to the radars' mean (the common one is
+            # the prior's, module docs): their significance is that of the relative offsets,
+            # with the relative sigmas of _solve
+            t_cols = np.arange(self.n_radars) * N_BIAS + TIME_OFFSET
+            b_seen[t_cols] = b[t_cols] - b[t_cols].mean()
+            var_seen[t_cols] = self.sigma[:, TIME_OFFSET] ** 2
+        tau2 = np.maximum(b_seen * b_seen - var_seen, 0.0)
         extra = np.tile(np.isin(np.arange(N_BIAS), [RANGE_GAIN, TIME_OFFSET]), self.n_radars)
-        held = extra & (tau2 <= 1e-9 * var)
+        held = extra & (tau2 <= 1e-9 * var_seen)
         if not self.params.estimate_time_offset:
             held |= np.tile(np.arange(N_BIAS) == TIME_OFFSET, self.n_radars)
         keep = np.flatnonzero(~held)
