@@ -164,6 +164,21 @@ def run(truth: Truth, biases: np.ndarray, params: RegistrationParams | None = No
     return reg, np.array(history)
 
 
+def record_corrections(monkeypatch) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Make :func:`run` record, at every correction, (estimate, correction applied, applied
+    share); returns the list it fills."""
+    seen = []
+
+    class Recording(RadarRegistration):
+        def correction(self):
+            out = super().correction()
+            seen.append((self.bias.copy(), out.copy(), self.applied_share().copy()))
+            return out
+
+    monkeypatch.setattr(sys.modules[__name__], "RadarRegistration", Recording)
+    return seen
+
+
 def relative_time(b: np.ndarray) -> np.ndarray:
     """Time offsets relative to the radars' mean: the common one is unobservable (module docs)."""
     return b[..., TIME_OFFSET] - b[..., TIME_OFFSET].mean(axis=-1, keepdims=True)
@@ -345,15 +360,7 @@ def test_significant_estimates_are_applied_whole_and_noise_little(truth, monkeyp
     registration); with none, the corrections applied over the run after its first two
     minutes are well below the estimates they come from (measured when written: 41-60 % of
     their RMS per component), so unbiased radars' plots take less of the estimator's noise."""
-    seen = []
-
-    class Recording(RadarRegistration):
-        def correction(self):
-            out = super().correction()
-            seen.append((self.bias.copy(), out.copy(), self.applied_share().copy()))
-            return out
-
-    monkeypatch.setattr(sys.modules[__name__], "RadarRegistration", Recording)
+    seen = record_corrections(monkeypatch)
     reg, _ = run(truth, BIASES)
     assert (seen[5][2] >= 0.5).all(), seen[5][2]
     assert (reg.applied_share() >= 0.98).all(), reg.applied_share()
@@ -422,20 +429,12 @@ def test_a_gain_or_clock_offset_the_data_do_not_show_is_not_applied(truth, monke
     gain of noise) and far less gain and clock noise; with no bias at all, less noise in every
     range offset, gain and time offset. Measured when written: the range offsets of radars 0,
     2, 3, 2.5 against 3.8 m RMS."""
-    seen = []
-
-    class Recording(RadarRegistration):
-        def correction(self):
-            out = super().correction()
-            seen.append(out.copy())
-            return out
-
-    monkeypatch.setattr(sys.modules[__name__], "RadarRegistration", Recording)
+    seen = record_corrections(monkeypatch)
 
     def applied_error(biases, eb):
         seen.clear()
         run(truth, biases, RegistrationParams(empirical_bayes_gain_time=eb))
-        applied = np.array(seen)[30:]
+        applied = np.array([a for _, a, _ in seen])[30:]
         applied[..., TIME_OFFSET] = relative_time(applied)
         truth_b = biases.copy()
         truth_b[:, TIME_OFFSET] = relative_time(biases)
@@ -463,19 +462,11 @@ def test_clock_offsets_known_only_relative_to_each_other_are_applied(truth, monk
     none was applied (a review found it: 0.4 s between two radars, 100 m along the track at
     250 m/s, left in the plots). Judged by the relative ones, the applied offsets after ten
     minutes are the injected ones relative to the radars' mean, within 10 %."""
-    seen = []
-
-    class Recording(RadarRegistration):
-        def correction(self):
-            out = super().correction()
-            seen.append(out.copy())
-            return out
-
-    monkeypatch.setattr(sys.modules[__name__], "RadarRegistration", Recording)
+    seen = record_corrections(monkeypatch)
     biases = np.zeros_like(BIASES)
     biases[:, TIME_OFFSET] = [0.2, -0.2, 0.0, 0.0]
     run(truth, biases)
-    applied = relative_time(seen[-1])
+    applied = relative_time(seen[-1][1])
     np.testing.assert_allclose(applied, relative_time(biases), atol=0.02)
     assert abs(applied[0] - applied[1]) > 0.36
 

@@ -318,6 +318,9 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     first = np.r_[True, tgt[1:] != tgt[:-1]]
     start = np.flatnonzero(first)
     rank = np.arange(n) - np.repeat(start, np.diff(np.r_[start, n]))
+    # where the bound starts from the one-plot prior: an aircraft's first plot, and its first
+    # after a gap longer than a track survives (it left coverage: the next plot starts a track)
+    starts = (rank == 0) | (np.r_[False, np.diff(t)] > gap_s)
     H = np.zeros((2, D))
     H[0, 0] = H[1, 3] = 1.0
 
@@ -361,16 +364,12 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
 
         for r in range(int(rank.max()) + 1):
             idx = np.flatnonzero(rank == r)
-            if r == 0:
-                P[idx] = prior(idx)
-                velocity_update(idx)
-                continue
-            # after a gap longer than a track survives (the aircraft left coverage), the next
-            # plot starts a new track: the bound restarts from the one-plot prior
-            restart = t[idx] - t[idx - 1] > gap_s
+            restart = starts[idx]
             P[idx[restart]] = prior(idx[restart])
             velocity_update(idx[restart])
             idx = idx[~restart]
+            if not idx.size:
+                continue
             F, Q = transition(t[idx] - t[idx - 1])
             Pp = F @ P[idx - 1] @ np.swapaxes(F, 1, 2) + Q
             P[idx] = joseph(Pp, H, cov[idx])
@@ -397,7 +396,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         radars, 55.91 against 55.86 m on ten and three)."""
         from radar_fusion.tracking.registration import AZIMUTH_OFFSET, RANGE_OFFSET, RegistrationGeometry
 
-        _targets, blk = np.unique(tgt, return_inverse=True)
+        targets, blk = np.unique(tgt, return_inverse=True)
         n_radars = len(sc.radars)
         reg = settings.registration
         jac = RegistrationGeometry(sim.plane, sim.sites).jacobian(
@@ -409,7 +408,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
             y,
             assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT,
         )[:, :, [RANGE_OFFSET, AZIMUTH_OFFSET]]
-        b0 = _targets.size * D
+        b0 = targets.size * D
         N = b0 + 2 * n_radars
         P = np.zeros((N, N))
         P[b0:, b0:] = np.diag(
@@ -425,7 +424,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
             st, pos = slice(s0, s0 + D), [s0, s0 + 3]
             b = b0 + 2 * int(radar[j])
             bs, Jb = slice(b, b + 2), jac[j]
-            if rank[j] == 0 or t[j] - t[j - 1] > gap_s:
+            if starts[j]:
                 P[st, :] = 0.0
                 P[:, st] = 0.0
                 P[st, st] = prior(np.array([j]))[0]

@@ -394,14 +394,8 @@ class Engine:
         seen (1,000×10 with 3 % wild plots: a 6 s radar's aircraft whose two plots in three
         scans were wild and the one between missed lost its track, shown again 8 s later)."""
         tr = self.tracks
-        has = mode_s >= 0
-        if not has.any() or not len(tr):
-            return
-        order = np.argsort(tr.mode_s, kind="stable")
-        known = tr.mode_s[order]
-        pos = np.minimum(np.searchsorted(known, mode_s[has]), known.size - 1)
-        match = known[pos] == mode_s[has]
-        np.fmax.at(tr.address_seen_t_s, order[pos[match]], t_s[has][match])
+        plot, row = association.address_pairs(mode_s, np.ones(mode_s.size, bool), tr.mode_s, np.ones(len(tr), bool))
+        np.fmax.at(tr.address_seen_t_s, row, t_s[plot])
 
     def _track_expects(self, raw: PlotChunk, idx: np.ndarray, pred: Prediction, t_ref_s: float) -> np.ndarray:
         """Of the plots ``idx`` the live gate refused, those a track of their identity expects:

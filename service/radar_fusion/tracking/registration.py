@@ -323,7 +323,7 @@ class RadarRegistration:
         self.information_vector = np.zeros(n_state)  # eta_k
         self.bias = np.zeros((self.n_radars, N_BIAS))  # b_k, rows = radars, columns = BIAS_NAMES
         self.sigma = np.tile(prior_sigma, (self.n_radars, 1))
-        self.covariance = np.diag(1.0 / np.diag(self.prior_information))  # of b (4M, 4M): Λ⁻¹
+        self.refresh_covariance()  # covariance: of b (4M, 4M), Λ⁻¹
         self.effective_plots = np.zeros(self.n_radars)  # forgetting-weighted count of plots used
         self.t_last_s: float | None = None
         self.updates = 0
@@ -580,7 +580,9 @@ class RadarRegistration:
         if not self.params.estimate_time_offset:
             held |= np.tile(np.arange(N_BIAS) == TIME_OFFSET, self.n_radars)
         keep = np.flatnonzero(~held)
-        precision = np.where(extra & ~held, 1.0 / np.where(held | ~extra, 1.0, tau2), 0.0)
+        soft = extra & ~held  # a gain or time offset the data show: its prior's precision 1/τ²
+        precision = np.zeros(b.size)
+        precision[soft] = 1.0 / tau2[soft]
         out = np.zeros(b.size)
         out[keep] = np.linalg.solve(
             self.information[np.ix_(keep, keep)] + np.diag(precision[keep]), self.information_vector[keep]
