@@ -130,23 +130,28 @@ def hand_cycle(
     z: np.ndarray,
     R: np.ndarray,
 ) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
-    """One IMM cycle for one track, every model, written out term by term."""
-    p = hand_markov(params, dt_s)
+    """One IMM cycle for one track, every model, written out term by term: the interaction
+    and the models' predictions ``params.switch_substeps`` times over an equal share of dt_s
+    (each share's mixing from the share before's predictions and c̄), then the update."""
+    k = params.switch_substeps
+    p = hand_markov(params, dt_s / k)
     m = p.shape[0]
-    c_bar = [sum(p[i, j] * mu[i] for i in range(m)) for j in range(m)]
-    mixed = []
-    for j in range(m):
-        w = [p[i, j] * mu[i] / c_bar[j] for i in range(m)]
-        x0 = sum(w[i] * xs[i] for i in range(m))
-        P0 = sum(w[i] * (Ps[i] + np.outer(xs[i] - x0, xs[i] - x0)) for i in range(m))
-        mixed.append((x0, P0))
-    fq = model_fq(params, dt_s, np.array([x0 for x0, _ in mixed]))
+    preds = list(zip(xs, Ps))
+    c_bar = list(mu)
+    for _ in range(k):
+        prior = c_bar
+        c_bar = [sum(p[i, j] * prior[i] for i in range(m)) for j in range(m)]
+        mixed = []
+        for j in range(m):
+            w = [p[i, j] * prior[i] / c_bar[j] for i in range(m)]
+            x0 = sum(w[i] * preds[i][0] for i in range(m))
+            P0 = sum(w[i] * (preds[i][1] + np.outer(preds[i][0] - x0, preds[i][0] - x0)) for i in range(m))
+            mixed.append((x0, P0))
+        fq = model_fq(params, dt_s / k, np.array([x0 for x0, _ in mixed]))
+        preds = [(fq[j][0] @ mixed[j][0], fq[j][0] @ mixed[j][1] @ fq[j][0].T + fq[j][1]) for j in range(m)]
     new_x, new_P, lik = [], [], []
     for j in range(m):
-        x0, P0 = mixed[j]
-        F, Q = fq[j]
-        xp = F @ x0
-        Pp = F @ P0 @ F.T + Q
+        xp, Pp = preds[j]
         S = H @ Pp @ H.T + R
         K = Pp @ H.T @ np.linalg.inv(S)
         nu = z - H @ xp
@@ -183,8 +188,11 @@ R50 = 50.0**2 * np.eye(2)
 # ------------------------------------------------------------------ hand computation
 
 
-def test_cycle_matches_hand_computation_with_varying_dt() -> None:
-    params = IMMParams()
+@pytest.mark.parametrize("substeps", [1, 3])
+def test_cycle_matches_hand_computation_with_varying_dt(substeps: int) -> None:
+    """1: the textbook IMM, mixing once per interval; 3 (the default): three mixings and
+    predictions over thirds of each interval."""
+    params = IMMParams(switch_substeps=substeps)
     imm = IMMFilter(params)
     dts = np.array([4.0, 2.5, 6.0, 4.0, 0.5, 8.0, 4.0, 4.0, 3.0, 4.0])
     zs = turning_measurements(dts.size, dts, seed=3)
@@ -208,11 +216,15 @@ def test_cycle_matches_hand_computation_with_varying_dt() -> None:
     assert mu_max > 0.5  # the turn was seen: the other models mattered
 
 
-def test_matches_filterpy_imm_estimator() -> None:
+@pytest.mark.parametrize("substeps", [1, 3])
+def test_matches_filterpy_imm_estimator(substeps: int) -> None:
+    """With switch_substeps K, the engine's cycle over 4 s against filterpy's predict() K
+    times over 4/K s (its filters' F and Q and its Markov matrix those of 4/K s), then
+    update()."""
     fp_kalman = pytest.importorskip("filterpy.kalman")
-    params = IMMParams()
+    params = IMMParams(switch_substeps=substeps)
     imm = IMMFilter(params)
-    dt = 4.0
+    dt = 4.0 / substeps  # filterpy's step
     filters = []
 
     class BankedTurnKF(fp_kalman.KalmanFilter):  # type: ignore[misc,name-defined]
@@ -243,12 +255,16 @@ def test_matches_filterpy_imm_estimator() -> None:
     # (its docstring says the transpose); p_ij = exp(−dt/τ_i) on the diagonal, eq. 0
     est = fp_kalman.IMMEstimator(filters, params.prior_mu(), hand_markov(params, dt))
     st = imm.initiate(X0[None], P0[None])
-    zs = turning_measurements(15, np.full(15, dt), seed=11)
+    zs = turning_measurements(15, np.full(15, 4.0), seed=11)
     mu_max = 0.0
     for z in zs:
-        est.predict()
+        for step in range(substeps):
+            if step:  # filterpy's mixing weights and c̄ come from μ, which only its update() sets:
+                est.mu = est.cbar.copy()  # the prior of this share is the last share's c̄
+                est._compute_mixing_probabilities()
+            est.predict()
         est.update(z.reshape(2, 1))
-        st = imm.update(imm.predict(st, dt), z[None], R50[None])
+        st = imm.update(imm.predict(st, 4.0), z[None], R50[None])
         np.testing.assert_allclose(st.mu[0], est.mu, rtol=1e-9, atol=1e-12)
         for j, kf in enumerate(est.filters):
             np.testing.assert_allclose(st.x_models[0, j], kf.x[:, 0], rtol=1e-9, atol=1e-7)
@@ -277,7 +293,10 @@ def test_quiet_exits_go_mostly_to_the_turn_models() -> None:
     mu = np.zeros((1, m))
     mu[0, 0] = 1.0
     st = IMMState(np.repeat(X0[None, None], m, axis=1), np.repeat(P0[None, None], m, axis=1), mu)
-    np.testing.assert_allclose(imm.predict(st, 4.0).mu[0], pi[0, 0], rtol=1e-12, atol=1e-300)
+    # over switch_substeps K equal shares of the 4 s, c̄ is μ Π(4/K)^K
+    k = params.switch_substeps
+    by_hand = np.linalg.matrix_power(hand_markov(params, 4.0 / k), k)[0]
+    np.testing.assert_allclose(imm.predict(st, 4.0).mu[0], by_hand, rtol=1e-12, atol=1e-300)
     uniform = IMMFilter(IMMParams(quiet_exit_manoeuvre_share=1.0 / (m - 1))).transition_matrix(np.array([4.0]))[0]
     off = ~np.eye(m, dtype=bool)
     stay = np.exp(-4.0 / params.dwell_s())
@@ -772,8 +791,9 @@ def test_batched_prediction_equals_each_models_own_predict() -> None:
     small dt (the turn noise's series) and long ones. The kernel mixes with its own order
     of additions, and eq. 4 subtracts spreads of the model states (5 km apart here, so
     (x_i − x⁰)² ~ 10⁷ m² against P ~ 10⁴ m²): the two agree to ~1e-12 of P's scale,
-    which is 1e-16 of the spread terms, not to the bit."""
-    imm = IMMFilter()
+    which is 1e-16 of the spread terms, not to the bit. One mixing over dt, as mix() does
+    (switch_substeps 1; the sub-steps are the hand computation's, above)."""
+    imm = IMMFilter(IMMParams(switch_substeps=1))
     rng = np.random.default_rng(21)
     n = 9
     st = _random_state(imm, n, rng)
@@ -792,8 +812,10 @@ def test_batched_prediction_equals_each_models_own_predict() -> None:
 
 def test_predict_position_equals_the_combined_prediction() -> None:
     """predict_position() (the engine's output: x and the x-y covariance) equals the
-    combination (eq. 7-8) of the full prediction, restricted to x and y."""
-    imm = IMMFilter()
+    combination (eq. 7-8) of the full prediction, restricted to x and y. It mixes once over
+    dt whatever switch_substeps (a view for output, imm.py "Switching inside the
+    interval"): the full prediction with one sub-step."""
+    imm = IMMFilter(IMMParams(switch_substeps=1))
     rng = np.random.default_rng(23)
     st = _random_state(imm, 9, rng)
     dt = np.array([0.0, 1e-3, 0.2, 0.5, 2.0, 4.0, 4.7, 12.0, 60.0])
@@ -808,8 +830,8 @@ def test_predict_gate_equals_the_full_prediction_on_what_association_reads() -> 
     """predict_gate() (association's prediction) gives each model's predicted position and
     its covariance, and the combination's position and velocity block, as the full
     prediction does (predict(), checked against the hand computation above), and NaN in
-    the entries it does not form."""
-    imm = IMMFilter()
+    the entries it does not form. One mixing over dt, as predict_position."""
+    imm = IMMFilter(IMMParams(switch_substeps=1))
     rng = np.random.default_rng(29)
     st = _random_state(imm, 9, rng)
     dt = np.array([0.0, 1e-3, 0.2, 0.5, 2.0, 4.0, 4.7, 12.0, 60.0])

@@ -366,6 +366,24 @@ def _mix(
 
 
 @_compiled
+def _restage(XP: np.ndarray, PP: np.ndarray, cbar: np.ndarray, X: np.ndarray, S: np.ndarray, MU: np.ndarray) -> None:
+    """A sub-step's predictions as the next sub-step's states to mix (``_gather_mixing``'s
+    layout): X ← XP, the packed covariances into S[:, _D:] from PP, μ ← c̄ (the mode
+    probabilities predicted to the sub-step's end, the prior of its mixing)."""
+    m = MU.shape[0]
+    for j in range(m):
+        for lane in range(_L):
+            MU[j, lane] = cbar[j, lane]
+        for a in range(_D):
+            for lane in range(_L):
+                X[j, a, lane] = XP[j, a, lane]
+        for q in range(_NP - _D):
+            a, b = _UT[q, 0], _UT[q, 1]
+            for lane in range(_L):
+                S[j, _D + q, lane] = PP[j, a, b, lane]
+
+
+@_compiled
 def _unpack(X0j: np.ndarray, x_ref: np.ndarray, x0: np.ndarray, P0: np.ndarray) -> None:
     """x⁰_j (6, L) and P⁰_j (6, 6, L), symmetric, from the mixing rows X0j (_NP, L)."""
     for a in range(_D):
@@ -648,6 +666,7 @@ def predict_kernel(
     family: np.ndarray,
     omega: np.ndarray,
     q_keys: np.ndarray,
+    substeps: int,
     out_xm: np.ndarray,
     out_Pm: np.ndarray,
     out_cbar: np.ndarray,
@@ -656,7 +675,9 @@ def predict_kernel(
     out_cbar (c̄ of eq. 1). xm (N,M,6), Pm (N,M,6,6), mu (N,M), dt (N,), tau (1 + M, M) the
     dwell times and the exit shares of eq. 0 (imm.IMMFilter._tau_exit), terms (N,M,TERMS),
     family and omega (M,) (a banked turn's omega is its signed
-    g tan φ), q_keys (6,2) the Singer q_ij order."""
+    g tan φ), q_keys (6,2) the Singer q_ij order.  ``substeps`` K ≥ 1: steps 1-2 K times
+    in a row, dt and terms being those of one sub-step (dt/K): the modes may switch K times
+    in the interval (imm.py, "Switching inside the interval")."""
     n, m = mu.shape
     rows = np.arange(n)
     X, XP, X0, S = np.empty((m, _D, _L)), np.empty((m, _D, _L)), np.empty((m, _NP, _L)), np.empty((m, _NP, _L))
@@ -668,10 +689,13 @@ def predict_kernel(
         nl = min(_L, n - k0)
         _gather_mixing(xm, Pm, mu, rows, k0, nl, X, S, MU)
         _gather_per_track(dt, terms, k0, nl, DT, TJ)
-        _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
-        for j in range(m):
-            _unpack(X0[j], X[0], x0, P0)
-            _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
+        for step in range(substeps):
+            if step:
+                _restage(XP, PP, cbar, X, S, MU)
+            _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
+            for j in range(m):
+                _unpack(X0[j], X[0], x0, P0)
+                _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
         _scatter_models(XP, PP, cbar, rows, k0, nl, out_xm, out_Pm, out_cbar)
 
 
@@ -773,6 +797,7 @@ def predict_update_kernel(
     family: np.ndarray,
     omega: np.ndarray,
     q_keys: np.ndarray,
+    substeps: int,
     z: np.ndarray,
     R: np.ndarray,
     lf: np.ndarray,
@@ -784,7 +809,8 @@ def predict_update_kernel(
     out_P: np.ndarray,
     out_lbf: np.ndarray,
 ) -> None:
-    """One whole cycle per track, steps 1-5: predict_kernel over dt, then update_kernel
+    """One whole cycle per track, steps 1-5: predict_kernel over dt (in ``substeps``
+    sub-steps of dt, terms), then update_kernel
     with z, R and the combination, without writing the prediction out.  Track k is row
     rows[k] of the state and of out_xm, out_Pm, out_mu, which may be the state's own arrays
     (a chunk's rows are read whole before they are written: the update in place); dt,
@@ -806,10 +832,13 @@ def predict_update_kernel(
         _gather_mixing(xm, Pm, mu, rows, k0, nl, X, S, MU)
         _gather_per_track(dt, terms, k0, nl, DT, TJ)
         _gather_measurements(z, R, lf, lfw, k0, nl, Z, RL, LF, LW)
-        _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
-        for j in range(m):
-            _unpack(X0[j], X[0], x0, P0)
-            _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
+        for step in range(substeps):
+            if step:
+                _restage(XP, PP, cbar, X, S, MU)
+            _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
+            for j in range(m):
+                _unpack(X0[j], X[0], x0, P0)
+                _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
         _update(XP, PP, cbar, Z, RL, LF, LW, LB, LP, EV, XU, PU, MUU, logw, K, PHt, G)
         _combine(XU, PU, MUU, xc, Pc)
         _scatter_models(XU, PU, MUU, rows, k0, nl, out_xm, out_Pm, out_mu)
