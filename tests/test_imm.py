@@ -847,6 +847,25 @@ def test_predict_gate_equals_the_full_prediction_on_what_association_reads() -> 
     assert np.isnan(P[:, other]).all() and np.isnan(P[:, :, other]).all()
 
 
+def test_gate_and_output_views_mix_once_whatever_the_substeps() -> None:
+    """predict_gate() and predict_position() mix once over their span (imm.py, "Switching
+    inside the interval"): with the default three sub-steps they give what the filter with
+    one gives, while the cycle's own prediction (predict()) differs from that one."""
+    three, one = IMMFilter(), IMMFilter(IMMParams(switch_substeps=1))
+    assert three.params.switch_substeps == 3
+    rng = np.random.default_rng(37)
+    st = _random_state(three, 9, rng)
+    dt = np.array([0.0, 1e-3, 0.2, 0.5, 2.0, 4.0, 4.7, 12.0, 60.0])
+    for a, b in zip(three.predict_gate(st, dt), one.predict_gate(st, dt)):
+        np.testing.assert_array_equal(a, b)
+    x3, P3 = three.predict_position(st, dt)
+    xc, Pc = one.combine(one.predict(st, dt))
+    np.testing.assert_allclose(x3, xc, rtol=1e-13, atol=1e-9)
+    np.testing.assert_allclose(P3, Pc[:, [0, 3]][:, :, [0, 3]], rtol=1e-12, atol=1e-9)
+    cycle = three.predict(st, dt)
+    assert np.abs(cycle.mu[5:] - one.predict(st, dt).mu[5:]).max() > 1e-4  # the sub-steps do differ
+
+
 def test_predict_update_equals_update_of_predict() -> None:
     """predict_update() (the engine's cycle for a track with a plot) is combine(update(
     predict(...))) in one pass."""

@@ -809,8 +809,8 @@ def predict_update_kernel(
     out_P: np.ndarray,
     out_lbf: np.ndarray,
 ) -> None:
-    """One whole cycle per track, steps 1-5: predict_kernel over dt (in ``substeps``
-    sub-steps of dt, terms), then update_kernel
+    """One whole cycle per track, steps 1-5: predict_kernel (``substeps`` times over dt,
+    the sub-step's, with its terms), then update_kernel
     with z, R and the combination, without writing the prediction out.  Track k is row
     rows[k] of the state and of out_xm, out_Pm, out_mu, which may be the state's own arrays
     (a chunk's rows are read whole before they are written: the update in place); dt,
