@@ -384,6 +384,27 @@ def _restage(XP: np.ndarray, PP: np.ndarray, cbar: np.ndarray, X: np.ndarray, S:
 
 
 @_compiled
+def _mix_and_predict(
+    substeps: int, family: np.ndarray, TJ: np.ndarray, omega: np.ndarray, q_keys: np.ndarray, tau: np.ndarray,
+    X: np.ndarray, S: np.ndarray, MU: np.ndarray, DT: np.ndarray, stay: np.ndarray, wt: np.ndarray,
+    cbar: np.ndarray, X0: np.ndarray, x0: np.ndarray, P0: np.ndarray, W: np.ndarray, TB: np.ndarray,
+    tb: np.ndarray, T: np.ndarray, XP: np.ndarray, PP: np.ndarray,
+) -> None:  # fmt: skip
+    """Steps 1-2 for the lanes, ``substeps`` times over the sub-step's DT and terms TJ
+    (imm.py, "Switching inside the interval"): each sub-step mixes (``_mix``) the one
+    before's predictions (``_restage``) and predicts every model into XP, PP (M, 6(, 6), L),
+    leaving the last sub-step's c̄ in cbar. X, S, MU hold the gathered states on entry."""
+    m = MU.shape[0]
+    for step in range(substeps):
+        if step:
+            _restage(XP, PP, cbar, X, S, MU)
+        _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
+        for j in range(m):
+            _unpack(X0[j], X[0], x0, P0)
+            _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
+
+
+@_compiled
 def _unpack(X0j: np.ndarray, x_ref: np.ndarray, x0: np.ndarray, P0: np.ndarray) -> None:
     """x⁰_j (6, L) and P⁰_j (6, 6, L), symmetric, from the mixing rows X0j (_NP, L)."""
     for a in range(_D):
@@ -689,13 +710,9 @@ def predict_kernel(
         nl = min(_L, n - k0)
         _gather_mixing(xm, Pm, mu, rows, k0, nl, X, S, MU)
         _gather_per_track(dt, terms, k0, nl, DT, TJ)
-        for step in range(substeps):
-            if step:
-                _restage(XP, PP, cbar, X, S, MU)
-            _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
-            for j in range(m):
-                _unpack(X0[j], X[0], x0, P0)
-                _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
+        _mix_and_predict(
+            substeps, family, TJ, omega, q_keys, tau, X, S, MU, DT, stay, wt, cbar, X0, x0, P0, W, TB, tb, T, XP, PP
+        )
         _scatter_models(XP, PP, cbar, rows, k0, nl, out_xm, out_Pm, out_cbar)
 
 
@@ -832,13 +849,9 @@ def predict_update_kernel(
         _gather_mixing(xm, Pm, mu, rows, k0, nl, X, S, MU)
         _gather_per_track(dt, terms, k0, nl, DT, TJ)
         _gather_measurements(z, R, lf, lfw, k0, nl, Z, RL, LF, LW)
-        for step in range(substeps):
-            if step:
-                _restage(XP, PP, cbar, X, S, MU)
-            _mix(X, S, MU, DT, tau, stay, wt, cbar, X0)
-            for j in range(m):
-                _unpack(X0[j], X[0], x0, P0)
-                _predict_model(family[j], TJ[j], omega[j], q_keys, x0, P0, DT, W, TB, tb, T, XP[j], PP[j])
+        _mix_and_predict(
+            substeps, family, TJ, omega, q_keys, tau, X, S, MU, DT, stay, wt, cbar, X0, x0, P0, W, TB, tb, T, XP, PP
+        )
         _update(XP, PP, cbar, Z, RL, LF, LW, LB, LP, EV, XU, PU, MUU, logw, K, PHt, G)
         _combine(XU, PU, MUU, xc, Pc)
         _scatter_models(XU, PU, MUU, rows, k0, nl, out_xm, out_Pm, out_mu)
