@@ -35,7 +35,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from radar_fusion.bus import FusionDaemon, open_session, reliable_publisher, zenoh_config
+from radar_fusion.bus import FusionDaemon, open_session, reliable_sender, zenoh_config
 from radar_fusion.config import load_settings
 from radar_fusion.display import DisplayServer
 from radar_fusion.recording import read_recording
@@ -146,9 +146,8 @@ def test_page_draws_every_track_of_the_batch_it_shows(browser, scenario, free_po
                 ("atc/fusion/alerts/stca", msgpack.packb({"v": 1, "kind": "stca"})),
             )
         ):
-            pub = reliable_publisher(session, key)
+            pub = reliable_sender(session, key)
             pub.put(payload)
-            pub.undeclare()
             assert wait_until(lambda k=k: sum(display.stats()["rejected"].values()) > k, 10)
         collector = TrackCollector(session, settings.bus.prefix)  # what the bus carried, independently
         time.sleep(0.3)
@@ -283,7 +282,7 @@ def test_frame_time_at_4000_tracks(browser, tmp_path, free_port, record_property
         display.start()
         page, errors = open_page(browser, display.url)
         time.sleep(0.5)
-        pub = reliable_publisher(router, "atc/fusion/tracks")
+        pub = reliable_sender(router, "atc/fusion/tracks")
         frame_ms, ingest_ms = [], []
         for period in range(updates):
             pub.put(synthetic_batch(period, n_tracks, base))
@@ -295,7 +294,6 @@ def test_frame_time_at_4000_tracks(browser, tmp_path, free_port, record_property
             if period > 0:  # the first frame also lays out the map layer and fits the view
                 frame_ms.append(float(d["frameMs"]))
                 ingest_ms.append(float(d["ingestMs"]))
-        pub.undeclare()
         (tmp_path / "4000-tracks.png").write_bytes(page.screenshot())  # to look at, when in doubt
         median_ms, max_ms = statistics.median(frame_ms), max(frame_ms)
         print(

@@ -11,7 +11,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from radar_fusion.bus import open_session, reliable_publisher, zenoh_config
+from radar_fusion.bus import open_session, reliable_sender, zenoh_config
 from radar_fusion.config import load_settings
 from radar_fusion.tools import evaluate as ev
 from radar_fusion.tools import simulate as sim
@@ -95,9 +95,9 @@ def test_hostile_payloads_are_counted_and_good_plots_still_track(scenario, free_
     collector = TrackCollector(session, prefix)
     try:
         time.sleep(0.3)
-        bad = reliable_publisher(session, f"{prefix}/radar/{radar}/plots")
-        stranger = reliable_publisher(session, f"{prefix}/radar/intruder/plots")
-        bad_status = reliable_publisher(session, f"{prefix}/radar/{radar}/status")
+        bad = reliable_sender(session, f"{prefix}/radar/{radar}/plots")
+        stranger = reliable_sender(session, f"{prefix}/radar/intruder/plots")
+        bad_status = reliable_sender(session, f"{prefix}/radar/{radar}/status")
         good_plot = {"t": simulation.messages[0][0], "range_m": 1.0e5, "azimuth_deg": 10.0}
         bad.put(b"\xc1\xc1 not msgpack")
         bad.put(msgpack.packb([1, 2, 3]))
@@ -114,8 +114,6 @@ def test_hostile_payloads_are_counted_and_good_plots_still_track(scenario, free_
         )
         stranger.put(msgpack.packb({"v": 1, "radar_id": "intruder", "seq": 1, "plots": [good_plot]}))
         bad_status.put(msgpack.packb({"v": 1, "radar_id": radar, "t": "noon", "kind": "north"}))
-        for pub in (bad, stranger, bad_status):
-            pub.undeclare()
         sent = replay_records(session, read_recording(out / "plots.rec"), prefix, speed=None)
         n_sent = sum(sent.values()) + 6
         assert wait_until(lambda: daemon.messages_processed >= n_sent, 60)

@@ -20,7 +20,7 @@ import msgpack
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from radar_fusion.bus import FusionDaemon, open_session, reliable_publisher, zenoh_config
+from radar_fusion.bus import FusionDaemon, open_session, reliable_sender, zenoh_config
 from radar_fusion.config import ConfigError, settings_from_dict
 from radar_fusion.metrics import JsonFormatter, parse_listen
 from radar_fusion.tools import simulate as sim
@@ -75,10 +75,10 @@ def test_metrics_endpoint_counts_received_rejected_late_and_closed_periods(simul
         time.sleep(0.3)  # the daemon's subscription reaches the client
         for _, key, payload in simulation.messages:
             if key not in pubs:
-                pubs[key] = reliable_publisher(session, f"atc/{key}")
+                pubs[key] = reliable_sender(session, f"atc/{key}")
             pubs[key].put(payload)
         first = radar_ids[0]
-        bad = reliable_publisher(session, f"atc/radar/{first}/plots")
+        bad = reliable_sender(session, f"atc/radar/{first}/plots")
         bad.put(b"\xc1 not msgpack")
         bad.put(b"\x92\x01")  # an array cut short: truncated msgpack
         # a plot of a period long closed (the scenario's first second), in a fresh batch
@@ -93,7 +93,7 @@ def test_metrics_endpoint_counts_received_rejected_late_and_closed_periods(simul
                 }
             )
         )
-        stranger = reliable_publisher(session, "atc/radar/intruder/plots")
+        stranger = reliable_sender(session, "atc/radar/intruder/plots")
         stranger.put(
             msgpack.packb(
                 {
@@ -104,8 +104,6 @@ def test_metrics_endpoint_counts_received_rejected_late_and_closed_periods(simul
                 }
             )
         )
-        for p in (bad, stranger):
-            p.undeclare()
         n_sent = len(simulation.messages) + 4
         assert wait_until(lambda: daemon.messages_processed >= n_sent, 30)
         key = ("radar_fusion_messages_processed_total", ())
@@ -113,8 +111,6 @@ def test_metrics_endpoint_counts_received_rejected_late_and_closed_periods(simul
         time.sleep(0.3)  # one more health snapshot, after the last period the replay closed
         m = scrape(url)
     finally:
-        for p in pubs.values():
-            p.undeclare()
         session.close()
         daemon.stop()
 
@@ -224,9 +220,8 @@ def test_serve_writes_json_logs_and_serves_metrics(simulation, free_port, tmp_pa
         sub = session.declare_subscriber("atc/fusion/health", lambda sample: health.append(sample))
         assert wait_until(lambda: bool(health), 10), "no health message from the daemon"
         sub.undeclare()
-        pub = reliable_publisher(session, f"atc/radar/{simulation.scenario.radars[0].id}/plots")
+        pub = reliable_sender(session, f"atc/radar/{simulation.scenario.radars[0].id}/plots")
         pub.put(b"\xc1 not msgpack")  # logged as a rejection
-        pub.undeclare()
         url = f"http://127.0.0.1:{metrics_port}/metrics"
         key = ("radar_fusion_rejected_total", (("reason", "malformed_msgpack"),))
         assert wait_until(lambda: scrape(url).get(key) == 1, 10)

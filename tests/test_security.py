@@ -27,7 +27,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from radar_fusion.bus import FusionDaemon, open_session, reliable_publisher
+from radar_fusion.bus import FusionDaemon, open_session, reliable_sender
 from radar_fusion.config import settings_from_dict
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, wait_until
@@ -219,19 +219,22 @@ def feed(sessions: dict[str, zenoh.Session], messages, speed: float | None = Non
     """Publish each radar's messages from its own front-end's session, in recording order
     (``speed`` times faster than recorded; None: at once), once every publisher sees the
     daemon's subscription; returns the number sent."""
-    pubs = {}
+    senders, watchers = {}, {}
     for _, key, _ in messages:
-        if key not in pubs:
-            pubs[key] = reliable_publisher(sessions[key.split("/")[1]], f"atc/{key}")
+        if key not in senders:
+            session = sessions[key.split("/")[1]]
+            senders[key] = reliable_sender(session, f"atc/{key}")
+            # declared only for its matching status; nothing is sent through it (bus.Sender)
+            watchers[key] = session.declare_publisher(f"atc/{key}")
     try:
-        assert wait_until(lambda: all(p.matching_status.matching for p in pubs.values()), 10)
+        assert wait_until(lambda: all(p.matching_status.matching for p in watchers.values()), 10)
         t0_s, t0_wall = messages[0][0], time.monotonic()
         for t_s, key, payload in messages:
             if speed is not None:
                 time.sleep(max(0.0, t0_wall + (t_s - t0_s) / speed - time.monotonic()))
-            pubs[key].put(payload)
+            senders[key].put(payload)
     finally:
-        for p in pubs.values():
+        for p in watchers.values():
             p.undeclare()
     return len(messages)
 

@@ -18,7 +18,7 @@ import msgpack
 import pytest
 import zenoh
 
-from radar_fusion.bus import FusionDaemon, open_session, reliable_publisher, zenoh_config
+from radar_fusion.bus import FusionDaemon, open_session, reliable_sender, zenoh_config
 from radar_fusion.config import load_settings
 from radar_fusion.recording import RecordingWriter, read_header, read_recording
 from radar_fusion.tools import simulate as sim
@@ -80,11 +80,9 @@ def test_record_writes_what_replay_reads_back_byte_identical(tmp_path, free_port
     try:
         recorder = Recorder(listener, RecordingWriter(first, meta={"prefix": prefix}), prefix, ["**"])
         time.sleep(0.3)  # subscriptions reach the router
-        pubs = {key: reliable_publisher(sender, f"{prefix}/{key}") for key, _ in sent}
+        pubs = {key: reliable_sender(sender, f"{prefix}/{key}") for key, _ in sent}
         for key, payload in sent:
             pubs[key].put(payload)
-        for pub in pubs.values():
-            pub.undeclare()
         assert wait_until(lambda: recorder.writer.count >= len(sent), 10)
         recorder.close()
 

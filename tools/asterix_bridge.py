@@ -132,16 +132,14 @@ class ZenohSink:
         self._pubs: dict[str, Any] = {}
 
     def write(self, msg: WireMessage) -> None:
-        from radar_fusion.bus import reliable_publisher
+        from radar_fusion.bus import reliable_sender
 
         pub = self._pubs.get(msg.key)
         if pub is None:
-            pub = self._pubs[msg.key] = reliable_publisher(self.session, f"{self.prefix}/{msg.key}")
+            pub = self._pubs[msg.key] = reliable_sender(self.session, f"{self.prefix}/{msg.key}")
         pub.put(msg.payload)
 
     def close(self) -> None:
-        for pub in self._pubs.values():
-            pub.undeclare()
         self._pubs.clear()
         self.session.close()
 

@@ -112,7 +112,7 @@ def run_display(args: argparse.Namespace) -> int:
 
     import zenoh
 
-    from radar_fusion.bus import FusionDaemon, open_session, reliable_publisher, zenoh_config
+    from radar_fusion.bus import FusionDaemon, Sender, open_session, reliable_sender, zenoh_config
     from radar_fusion.config import load_settings
     from radar_fusion.display import DisplayServer, parse_listen
 
@@ -161,7 +161,7 @@ def run_display(args: argparse.Namespace) -> int:
         daemon.stop()
         return 3
     session = open_session(zenoh_config("client", connect=[endpoint]))
-    pubs: dict[str, zenoh.Publisher] = {}
+    pubs: dict[str, Sender] = {}
     loops = 0
     try:
         speed_text = "as fast as possible" if speed is None else f"at {speed:g}x"
@@ -184,14 +184,12 @@ def run_display(args: argparse.Namespace) -> int:
                     break
                 pub = pubs.get(key)
                 if pub is None:
-                    pub = pubs[key] = reliable_publisher(session, f"{settings.bus.prefix}/{key}")
+                    pub = pubs[key] = reliable_sender(session, f"{settings.bus.prefix}/{key}")
                 pub.put(payload)
             else:
                 loops += 1
                 print(f"loop {loops} done; starting again", flush=True)
     finally:
-        for pub in pubs.values():
-            pub.undeclare()
         session.close()
         display.stop()
         daemon.stop(timeout_s=10.0)

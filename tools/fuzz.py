@@ -212,7 +212,7 @@ def run_bus(n_hostile: int, seed: int = 20240808, port: int | None = None) -> Bu
     router on 127.0.0.1 (``port``, or a free one); see the module docstring."""
     import socket
 
-    from radar_fusion.bus import FusionDaemon, open_session, reliable_publisher, zenoh_config
+    from radar_fusion.bus import FusionDaemon, open_session, reliable_sender, zenoh_config
     from radar_fusion.config import settings_from_dict
 
     from . import evaluate as ev
@@ -267,7 +267,7 @@ def run_bus(n_hostile: int, seed: int = 20240808, port: int | None = None) -> Bu
     try:
         time.sleep(0.3)
         for key, payload in traffic:
-            pub = pubs.get(key) or pubs.setdefault(key, reliable_publisher(session, key))
+            pub = pubs.get(key) or pubs.setdefault(key, reliable_sender(session, key))
             pub.put(payload)
         wait_until(lambda: daemon.messages_processed >= len(traffic), 60 + len(traffic) / 1000)
         alive = daemon._thread is not None and daemon._thread.is_alive()
@@ -276,8 +276,6 @@ def run_bus(n_hostile: int, seed: int = 20240808, port: int | None = None) -> Bu
             10,
         )
     finally:
-        for pub in pubs.values():
-            pub.undeclare()
         daemon.stop()
         wait_until(lambda: len(collector.batches) >= daemon.batches_published, 10)
         collector.close()

@@ -1,7 +1,7 @@
 """`radar-fusion replay`: publish a recording to the bus, keeping its event-time order.
 
 Messages go out in recording order with the recorded gaps between them divided by
-``--speed`` (``max``: no waiting). Publishers are reliable with congestion control BLOCK,
+``--speed`` (``max``: no waiting). Messages are sent reliably with congestion control BLOCK,
 so a burst is slowed down by the bus rather than silently dropped (DESIGN.md §3).
 """
 
@@ -12,12 +12,8 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Iterable
-from typing import TYPE_CHECKING
 
 from ..recording import Record, read_recording
-
-if TYPE_CHECKING:
-    import zenoh
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,9 +40,9 @@ def replay_records(
     session, records: Iterable[Record], prefix: str, speed: float | None, only: str = "radar/", progress_total: int = 0
 ) -> Counter:
     """Publish records on ``session``; returns messages sent per key."""
-    from radar_fusion.bus import reliable_publisher
+    from radar_fusion.bus import Sender, reliable_sender
 
-    pubs: dict[str, zenoh.Publisher] = {}
+    pubs: dict[str, Sender] = {}
     sent: Counter = Counter()
     t0_rec = t0_wall = None
     show = progress_total > 0 and sys.stderr.isatty()
@@ -62,7 +58,7 @@ def replay_records(
                     time.sleep(wait)
             pub = pubs.get(rec.key)
             if pub is None:
-                pub = pubs[rec.key] = reliable_publisher(session, f"{prefix}/{rec.key}")
+                pub = pubs[rec.key] = reliable_sender(session, f"{prefix}/{rec.key}")
             pub.put(rec.payload)
             sent[rec.key] += 1
             if show and i % 200 == 0:
@@ -71,8 +67,6 @@ def replay_records(
     finally:
         if show:
             print(f"\rreplay [{'#' * 40}] 100.0%", file=sys.stderr)
-        for pub in pubs.values():
-            pub.undeclare()
     return sent
 
 

@@ -395,7 +395,7 @@ def run_soak(
 ) -> SoakReport:
     """Soak the daemon with ``recording`` (see the module docstring); returns the report."""
     from radar_fusion import wire
-    from radar_fusion.bus import open_session, reliable_publisher, zenoh_config
+    from radar_fusion.bus import open_session, reliable_sender, zenoh_config
     from radar_fusion.config import load_settings
 
     from ..recording import read_recording
@@ -464,7 +464,7 @@ def run_soak(
                 report.max_outstanding_periods = max(report.max_outstanding_periods, outstanding())
             pub = pubs.get(key)
             if pub is None:
-                pub = pubs[key] = reliable_publisher(session, f"{prefix}/{key}")
+                pub = pubs[key] = reliable_sender(session, f"{prefix}/{key}")
             pub.put(payload)
             sent_total += 1
             radar = key.split("/")[1]
@@ -534,8 +534,6 @@ def run_soak(
         final = monitor.health
     finally:
         sampler.stop_event.set()
-        for pub in pubs.values():
-            pub.undeclare()
         monitor.close()
         session.close()
         if daemon is not None:

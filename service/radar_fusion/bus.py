@@ -135,11 +135,39 @@ def batch_stamp(payload: bytes) -> tuple[str, int, int] | None:
     return None
 
 
-def reliable_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
-    """Publishers of plots must be reliable with congestion control BLOCK (DESIGN.md §3)."""
-    return session.declare_publisher(
-        key, reliability=zenoh.Reliability.RELIABLE, congestion_control=zenoh.CongestionControl.BLOCK
-    )
+class Sender:
+    """Puts on one key expression (reliable, Zenoh's default) without a declared publisher.
+
+    A declared ``zenoh.Publisher`` interns its key expression on the wire as a numeric
+    scope. A router that receives data with a scope it does not know drops it, with
+    "Route data with unknown scope" (eclipse-zenoh/zenoh#980, open): CI lost part of a
+    full-speed replay that way (test_faults, scopes 8 and 9 of the replaying session).
+    One path to it, from Zenoh's source: undeclaring a publisher undeclares its scope at
+    Control priority, which may pass data still queued at Data priority; on loopback I
+    could not make it happen. A put carries the whole key, so no message depends on a
+    declaration; on loopback it is about as fast (2 kB payloads: 2.2-2.8e5 puts/s against
+    2.8e5 through a publisher)."""
+
+    __slots__ = ("_session", "congestion_control", "key_expr")
+
+    def __init__(self, session: zenoh.Session, key: str, congestion_control: zenoh.CongestionControl):
+        self._session = session
+        self.key_expr = zenoh.KeyExpr(key)
+        self.congestion_control = congestion_control
+
+    def put(self, payload: bytes) -> None:
+        self._session.put(self.key_expr, payload, congestion_control=self.congestion_control)
+
+
+def reliable_sender(session: zenoh.Session, key: str) -> Sender:
+    """Plots, tracks and alerts are sent reliably with congestion control BLOCK (DESIGN.md §3)."""
+    return Sender(session, key, zenoh.CongestionControl.BLOCK)
+
+
+def dropping_sender(session: zenoh.Session, key: str) -> Sender:
+    """Health and standby state: each message is whole and the next replaces it, so a slow
+    consumer makes the sender drop rather than wait (congestion control DROP)."""
+    return Sender(session, key, zenoh.CongestionControl.DROP)
 
 
 class _Oversize(bytes):
@@ -283,7 +311,7 @@ class FusionDaemon:
         self._log_rejection = RateLimitedLog()
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
-        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._pubs: dict[str, Sender] = {}
         self._thread: threading.Thread | None = None
         self._publisher: threading.Thread | None = None
         self.on_output: Callable[[PeriodOutput], None] | None = None
@@ -308,15 +336,11 @@ class FusionDaemon:
             gc.callbacks.append(self._gc_timer)
         self._session = open_session(cfg)
         p = self.prefix
-        self._pubs["tracks"] = reliable_publisher(self._session, f"{p}/fusion/tracks")
-        self._pubs["health"] = self._session.declare_publisher(f"{p}/fusion/health")
+        self._pubs["tracks"] = reliable_sender(self._session, f"{p}/fusion/tracks")
+        self._pubs["health"] = dropping_sender(self._session, f"{p}/fusion/health")
         if self.election is not None:
             # a state is whole: one a slow standby misses is replaced by the next (DROP, not BLOCK)
-            self._pubs["state"] = self._session.declare_publisher(
-                f"{p}/fusion/state",
-                reliability=zenoh.Reliability.RELIABLE,
-                congestion_control=zenoh.CongestionControl.DROP,
-            )
+            self._pubs["state"] = dropping_sender(self._session, f"{p}/fusion/state")
             remote = zenoh.Locality.REMOTE
             for key, callback in (("state", self._on_state), ("tracks", self._on_tracks)):
                 sub = self._session.declare_subscriber(f"{p}/fusion/{key}", callback, allowed_origin=remote)
@@ -328,7 +352,7 @@ class FusionDaemon:
             self.election.started_s = time.monotonic()
         if self.safety_nets_mode == "in_process":
             for kind in ("stca", "apw", "msaw"):
-                self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
+                self._pubs[kind] = reliable_sender(self._session, f"{p}/fusion/alerts/{kind}")
         elif self.safety_nets_child is not None:
             # The child joins this session's router (or the routers it connects to), then
             # says it is ready with its first health; the processing thread waits for that
@@ -376,8 +400,6 @@ class FusionDaemon:
         for sub in self._subs:
             sub.undeclare()
         self._subs = []
-        for pub in self._pubs.values():
-            pub.undeclare()
         self._pubs = {}
         if self._session is not None:
             self._session.close()

@@ -206,7 +206,9 @@ class DisplayServer:
         self.feed = Feed(
             self._session, self.prefix, self.settings.system.period_s, sink, 4 * self.settings.bus.max_payload_bytes
         ).start()
-        self._runner = web.AppRunner(self._app(), handle_signals=False, access_log=None)
+        # a stop waits at most 2 s for handlers still running (aiohttp's default is 60 s):
+        # `radar-fusion display` stopped by SIGINT must exit promptly
+        self._runner = web.AppRunner(self._app(), handle_signals=False, access_log=None, shutdown_timeout=2.0)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port)
         await site.start()

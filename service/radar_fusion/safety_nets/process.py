@@ -133,7 +133,7 @@ class SafetyNetsProcess:
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> SafetyNetsProcess:
-        from ..bus import client_config_for, open_session, reliable_publisher, zenoh_config
+        from ..bus import client_config_for, dropping_sender, open_session, reliable_sender, zenoh_config
 
         bus, own = self.settings.bus, self.settings.safety_nets
         connect = self.connect or own.connect
@@ -148,8 +148,8 @@ class SafetyNetsProcess:
         self._session = open_session(cfg)
         p = self.prefix
         for kind in ALERT_KINDS:
-            self._pubs[kind] = reliable_publisher(self._session, f"{p}/fusion/alerts/{kind}")
-        self._pubs["health"] = self._session.declare_publisher(health_key(p))
+            self._pubs[kind] = reliable_sender(self._session, f"{p}/fusion/alerts/{kind}")
+        self._pubs["health"] = dropping_sender(self._session, health_key(p))
         self._sub = self._session.declare_subscriber(f"{p}/fusion/tracks", self._on_sample)
         self._worker = threading.Thread(target=self._run, name="safety-nets", daemon=True)
         self._worker.start()
@@ -168,8 +168,6 @@ class SafetyNetsProcess:
             self._sub.undeclare()
             self._sub = None
         self.publish_health()
-        for pub in self._pubs.values():
-            pub.undeclare()
         self._pubs = {}
         if self._session is not None:
             self._session.close()
