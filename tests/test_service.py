@@ -20,7 +20,7 @@ import zenoh
 
 from radar_fusion.bus import FusionDaemon, open_session, reliable_sender, zenoh_config
 from radar_fusion.config import load_settings
-from radar_fusion.recording import RecordingWriter, read_header, read_recording
+from radar_fusion.recording import Record, RecordingWriter, read_header, read_recording
 from radar_fusion.tools import simulate as sim
 from radar_fusion.tools.demo import TrackCollector, wait_until
 from radar_fusion.tools.record import Recorder
@@ -125,6 +125,56 @@ def test_recorder_ignores_samples_after_close(tmp_path, free_port):
         recorder._on_sample(late)
         assert writer.count == 0 and list(read_recording(tmp_path / "r.rec")) == []
     finally:
+        listener.close()
+        router.close()
+
+
+class _NoDeclaredPublishers:
+    """A session that refuses declared publishers and passes puts through."""
+
+    def __init__(self, session: zenoh.Session):
+        self._session = session
+        self.puts = 0
+
+    def declare_publisher(self, *args, **kwargs):
+        raise AssertionError("a declared publisher: data can be lost with its key expression's scope (bus.Sender)")
+
+    def put(self, *args, **kwargs):
+        self.puts += 1
+        return self._session.put(*args, **kwargs)
+
+
+def test_a_full_speed_replay_arrives_whole_and_in_order_through_a_router(free_port):
+    """Replay sends through bus.Sender: each put names its key in full, so no message depends
+    on a key expression declared on the wire. CI once lost the end of a full-speed replay
+    through a router ("Route data with unknown scope": the router drops data whose declared
+    scope it does not know, eclipse-zenoh/zenoh#980). 4,000 messages on 8 keys, sent as
+    fast as the bus takes them, reach a subscriber on another client of the router, every
+    one, in order per key; the replaying session closes as soon as the replay returns."""
+    endpoint = f"tcp/127.0.0.1:{free_port}"
+    router = open_session(zenoh_config("router", listen=[endpoint]))
+    listener = open_session(zenoh_config("client", connect=[endpoint]))
+    got: dict[str, list[int]] = {}
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        got.setdefault(str(sample.key_expr), []).append(int.from_bytes(sample.payload.to_bytes()[:4], "big"))
+
+    sub = listener.declare_subscriber("atc/radar/**", on_sample)
+    sender = open_session(zenoh_config("client", connect=[endpoint]))
+    try:
+        time.sleep(0.3)  # the subscription reaches the router
+        keys = [f"radar/r{i}/{kind}" for i in range(4) for kind in ("plots", "status")]
+        records = [Record(float(n), keys[n % 8], n.to_bytes(4, "big") + bytes(1500)) for n in range(4000)]
+        session = _NoDeclaredPublishers(sender)
+        sent = replay_records(session, records, "atc", speed=None)
+        sender.close()
+        assert session.puts == sum(sent.values()) == 4000
+        assert wait_until(lambda: sum(len(v) for v in got.values()) >= 4000, 20), {k: len(v) for k, v in got.items()}
+        assert got == {f"atc/{k}": list(range(i, 4000, 8)) for i, k in enumerate(keys)}
+    finally:
+        if not sender.is_closed():
+            sender.close()
+        sub.undeclare()
         listener.close()
         router.close()
 
