@@ -335,16 +335,30 @@ def test_common_biases_of_all_radars_are_observable(truth):
 def test_the_applied_share_is_the_positive_part_james_stein_factor():
     """applied_share by hand: d² = Σ (b/σ)² over the estimated components, s = max(0, 1 −
     (p − 2)/d²) with p = 4 (3 without the time offset); none before min_plots; 1 with
-    james_stein off. (The estimates are set by hand, so the correction is the share times the
-    estimate: empirical_bayes_gain_time, which solves from the information, is off here.)"""
+    james_stein off. The time offsets count relative to the radars' mean, as their sigmas are
+    (a common offset is not observable: adding one to every radar changes nothing), and
+    absolute with a reference radar. (The estimates are set by hand, so the correction is the
+    share times the estimate: empirical_bayes_gain_time, which solves from the information,
+    is off here.)"""
     reg = RadarRegistration(RegistrationParams(min_plots=30.0, empirical_bayes_gain_time=False), PLANE, SITES)
     reg.bias = np.array([[30.0, 0.0, 0.05, 0.1], [5.0, 0.0, 0.005, 0.0], [30.0, 0.0, 0.05, 0.1], [0.0] * 4])
     reg.sigma = np.array([[10.0, 100.0, 0.01, 0.05], [10.0, 100.0, 0.01, 0.05]] * 2)
     reg.effective_plots = np.array([100.0, 100.0, 29.0, 100.0])
-    # radar 0: d² = 9 + 0 + 25 + 4 = 38; radar 1: 0.25 + 0.25 = 0.5, below p − 2
-    np.testing.assert_allclose(reg.applied_share(), [1.0 - 2.0 / 38.0, 0.0, 0.0, 0.0])
-    np.testing.assert_allclose(reg.correction()[0], (1.0 - 2.0 / 38.0) * reg.bias[0])
-    assert reg.estimates()["0"]["applied_share"] == pytest.approx(1.0 - 2.0 / 38.0)
+    # time offsets relative to their mean 0.05 s: ±0.05 s, 1 σ
+    # radar 0: d² = 9 + 0 + 25 + 1 = 35; radar 1: 0.25 + 0.25 + 1 = 1.5, below p − 2
+    np.testing.assert_allclose(reg.applied_share(), [1.0 - 2.0 / 35.0, 0.0, 0.0, 0.0])
+    np.testing.assert_allclose(reg.correction()[0], (1.0 - 2.0 / 35.0) * reg.bias[0])
+    assert reg.estimates()["0"]["applied_share"] == pytest.approx(1.0 - 2.0 / 35.0)
+    common = reg.bias.copy()
+    reg.bias[:, TIME_OFFSET] += 0.9  # 18 σ on every radar alike
+    np.testing.assert_allclose(reg.applied_share(), [1.0 - 2.0 / 35.0, 0.0, 0.0, 0.0])
+    reg.bias = common
+    pinned = RadarRegistration(
+        RegistrationParams(min_plots=30.0, empirical_bayes_gain_time=False, reference_radar_id="3"), PLANE, SITES
+    )
+    pinned.bias, pinned.sigma, pinned.effective_plots = reg.bias, reg.sigma, reg.effective_plots
+    # absolute: radar 0 d² = 9 + 25 + 4 = 38; radar 1 0.25 + 0.25 = 0.5
+    np.testing.assert_allclose(pinned.applied_share(), [1.0 - 2.0 / 38.0, 0.0, 0.0, 0.0])
     no_time = RadarRegistration(RegistrationParams(min_plots=30.0, estimate_time_offset=False), PLANE, SITES)
     no_time.bias, no_time.sigma, no_time.effective_plots = reg.bias, reg.sigma, reg.effective_plots
     assert no_time.applied_share()[0] == pytest.approx(1.0 - 1.0 / 34.0)

@@ -531,14 +531,21 @@ class RadarRegistration:
         with ``james_stein``, else 1. An estimate within its noise of 0 is applied little or
         not at all (unbiased radars: its full value added its own noise to every plot), a
         significant one almost whole; the factor dominates the estimate itself in mean squared
-        error for p ≥ 3. 0 for radars not yet applied (:meth:`applied_mask`)."""
+        error for p ≥ 3. 0 for radars not yet applied (:meth:`applied_mask`). Without a
+        reference radar a time offset's b_rj and σ_rj are those relative to the radars' mean,
+        as in :meth:`gain_and_time_as_seen`: σ_rj is the relative sigma (``_solve``), and a
+        common offset, which the data do not show, must not make a radar's estimate look
+        significant against it."""
         share = np.where(self.applied_mask(), 1.0, 0.0)
         if not self.params.james_stein:
             return share
         on = np.ones(N_BIAS, bool)
         on[TIME_OFFSET] = self.params.estimate_time_offset
+        b = self.bias.copy()
+        if self.params.reference_radar_id is None and self.n_radars > 1:
+            b[:, TIME_OFFSET] -= b[:, TIME_OFFSET].mean()
         with np.errstate(divide="ignore", invalid="ignore"):
-            d2 = np.sum(np.where(self.sigma[:, on] > 0, (self.bias[:, on] / self.sigma[:, on]) ** 2, 0.0), axis=1)
+            d2 = np.sum(np.where(self.sigma[:, on] > 0, (b[:, on] / self.sigma[:, on]) ** 2, 0.0), axis=1)
             factor = np.where(d2 > 0, np.clip(1.0 - (int(on.sum()) - 2) / d2, 0.0, 1.0), 0.0)
         out: NDArray[np.float64] = share * factor
         return out
