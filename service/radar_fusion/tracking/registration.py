@@ -503,7 +503,7 @@ class RadarRegistration:
         cov = self.covariance
         self.bias = (cov @ self.information_vector).reshape(self.n_radars, N_BIAS)
         self.sigma = np.sqrt(np.maximum(np.diag(cov), 0.0)).reshape(self.n_radars, N_BIAS)
-        if self.params.reference_radar_id is None and self.n_radars > 1:
+        if self.time_offsets_relative:
             # the common time offset is unobservable and pinned to 0 by the prior (module docs):
             # the time offsets are relative to the radars' mean, and so is their sigma
             t_cols = np.arange(self.n_radars) * N_BIAS + TIME_OFFSET
@@ -512,6 +512,20 @@ class RadarRegistration:
             self.sigma[:, TIME_OFFSET] = np.sqrt(np.maximum(np.diag(cov_rel), 0.0))
         if not self.params.estimate_time_offset:
             self.bias[:, TIME_OFFSET] = 0.0
+
+    @property
+    def time_offsets_relative(self) -> bool:
+        """Without a reference radar the common time offset is not observable (module docs):
+        the time offsets and their sigmas (``_solve``) are those relative to the radars' mean."""
+        return self.params.reference_radar_id is None and self.n_radars > 1
+
+    def _bias_as_seen(self) -> NDArray[np.float64]:
+        """(M, 4) the estimate as the data show it: the time offsets relative to the radars'
+        mean where they are known only so (:attr:`time_offsets_relative`), as their sigmas are."""
+        b = self.bias.copy()
+        if self.time_offsets_relative:
+            b[:, TIME_OFFSET] -= b[:, TIME_OFFSET].mean()
+        return b
 
     # ----------------------------------------------------------------- correct
     def applied_mask(self) -> NDArray[np.bool_]:
@@ -541,9 +555,7 @@ class RadarRegistration:
             return share
         on = np.ones(N_BIAS, bool)
         on[TIME_OFFSET] = self.params.estimate_time_offset
-        b = self.bias.copy()
-        if self.params.reference_radar_id is None and self.n_radars > 1:
-            b[:, TIME_OFFSET] -= b[:, TIME_OFFSET].mean()
+        b = self._bias_as_seen()
         with np.errstate(divide="ignore", invalid="ignore"):
             d2 = np.sum(np.where(self.sigma[:, on] > 0, (b[:, on] / self.sigma[:, on]) ** 2, 0.0), axis=1)
             factor = np.where(d2 > 0, np.clip(1.0 - (int(on.sum()) - 2) / d2, 0.0, 1.0), 0.0)
@@ -572,14 +584,9 @@ class RadarRegistration:
         the system, and the others are solved given it), as is a time offset not estimated.
         A component well above its noise is barely moved (τ² ≫ σ² adds little precision)."""
         b = self.bias.reshape(-1)
-        var = np.diag(self.covariance)
-        b_seen, var_seen = b.copy(), var.copy()
-        if self.params.reference_radar_id is None and self.n_radars > 1:
-            # the time offsets are known only relative to the radars' mean (the common one is
-            # the prior's, module docs): their significance is that of the relative offsets,
-            # with the relative sigmas of _solve
+        b_seen, var_seen = self._bias_as_seen().reshape(-1), np.diag(self.covariance).copy()
+        if self.time_offsets_relative:  # their significance is that of the relative offsets
             t_cols = np.arange(self.n_radars) * N_BIAS + TIME_OFFSET
-            b_seen[t_cols] = b[t_cols] - b[t_cols].mean()
             var_seen[t_cols] = self.sigma[:, TIME_OFFSET] ** 2
         tau2 = np.maximum(b_seen * b_seen - var_seen, 0.0)
         extra = np.tile(np.isin(np.arange(N_BIAS), [RANGE_GAIN, TIME_OFFSET]), self.n_radars)
