@@ -579,3 +579,95 @@ def test_a_capped_rotating_subset_of_clusters_still_converges(truth):
     assert reg.plots_used <= 6 * len(SITES) * 2 * n_periods  # at most 6 clusters of <= 2 plots per radar
     assert abs(hist[-1][0, RANGE_OFFSET] - 50.0) <= 10.0
     assert abs(hist[-1][0, AZIMUTH_OFFSET] - 0.05) <= 0.01
+
+
+# ------------------------------------------------------------------- the tracks' innovations
+def test_track_innovations_give_the_batch_weighted_least_squares_estimate(truth):
+    """The two-stage information (module docstring): each innovation nu = (F - B)(b - c) + e,
+    e ~ N(0, S), of a track made of another radar's plot (B its Jacobian) against a plot of
+    this radar (F its Jacobian), the plots corrected by the current correction c. Fed period
+    by period (closed loop, c changing), the estimate is the batch weighted least squares
+    over every innovation and the prior, solved independently (numpy's Cholesky factor of
+    S^-1 per innovation, lstsq on the stacked rows); it finds the injected biases within its
+    own 5 sigma. (The gate is open here: test_an_innovation_far_from_what_the_estimate_predicts_is_gated.)"""
+    params = RegistrationParams(forgetting_time_s=1e15, min_plots=0.0, james_stein=False, innovation_gate_chi2=1e12)
+    reg = RadarRegistration(params, PLANE, SITES)
+    geo = reg.geometry
+    x, y, cov, _ = polar_to_plane(PLANE, SITES, truth.radar, truth.range_m, truth.azimuth_deg, truth.altitude_m)
+    jac = geo.jacobian(truth.radar, truth.range_m, truth.azimuth_deg, truth.altitude_m, x, y, truth.velocity_mps)
+    rng = np.random.default_rng(7)
+    order = np.lexsort((truth.t_s, truth.aircraft))
+    # consecutive plots of one aircraft from two radars: the later plot against a track of the earlier
+    later, earlier = order[1:], order[:-1]
+    pair = (truth.aircraft[later] == truth.aircraft[earlier]) & (truth.radar[later] != truth.radar[earlier])
+    later, earlier = later[pair], earlier[pair]
+    n_state = N_BIAS * len(SITES)
+    b_true = BIASES.reshape(n_state)
+    rows_g, rows_h = [], []
+    period = np.floor(truth.t_s[later] / PERIOD_S).astype(int)
+    for p in np.unique(period)[:60]:
+        sel = np.flatnonzero(period == p)
+        k = sel.size
+        f_sens = np.zeros((k, 2, len(SITES), N_BIAS))
+        b_sens = np.zeros((k, 2, len(SITES), N_BIAS))
+        f_sens[np.arange(k), :, truth.radar[later[sel]]] = jac[later[sel]]
+        b_sens[np.arange(k), :, truth.radar[earlier[sel]]] = jac[earlier[sel]]
+        s = cov[later[sel]] + cov[earlier[sel]]
+        m = (f_sens - b_sens).reshape(k, 2, n_state)
+        c = reg.correction()
+        nu = np.einsum("nak,k->na", m, b_true - c.reshape(n_state))
+        nu += np.einsum("nab,nb->na", np.linalg.cholesky(s), rng.standard_normal((k, 2)))
+        assert reg.update_from_innovations(p * PERIOD_S, f_sens, np.arange(k), b_sens, np.arange(k), nu, s, c) == k
+        for i in range(k):
+            ell = np.linalg.cholesky(np.linalg.inv(s[i]))  # S^-1 = L L^T
+            rows_g.append(ell.T @ m[i])
+            rows_h.append(ell.T @ (nu[i] + m[i] @ c.reshape(n_state)))
+    prior = np.diag(np.sqrt(np.diag(reg.prior_information)))
+    a = np.vstack(rows_g + [prior])
+    h = np.concatenate(rows_h + [np.zeros(n_state)])
+    batch = np.linalg.lstsq(a, h, rcond=None)[0].reshape(len(SITES), N_BIAS)
+    assert reg.innovations_used == len(rows_g)
+    np.testing.assert_allclose(reg.bias, batch, rtol=1e-6, atol=1e-9)
+    for j in (RANGE_OFFSET, AZIMUTH_OFFSET):
+        assert np.all(np.abs(reg.bias[:, j] - BIASES[:, j]) < 5.0 * reg.sigma[:, j]), (
+            j,
+            reg.bias[:, j],
+            reg.sigma[:, j],
+        )
+    assert np.all(reg.sigma[:, RANGE_OFFSET] < 10.0)  # they inform: the prior's sigma is 100 m
+
+
+def test_an_innovation_far_from_what_the_estimate_predicts_is_gated():
+    """The gate compares each innovation with what the estimate so far predicts of it, its
+    covariance S + m Cov(b) m^T: a 200 m innovation of a radar pair whose relative bias is
+    still unknown (the prior: 100 m) is taken; so is it once the estimate has learnt that
+    bias; 3 km is a wild plot or a manoeuvre, left out and counted."""
+    reg = RadarRegistration(RegistrationParams(), PLANE, SITES)
+    sens_f = np.zeros((1, 2, len(SITES), N_BIAS))
+    sens_b = np.zeros((1, 2, len(SITES), N_BIAS))
+    sens_f[0, :, 0, RANGE_OFFSET] = [1.0, 0.0]  # radar 0's range offset moves the fused position east
+    sens_b[0, :, 1, RANGE_OFFSET] = [1.0, 0.0]  # the track was made of radar 1's plots
+    cov = np.eye(2)[None] * 30.0**2
+    one = np.zeros(1, np.intp)
+    assert reg.update_from_innovations(0.0, sens_f, one, sens_b, one, np.array([[200.0, 0.0]]), cov) == 1
+    for k in range(30):  # the same relative bias, learnt
+        reg.update_from_innovations(4.0 * k, sens_f, one, sens_b, one, np.array([[200.0, 0.0]]), cov)
+    assert reg.bias[0, RANGE_OFFSET] - reg.bias[1, RANGE_OFFSET] == pytest.approx(200.0, rel=0.05)
+    assert reg.innovations_gated == 0
+    assert reg.update_from_innovations(124.0, sens_f, one, sens_b, one, np.array([[3200.0, 0.0]]), cov) == 0
+    assert reg.innovations_gated == 1
+    assert reg.update_from_innovations(128.0, sens_f, one, sens_b, one, np.array([[230.0, -20.0]]), cov) == 1
+
+
+def test_a_track_of_its_own_radar_informs_nothing():
+    """F = B: a track built from this radar's plots alone, against this radar's next plot,
+    says nothing of the biases; the estimate and its information stay the prior's."""
+    reg = RadarRegistration(RegistrationParams(), PLANE, SITES)
+    rng = np.random.default_rng(3)
+    sens = np.zeros((5, 2, len(SITES), N_BIAS))
+    sens[:, :, 1] = rng.normal(size=(5, 2, N_BIAS))
+    nu = rng.normal(0.0, 50.0, (5, 2))
+    cov = np.tile(np.eye(2) * 2500.0, (5, 1, 1))
+    assert reg.update_from_innovations(0.0, sens, np.arange(5), sens, np.arange(5), nu, cov) == 5
+    np.testing.assert_array_equal(reg.information, reg.prior_information)
+    assert np.all(reg.bias == 0.0)

@@ -115,3 +115,35 @@ def test_a_state_from_before_a_column_was_added_is_read_with_its_fill(demo_case)
         np.testing.assert_array_equal(getattr(new, name), np.full((len(new),) + shape, fill, dtype=dtype))
     for name in ("track_id", "x", "P", "sources", "seen_by", "mode_s", "mu"):
         np.testing.assert_array_equal(getattr(new, name), getattr(old, name))
+
+
+def test_a_state_of_the_other_two_stage_setting_is_read_without_the_sensitivities(demo_case):
+    """Each track's sensitivity to the radars' biases (``bias_sens``) exists only with the
+    two-stage registration on (``[registration] track_innovations``). A state written with
+    it off is read by an engine with it on, and the reverse, every other column as saved:
+    the sensitivities start at 0 (the tracks then learn theirs from their next updates),
+    and the correction the tracks follow is the estimator's (no jump at the next period)."""
+    import numpy as np
+
+    settings, simulation = demo_case
+    off = settings.model_copy(
+        update={"registration": settings.registration.model_copy(update={"track_innovations": False})}
+    )
+    for source, target in ((off, settings), (settings, off)):
+        engine = Engine(source)
+        replay_into_engine(engine, simulation.messages[:600], flush=False)
+        fresh = Engine(target)
+        restore(fresh, snapshot(engine))
+        old, new = engine.tracks, fresh.tracks
+        assert len(new) == len(old) > 20
+        assert new.bias_sens.shape == (len(new),) + new._fields["bias_sens"][0]
+        assert not new.bias_sens.any()
+        for name in ("track_id", "x", "P", "mu", "update_sources"):
+            np.testing.assert_array_equal(getattr(new, name), getattr(old, name))
+        np.testing.assert_array_equal(fresh._reg_applied, fresh.registration.correction())
+    on_engine = Engine(settings)
+    replay_into_engine(on_engine, simulation.messages[:600], flush=False)
+    assert on_engine.tracks.bias_sens.any()  # the setting on: they are kept
+    again = Engine(settings)
+    restore(again, snapshot(on_engine))
+    np.testing.assert_array_equal(again.tracks.bias_sens, on_engine.tracks.bias_sens)

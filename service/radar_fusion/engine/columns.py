@@ -543,6 +543,11 @@ class ClusterMeasurements:
     t0_s: np.ndarray | None = None
     z0_m: np.ndarray | None = None
     R0_m2: np.ndarray | None = None
+    # (K, 2, R, 4) the fused position's sensitivity to each radar's biases, F = S^-1 sum_i
+    # W_i J_i, and (K,) whether every plot of the cluster has Mode C: the two-stage
+    # registration's (registration.py; engine._bias_sensitivity), None with it off
+    bias_sens: np.ndarray | None = None
+    all_heights: np.ndarray | None = None
 
 
 @dataclass

@@ -14,14 +14,19 @@ step each (``_process_period`` reads as this list):
               "imm"`` the IMM's mixing and per-model prediction (imm.py)
     associate time alignment + k-means clustering seeded by the tracks (Shu §2, clustering.py;
               the gates and track clusters in association.py)
-    fuse      inverse-variance fusion of each cluster at its own time (Shu eq. 5-6, fusion.py)
+    fuse      inverse-variance fusion of each cluster at its own time (Shu eq. 5-6, fusion.py);
+              the radars' registration learns from the clusters (registration.py)
     update    Kalman update of the tracks that got a cluster (Shu eq. 7, 9, 10), or their
               two-point initiation (Shu §4, initiation.py); manoeuvre detection (or the
-              IMM's per-model update and mode probabilities)
+              IMM's per-model update and mode probabilities); the registration learns from
+              the quiet tracks' innovations, and each track's sensitivity to the radars'
+              biases follows its update (registration.py, the two-stage section)
     initiate  new tentative tracks from the clusters no track claims (Shu §2 cases 1, 3)
     merge     tracks with one Mode S address become one, with the oldest id
     manage    the track life cycle: confirm, coast, end (track_management.py)
     output    TrackColumns at the reference time (→ TrackBatch on demand), safety nets
+    follow    the registration's correction for the next period; every track moved by its
+              change, as if its plots had all been corrected with the new estimate
 
 Gating and converting per period rather than per batch costs one vectorised pass over
 the period's plots instead of a fixed overhead per batch (at 4,000 aircraft and 10
@@ -55,6 +60,7 @@ from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
 from ..geo.unknown_height import unknown_height_plots
 from ..safety_nets import SafetyNets
 from ..tracking import association, live_gate
+from ..tracking import registration as reg_kernels
 from ..tracking.clustering import ClusterResult, cluster_plots
 from ..tracking.fusion import (
     consensus_outliers,
@@ -166,8 +172,17 @@ class Engine:
         # the period's Mode S plots the live gate refused that carry a velocity (_gate)
         self._refused_velocity: PlotChunk | None = None
         self._reg_next_t_s = -math.inf
+        self._reg_fed_t_s = -math.inf  # the period whose plots _register fed (its innovations too)
         self.clock = ClockCheck(len(self.radar_ids))
-        self.tracks = TrackTable(self.imm.n_models if self.imm is not None else 0)
+        # the two-stage registration (registration.py): each track's sensitivity to every
+        # radar's biases, for its innovations and to follow the applied correction
+        reg = settings.registration
+        two_stage = reg.enabled and reg.track_innovations and len(self.radar_ids) > 1
+        self.tracks = TrackTable(
+            self.imm.n_models if self.imm is not None else 0, len(self.radar_ids) if two_stage else 0
+        )
+        if two_stage:
+            reg_kernels.warm_up()
         # the wind shared by the aircraft of each layer (engine._air_velocity_and_wind): x, y
         # in the system plane, m/s, and the time of its latest samples; NaN: none yet
         n_layers = 1 + int(50_000.0 // (self.imm.params.wind_layer_ft if self.imm is not None else 50_000.0))
@@ -242,7 +257,7 @@ class Engine:
             self._refuse_impossible_pairs(clusters)
             self._hold_far(clusters)
             absorbed = self._code_alternatives(clusters)
-            changed = np.concatenate([self._update(clusters, t_ref_s), self._initiate(clusters, t_ref_s)])
+            changed = np.concatenate([self._update(clusters, t_ref_s, pred), self._initiate(clusters, t_ref_s)])
         if self._refused_velocity is not None:
             changed = np.union1d(changed, self._update_velocity_of_refused())
         self.track_t_s = t_ref_s
@@ -254,6 +269,7 @@ class Engine:
             alive = ~np.isin(ids, ended)
             out = out.select(alive)
         columns = self._output(period, t_ref_s, np.concatenate([merged, ended]), out)
+        self._follow_registration()
         # the safety nets judge every track that is not tentative (safety_nets.prediction.eligible)
         alerts = self.safety_nets.update(t_ref_s, columns) if self.safety_nets is not None else []
         dt = time.perf_counter() - t0
@@ -281,9 +297,9 @@ class Engine:
         with the spread added. (Spreading every such plot's covariance over the heights,
         polar_to_plane_unknown_height, was measured on the demo: 85 -> 98 m position RMS,
         its wide radial gates letting clutter in.)"""
-        # registration (registration.py): each radar's estimated biases, removed from the plots
+        # registration (registration.py): each radar's estimated biases (``_reg_applied``, taken
+        # at the end of the previous period, _follow_registration) are removed from the plots
         # below (and from those the live gate refuses, _track_expects)
-        self._reg_applied = self.registration.correction()
         if self.outlier_gate is not None and len(raw):
             keys = radar_track_keys(raw.radar, raw.track_no, raw.mode_s)
             has_key = np.flatnonzero(keys >= 0)
@@ -734,6 +750,7 @@ class Engine:
                 pvv_pad[res.cluster_track[joint]],
                 joint.size,
             )
+        bias_sens, all_heights = self._bias_sensitivity(plots, used, lab, v, R_plot, n_clusters)
         dap_v_mps, dap_age_s = self._dap_velocity(plots, used, lab, t_c, n_clusters)
         air_v_mps, air_age_s = self._air_velocity(plots, used, lab, t_c, z_m, n_clusters)
         roll_used = plots.roll_deg[used]
@@ -765,7 +782,46 @@ class Engine:
             air_age_s=air_age_s,
             height_cov_m2=cluster_h_cov,
             far=far,
+            bias_sens=bias_sens,
+            all_heights=all_heights,
         )
+
+    def _bias_sensitivity(
+        self,
+        plots: ConvertedPlots,
+        used: np.ndarray,
+        lab: np.ndarray,
+        v_mps: np.ndarray,
+        R_plot: np.ndarray,
+        n_clusters: int,
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Per cluster, the fused position's sensitivity to each radar's biases (the
+        two-stage registration, registration.py): F = S_c^-1 sum_i W_i J_i, W_i = R_i^-1 the
+        weights the fusion gave the plots (Shu eq. 5-6), J_i the plot's Jacobian
+        (RegistrationGeometry.jacobian, with the velocity it was aligned with), placed at its
+        radar's columns; (K, 2, R, 4) (registration.cluster_sensitivity). And whether every
+        plot of the cluster has Mode C (a plot without it is converted at a guessed height:
+        no bias evidence). None, None with the two-stage registration off."""
+        m = self.tracks.n_radars
+        if not m:
+            return None, None
+        radar = plots.radar[used]
+        altitude_m = plots.altitude_m[used]
+        jac = self.registration.geometry.jacobian(
+            radar,
+            plots.range_m[used],
+            plots.azimuth_deg[used],
+            altitude_m,
+            plots.xy_m[used, 0],
+            plots.xy_m[used, 1],
+            v_mps if self.registration.params.estimate_time_offset else None,
+            self.assumed_altitude_m,
+        )
+        sens = reg_kernels.cluster_sensitivity(
+            lab.astype(np.intp), radar.astype(np.intp), np.ascontiguousarray(R_plot), jac, n_clusters, m
+        )
+        no_height = np.bincount(lab, weights=~np.isfinite(altitude_m), minlength=n_clusters)
+        return sens, no_height == 0
 
     def _dap_velocity(
         self, plots: ConvertedPlots, used: np.ndarray, lab: np.ndarray, t_c: np.ndarray, n_clusters: int
@@ -1131,6 +1187,7 @@ class Engine:
         if not reg.params.enabled or t_ref_s < self._reg_next_t_s:
             return
         self._reg_next_t_s = t_ref_s + reg.params.update_interval_s
+        self._reg_fed_t_s = t_ref_s
         status = np.concatenate([self.tracks.status, [TENTATIVE]])  # row -1: a new target
         established = status[row_of_plot] != TENTATIVE
         # a plot without any height is no bias evidence: its ground range is the height's guess
@@ -1460,10 +1517,13 @@ class Engine:
         return out
 
     # ---------------------------------------------------------------- update
-    def _update(self, cl: ClusterMeasurements, t_ref_s: float) -> np.ndarray:
+    def _update(self, cl: ClusterMeasurements, t_ref_s: float, pred: Prediction) -> np.ndarray:
         """Tracks that got a cluster: each is predicted to its cluster's time, then the
         Kalman update (Shu eq. 7, 9, 10), or, at its second measurement, the two-point
-        initiation (Shu §4). Returns the rows updated."""
+        initiation (Shu §4). With the two-stage registration, the innovations of quiet
+        tracks inform it first, and each track's sensitivity to the biases follows its
+        update (:meth:`_innovations_to_registration`, :meth:`_update_bias_sens`). ``pred``:
+        the period's prediction of every track. Returns the rows updated."""
         matched = np.flatnonzero(cl.valid & (cl.track_row >= 0))
         rows = cl.track_row[matched]
         if not rows.size:
@@ -1480,6 +1540,8 @@ class Engine:
         if cl.t0_s is not None:
             again = np.isfinite(cl.t0_s[matched])
             init &= ~again
+        if init.any() and cl.bias_sens is not None:
+            self._innovations_to_registration(cl, matched[init], rows[init], pred, t_ref_s)
         if init.any():
             # With the IMM, per model only: its output is the combination after the update,
             # so the combined prediction at the cluster's time is not computed. Only the
@@ -1533,6 +1595,8 @@ class Engine:
             tr.initiated[rows[two]] = True
             self._imm_initiate(rows[two], x, P)
         tr.x[rows], tr.P[rows] = x_c, P_c
+        if cl.bias_sens is not None:
+            self._update_bias_sens(cl, matched, rows, init)
         dap_used = rows[:0]
         if cl.dap_v_mps is not None:
             dap_used = self._update_velocity(cl, matched, rows)
@@ -1550,6 +1614,90 @@ class Engine:
         tr.seen_by[rows] |= cl.sources[matched]
         tr.revisit_s[rows] = cl.revisit_s[matched]
         return rows.astype(np.int64)
+
+    def _innovations_to_registration(
+        self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray, pred: Prediction, t_ref_s: float
+    ) -> None:
+        """The two-stage registration's evidence (registration.py): the innovation of each
+        track about to be Kalman-updated, nu = z_f - x^-_p (its prediction to the cluster's
+        time, from the period's: x^-_p = p + v (t_c - t_ref)), with covariance P^-_pp + R_f
+        and sensitivity F - B to the biases. Only quiet tracks (the IMM's quiet mode at
+        ``innovation_quiet_prob`` or above; the Singer filter: no manoeuvre detected) of three
+        updates or more, whose cluster's plots all have Mode C, in a period whose plots the
+        registration learns from (``update_interval_s``)."""
+        reg = self.registration
+        assert cl.bias_sens is not None and cl.all_heights is not None
+        if self._reg_fed_t_s != t_ref_s:
+            return
+        tr = self.tracks
+        if self.imm is not None:
+            quiet = tr.mu[rows, QUIET] >= reg.params.innovation_quiet_prob
+        else:
+            quiet = ~tr.manoeuvre[rows]
+        use = quiet & (tr.updates[rows] >= 3) & cl.all_heights[matched]
+        k, r = matched[use], rows[use]
+        stride = -(-r.size // reg.params.max_clusters_per_update)  # ceil
+        if stride > 1:  # a rotating subset, as of the clusters (RadarRegistration.update)
+            part = (tr.track_id[r] + reg.updates) % stride == 0
+            k, r = k[part], r[part]
+        if not r.size:
+            return
+        dt_s = (cl.t_s[k] - t_ref_s)[:, None]
+        nu = cl.z_m[k] - (position_m(pred.x[r]) + velocity_mps(pred.x[r]) * dt_s)
+        cov = cov_pos_m2(pred.P[r]) + cl.R_m2[k]
+        reg.update_from_innovations(t_ref_s, cl.bias_sens, k, tr.bias_sens, r, nu, cov, applied=self._reg_applied)
+
+    def _update_bias_sens(
+        self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray, init: np.ndarray
+    ) -> None:
+        """Each updated track's sensitivity to the radars' biases, B (R, 2, 4) of its position
+        (registration.py, the two-stage section). A Kalman update x+ = x- + K (z_f - x-_p)
+        gives B+ = B- + K (F - B-), K the gain on the position: P+_pp R_f^-1 for a Kalman
+        filter, and for the IMM the mode-weighted sum of its models' gains, sum_j mu_j
+        P+_j,pp R_f^-1 (each model updates from the same mixed sensitivity; the mode
+        probabilities' own dependence on z is left out). A track's prediction keeps B (the
+        velocity's sensitivity is left out: it changes slowly with the radars that see the
+        track). The two-point initiation (Shu §4) takes its position from the second
+        measurement: B = F."""
+        assert cl.bias_sens is not None
+        tr = self.tracks
+        if init.any():
+            k = matched[init]
+            if self.imm is not None:
+                cov_post, weight = tr.P_models, tr.mu
+            else:
+                cov_post, weight = tr.P[:, None], np.ones((len(tr), 1))
+            reg_kernels.update_sensitivity(
+                tr.bias_sens, rows[init], cov_post, weight, np.ascontiguousarray(cl.R_m2[k]), cl.bias_sens, k
+            )
+        two = ~init
+        if two.any():
+            tr.bias_sens[rows[two]] = cl.bias_sens[matched[two]]
+
+    def _follow_registration(self) -> None:
+        """At the end of a period: the registration's correction for the next period's plots
+        (``_reg_applied``). With the two-stage registration, every track follows its change
+        dc: moved by -sum_r B_r dc_r (B its sensitivity to the biases, ``bias_sens``), as if
+        all its plots had been corrected with the new estimate (Friedland 1969's corrected
+        estimate x = x_bias-free + B b, b now c_new); so is the first measurement of a track
+        of one update (its B is that measurement's). Without this, a track kept for minutes
+        what it learnt from plots corrected with older estimates (the bench's ADS-B case,
+        straight flight: 23.2 m, 21.2 m with the true biases removed from the start). A
+        measurement held beside a track (_hold_far) is not moved: it is held for one scan."""
+        new = self.registration.correction()
+        tr = self.tracks
+        if tr.n_radars and len(tr):
+            delta = new - self._reg_applied
+            if np.any(delta != 0.0):
+                shift = -(tr.bias_sens.reshape(len(tr), 2, -1) @ delta.reshape(-1))
+                tr.x[:, 0] += shift[:, 0]
+                tr.x[:, 3] += shift[:, 1]
+                if tr.n_models:
+                    tr.x_models[:, :, 0] += shift[:, None, 0]
+                    tr.x_models[:, :, 3] += shift[:, None, 1]
+                one = tr.updates == 1
+                tr.z1_m[one] += shift[one]
+        self._reg_applied = new
 
     def _birth_velocity_refuted(self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """At the second update of a track that started with the aircraft's own velocity
@@ -1964,6 +2112,8 @@ class Engine:
         self._imm_initiate(new, tr.x[new], tr.P[new])
         tr.t_state_s[new] = cl.t_s[new_cl]
         tr.z1_m[new], tr.R1_m2[new], tr.t1_s[new] = cl.z_m[new_cl], cl.R_m2[new_cl], cl.t_s[new_cl]
+        if cl.bias_sens is not None:
+            tr.bias_sens[new] = cl.bias_sens[new_cl]
         tr.alt_x[new], tr.alt_P[new] = self.alt_filter.initiate(cl.fl[new_cl])
         self._floor_no_height(np.arange(new.start, new.stop), cl.height_cov_m2, new_cl)
         if cl.dap_v_mps is not None:
@@ -2140,6 +2290,9 @@ class Engine:
         counters = dict(self.counters)
         counters["tracks_confirmed"] = int((self.tracks.status == CONFIRMED).sum())
         counters["plots_buffered"] = self.buffer.buffered_plots
+        # the two-stage registration's evidence: tracks' innovations taken, and left out by its gate
+        counters["registration_innovations_used"] = self.registration.innovations_used
+        counters["registration_innovations_gated"] = self.registration.innovations_gated
         if self.safety_nets is not None:  # its event counts, as safety_nets_<name>
             counters.update({f"safety_nets_{k}": int(v) for k, v in self.safety_nets.counters.items()})
         return {

@@ -82,6 +82,8 @@ STATE_FILE = "engine-state.msgpack"
 
 _REGISTRATION_ARRAYS = ("information", "information_vector", "bias", "sigma", "effective_plots")
 _REGISTRATION_COUNTS = ("updates", "plots_used", "plots_gated")
+#: counts added later: a state without them starts them at 0
+_OPTIONAL_REGISTRATION_COUNTS = ("innovations_used", "innovations_gated")
 
 
 class StateMismatch(ValueError):
@@ -117,7 +119,7 @@ def snapshot(engine: Engine, period: int | None = None, epoch: int | None = None
         "address_memory": memory,
         "registration": {
             **{name: _pack_array(getattr(reg, name)) for name in _REGISTRATION_ARRAYS},
-            **{name: int(getattr(reg, name)) for name in _REGISTRATION_COUNTS},
+            **{name: int(getattr(reg, name)) for name in _REGISTRATION_COUNTS + _OPTIONAL_REGISTRATION_COUNTS},
             "t_last_s": reg.t_last_s,
             "next_update_t_s": engine._reg_next_t_s if math.isfinite(engine._reg_next_t_s) else None,
         },
@@ -187,6 +189,7 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
         columns = {name: _unpack_array(item) for name, item in state["tracks"].items()}
         registration = {name: _unpack_array(state["registration"][name]) for name in _REGISTRATION_ARRAYS}
         counts = {name: int(state["registration"][name]) for name in _REGISTRATION_COUNTS}
+        counts |= {name: int(state["registration"].get(name, 0)) for name in _OPTIONAL_REGISTRATION_COUNTS}
         memory = [tuple(entry) for entry in state["address_memory"]]
         next_id, track_t_s, next_period = int(state["next_id"]), state["track_t_s"], state["next_period"]
         t_last_s = state["registration"].get("t_last_s")
@@ -207,6 +210,12 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
             if name not in columns and name in tr._fields:
                 shape, dtype, fill = tr._fields[name]
                 columns[name] = np.full((next(iter(n)),) + shape, fill, dtype=dtype)
+        # the tracks' sensitivity to the radars' biases is kept only with the two-stage
+        # registration on (TrackTable.n_radars); a state of the other setting: none known
+        sens = columns.get("bias_sens")
+        if sens is not None and sens.shape[1:] != tr._fields["bias_sens"][0]:
+            shape, dtype, fill = tr._fields["bias_sens"]
+            columns["bias_sens"] = np.full((sens.shape[0],) + shape, fill, dtype=dtype)
     if set(columns) != set(tr._fields):
         raise StateMismatch(f"state columns {sorted(columns)} differ from the track table's")
     if len(n) != 1:  # (the columns filled in above have the others' length)
@@ -234,12 +243,15 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
         setattr(reg, name, count)
     reg.refresh_covariance()  # the correction's empirical Bayes step reads it
     reg.t_last_s = None if t_last_s is None else float(t_last_s)
+    # the correction the tracks are consistent with: the estimator's when the state was taken
+    # (engine._follow_registration took it at the end of that period)
+    engine._reg_applied = reg.correction()
     engine._reg_next_t_s = -math.inf if next_update_t_s is None else float(next_update_t_s)
     if gate is not None:
         engine.outlier_gate = gate
     if wind_mps is not None and wind_t_s is not None and wind_mps.shape == engine.layer_wind_mps.shape:
         engine.layer_wind_mps, engine.layer_wind_t_s = wind_mps.astype(float), wind_t_s.astype(float)
-    return tr.n  # the registration's correction is taken from the estimator at each period
+    return tr.n
 
 
 def save_state(engine: Engine, directory: str | os.PathLike[str], data: bytes | None = None) -> Path:

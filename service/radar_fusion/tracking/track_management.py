@@ -37,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from ..geo.units import FT_PER_FL
 from .association import is_identity_code
+from .registration import N_BIAS
 
 TENTATIVE, CONFIRMED, COASTING = 0, 1, 2
 STATUS_NAMES = ("tentative", "confirmed", "coasting")
@@ -217,7 +218,7 @@ _FIELDS = {
 #: with their fill (engine/state.py)
 OPTIONAL_FIELDS = (
     "held_z_m", "held_R_m2", "held_t_s", "update_sources", "held_sources", "roll_check", "roll_distrust",
-    "wind_mps", "wind_t_s", "wind_fl", "start_refuted", "t1_s", "wind_air_deg", "address_seen_t_s",
+    "wind_mps", "wind_t_s", "wind_fl", "start_refuted", "t1_s", "wind_air_deg", "address_seen_t_s", "bias_sens",
 )  # fmt: skip
 
 # The IMM's per-model columns (tracking/imm.py IMMState), with the model axis M after the
@@ -275,15 +276,20 @@ class TrackTable:
     x_models: NDArray[np.float64]  # (N, M, 6) each IMM model's state at t_state_s
     P_models: NDArray[np.float64]  # (N, M, 6, 6)
     mu: NDArray[np.float64]  # (N, M) IMM mode probabilities
+    bias_sens: NDArray[np.float64]  # (N, 2, R, 4) d(position)/d(radar biases), registration.py
 
-    def __init__(self, n_models: int = 0) -> None:
-        """``n_models``: the IMM's model count M for the per-model columns (0: no IMM)."""
+    def __init__(self, n_models: int = 0, n_radars: int = 0) -> None:
+        """``n_models``: the IMM's model count M for the per-model columns (0: no IMM).
+        ``n_radars``: the radars R of ``bias_sens``, each track's sensitivity to every
+        radar's biases (registration.py, its two-stage section; 0: registration off)."""
         self.n = 0
         self.next_id = 1
         self.n_models = n_models
+        self.n_radars = n_radars
         self._fields: dict[str, tuple[tuple[int, ...], Any, Any]] = dict(_FIELDS)
         for name, (shape, dtype, fill) in _MODEL_FIELDS.items():
             self._fields[name] = ((n_models,) + shape, dtype, fill)
+        self._fields["bias_sens"] = ((2, n_radars, N_BIAS), float, 0.0)
         # Each column is the first n rows of a larger buffer, so that appending rows copies
         # nothing most of the time (the model covariances alone are 7 MB at 4,000 tracks);
         # _views holds the arrays handed out, to notice a column replaced from outside.
