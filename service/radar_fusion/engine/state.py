@@ -19,7 +19,10 @@ Format (version 1): one msgpack map
     tracks          {column name: [dtype, shape, raw bytes]}, TrackTable's columns
     address_memory  [[mode_s, id, [x_m, y_m], [[cov]], t_s], ...]: recently ended tracks
     registration    {name: [dtype, shape, raw bytes]} of the estimator's arrays, its
-                    counters, t_last_s and next_update_t_s (when it next learns)
+                    counters, t_last_s and next_update_t_s (when it next learns); the
+                    correction the tracks are consistent with is the estimator's at the
+                    end of the state's period (engine._follow_registration), so a
+                    restored engine takes it from the restored estimator
     live_gate       the wild-plot gate's window per radar track (tracking/live_gate.py),
                     {"arrays": {name: [dtype, shape, bytes]} of the rows in use, "last_sweep_t",
                     "counts"}; nil with the gate off
@@ -43,7 +46,10 @@ process, as on any restart; a standby has them itself), the clock check and the 
 alerts (a restarted daemon raises them again as new; a standby's child has them).
 A state written before ``live_gate``, the registration's times or ``layer_wind`` were kept
 (the same version) is read without them: the gate relearns within a few scans, the layers'
-wind within minutes (a track's own wind is a track column).
+wind within minutes (a track's own wind is a track column). The tracks' sensitivity to the
+radars' biases (``bias_sens``) of a state written with ``[registration] track_innovations``
+set otherwise, or before it was kept, is read as 0: each track learns its own again from its
+next updates.
 """
 
 from __future__ import annotations
