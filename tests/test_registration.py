@@ -659,15 +659,32 @@ def test_an_innovation_far_from_what_the_estimate_predicts_is_gated():
     assert reg.update_from_innovations(128.0, sens_f, one, sens_b, one, np.array([[230.0, -20.0]]), cov) == 1
 
 
-def test_a_track_of_its_own_radar_informs_nothing():
-    """F = B: a track built from this radar's plots alone, against this radar's next plot,
-    says nothing of the biases; the estimate and its information stay the prior's."""
+def test_the_innovations_leave_the_clock_offset_common_to_all_radars_to_the_prior():
+    """Without a reference radar the time offset common to every radar is not observable
+    (module docstring): innovations whose sensitivity lies along it (every radar's time
+    column alike, as an alignment velocity a little off the track's own gives) add no
+    information there, however many; the relative time offsets they do show are learnt."""
     reg = RadarRegistration(RegistrationParams(), PLANE, SITES)
-    rng = np.random.default_rng(3)
-    sens = np.zeros((5, 2, len(SITES), N_BIAS))
-    sens[:, :, 1] = rng.normal(size=(5, 2, N_BIAS))
-    nu = rng.normal(0.0, 50.0, (5, 2))
-    cov = np.tile(np.eye(2) * 2500.0, (5, 1, 1))
-    assert reg.update_from_innovations(0.0, sens, np.arange(5), sens, np.arange(5), nu, cov) == 5
-    np.testing.assert_array_equal(reg.information, reg.prior_information)
-    assert np.all(reg.bias == 0.0)
+    n = 500
+    rng = np.random.default_rng(5)
+    f_sens = np.zeros((n, 2, len(SITES), N_BIAS))
+    b_sens = np.zeros((n, 2, len(SITES), N_BIAS))
+    v = rng.normal(0.0, 200.0, (n, 2))
+    f_sens[:, :, :, TIME_OFFSET] = -v[:, :, None] / len(SITES)  # every radar's column alike
+    nu = rng.normal(0.0, 30.0, (n, 2)) - v * 0.3  # as if all clocks were 0.3 s late
+    cov = np.tile(np.eye(2) * 900.0, (n, 1, 1))
+    idx = np.arange(n)
+    reg.update_from_innovations(0.0, f_sens, idx, b_sens, idx, nu, cov)
+    t_cols = np.arange(len(SITES)) * N_BIAS + TIME_OFFSET
+    ones = np.zeros(N_BIAS * len(SITES))
+    ones[t_cols] = 1.0
+    assert ones @ reg.information @ ones == pytest.approx(ones @ reg.prior_information @ ones, rel=1e-9)
+    assert np.all(np.abs(reg.bias[:, TIME_OFFSET]) < 1e-9)
+    # radar 0's clock 0.2 s late against the others: shown, and learnt
+    f_sens[:] = 0.0
+    f_sens[:, :, 0, TIME_OFFSET] = -v
+    b_sens[:, :, 1, TIME_OFFSET] = -v  # tracks of radar 1's plots
+    nu = -v * 0.2 + rng.normal(0.0, 30.0, (n, 2))
+    reg.update_from_innovations(4.0, f_sens, idx, b_sens, idx, nu, cov)
+    rel = reg.bias[:, TIME_OFFSET] - reg.bias[:, TIME_OFFSET].mean()
+    assert rel[0] - rel[1] == pytest.approx(0.2, abs=0.02)

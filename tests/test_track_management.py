@@ -428,6 +428,30 @@ def test_merging_young_tracks_keeps_the_one_with_a_velocity():
     assert tab.x[0, 0] == -113_329.0 and tab.x[0, 1] == -32.0 and tab.t_state_s[0] == 8.0 and tab.updates[0] == 2
 
 
+def test_a_merged_track_takes_the_bias_sensitivity_of_the_state_it_takes():
+    """With the two-stage registration a track's ``bias_sens`` is the sensitivity of its own
+    state to the radars' biases: the survivor of a merge takes it with the state, from the
+    member that followed the aircraft, or it would follow the correction, and inform it,
+    with another track's."""
+    from radar_fusion.tracking.track_management import merge_same_address
+
+    tab = TrackTable(n_radars=3)
+    rows = tab.append(2)
+    tab.mode_s[rows] = 0x3A7C42
+    tab.updates[rows] = [5, 4]
+    tab.update_sources[rows] = np.array([0b001, 0b110], dtype=np.uint64)
+    tab.sources[rows] = np.array([0, 0b110], dtype=np.uint64)
+    tab.t_state_s[rows] = [8.0, 11.0]  # the second was updated last: its state is kept
+    tab.x[rows, 0] = [0.0, 1_000.0]
+    tab.bias_sens[rows] = 0.0
+    tab.bias_sens[0, :, 0] = 1.0  # radar 0's plots made the first
+    tab.bias_sens[1, :, 1:] = 0.5  # radars 1 and 2 the second
+    second = tab.bias_sens[1].copy()
+    merge_same_address(tab, confirm_updates=3)
+    assert len(tab) == 1 and tab.track_id[0] == 1 and tab.x[0, 0] == 1_000.0
+    np.testing.assert_array_equal(tab.bias_sens[0], second)
+
+
 @pytest.mark.parametrize(
     ("first_t_s", "t_state_s", "held"),
     [

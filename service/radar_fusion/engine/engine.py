@@ -799,9 +799,11 @@ class Engine:
         two-stage registration, registration.py): F = S_c^-1 sum_i W_i J_i, W_i = R_i^-1 the
         weights the fusion gave the plots (Shu eq. 5-6), J_i the plot's Jacobian
         (RegistrationGeometry.jacobian, with the velocity it was aligned with), placed at its
-        radar's columns; (K, 2, R, 4) (registration.cluster_sensitivity). And whether every
-        plot of the cluster has Mode C (a plot without it is converted at a guessed height:
-        no bias evidence). None, None with the two-stage registration off."""
+        radar's columns; (K, 2, R, 4) (registration.cluster_sensitivity): the matrix fusion's
+        (with ``fusion_method`` "scalar", or a new target's cluster fused with its common
+        velocity, an approximation). And whether every plot of the cluster has Mode C (a plot
+        without it is converted at a guessed height: no bias evidence). None, None with the
+        two-stage registration off."""
         m = self.tracks.n_radars
         if not m:
             return None, None
@@ -1635,6 +1637,7 @@ class Engine:
         else:
             quiet = ~tr.manoeuvre[rows]
         use = quiet & (tr.updates[rows] >= 3) & cl.all_heights[matched]
+        use &= ~np.isnan(tr.bias_sens[rows, 0, 0, 0])  # a sensitivity not known (a state read without it)
         k, r = matched[use], rows[use]
         stride = -(-r.size // reg.params.max_clusters_per_update)  # ceil
         if stride > 1:  # a rotating subset, as of the clusters (RadarRegistration.update)
@@ -1658,17 +1661,22 @@ class Engine:
         probabilities' own dependence on z is left out). A track's prediction keeps B (the
         velocity's sensitivity is left out: it changes slowly with the radars that see the
         track). The two-point initiation (Shu §4) takes its position from the second
-        measurement: B = F."""
+        measurement: B = F (with ``two_point_prior`` the first pulls it a little: left out).
+        A track whose B is not known (NaN: a state read without it) takes the update's F."""
         assert cl.bias_sens is not None
         tr = self.tracks
         if init.any():
-            k = matched[init]
+            k, r = matched[init], rows[init]
+            unknown = np.isnan(tr.bias_sens[r, 0, 0, 0])  # a state read without it: the update's F
+            if unknown.any():
+                tr.bias_sens[r[unknown]] = cl.bias_sens[k[unknown]]
+                k, r = k[~unknown], r[~unknown]
             if self.imm is not None:
                 cov_post, weight = tr.P_models, tr.mu
             else:
                 cov_post, weight = tr.P[:, None], np.ones((len(tr), 1))
             reg_kernels.update_sensitivity(
-                tr.bias_sens, rows[init], cov_post, weight, np.ascontiguousarray(cl.R_m2[k]), cl.bias_sens, k
+                tr.bias_sens, r, cov_post, weight, np.ascontiguousarray(cl.R_m2[k]), cl.bias_sens, k
             )
         two = ~init
         if two.any():
@@ -1682,14 +1690,18 @@ class Engine:
         estimate x = x_bias-free + B b, b now c_new); so is the first measurement of a track
         of one update (its B is that measurement's). Without this, a track kept for minutes
         what it learnt from plots corrected with older estimates (the bench's ADS-B case,
-        straight flight: 23.2 m, 21.2 m with the true biases removed from the start). A
-        measurement held beside a track (_hold_far) is not moved: it is held for one scan."""
+        straight flight: 23.2 m, 21.2 m with the true biases removed from the start). Not
+        moved, each being used within a scan or two: a measurement held beside a track
+        (_hold_far, or an alternative first point), the first measurement of a track of two
+        updates, and the address memory's last positions. A track whose B is not known
+        (NaN) is not moved."""
         new = self.registration.correction()
         tr = self.tracks
         if tr.n_radars and len(tr):
             delta = new - self._reg_applied
             if np.any(delta != 0.0):
                 shift = -(tr.bias_sens.reshape(len(tr), 2, -1) @ delta.reshape(-1))
+                shift[~np.isfinite(shift)] = 0.0  # a sensitivity not known (NaN): not moved
                 tr.x[:, 0] += shift[:, 0]
                 tr.x[:, 3] += shift[:, 1]
                 if tr.n_models:

@@ -89,7 +89,11 @@ cluster with Mode C, and the innovation inside ``innovation_gate_chi2``
 (:meth:`RadarRegistration.update_from_innovations`). As the plots are corrected by c (the
 applied correction) and the tracks follow it (engine._follow_registration moves each track
 by -B (c_new - c_old)), nu = (F - B)(b - c) + noise: the information vector takes
-(F - B)^T S^-1 (nu + (F - B) c).
+(F - B)^T S^-1 (nu + (F - B) c). Without a reference radar, the time columns of F - B are
+centred over the radars: the clock offset common to all of them stays unobservable, as it
+is (F's time columns carry the velocity the plots were aligned with and B leaves the
+velocity's sensitivity out, so they are only nearly balanced, and thousands of innovations
+pulled the common offset by 0.1-1.7 s on the demo before).
 
 Observability and how it is pinned
 ----------------------------------
@@ -108,6 +112,7 @@ such a reference; relative registration is what removes the shadows and the fuse
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -523,14 +528,22 @@ class RadarRegistration:
             np.asarray(rows, np.intp),
             -1 if self.params.estimate_time_offset else TIME_OFFSET,
         )  # (n, 2, 4M)
+        if self.time_offsets_relative and self.params.estimate_time_offset:
+            # the clock offset common to every radar is not observable (module docstring): the
+            # innovations must not inform it. m's time columns are only nearly balanced (F's
+            # with the alignment velocity, B's without the velocity's own sensitivity), and
+            # thousands of them pulled the common offset by 0.1-1.7 s: taken out exactly.
+            t_cols = m[:, :, TIME_OFFSET::N_BIAS]
+            t_cols -= t_cols.mean(axis=2, keepdims=True)
         s = np.asarray(cov_m2, dtype=float).reshape(n, 2, 2)
         y = nu + m @ c
         predicted = s + np.einsum("nak,nbk->nab", m @ self.covariance, m)
         r = y - m @ self.bias.reshape(n_state)
         ok = np.all(np.isfinite(y), axis=1) & np.all(np.isfinite(s), axis=(1, 2)) & np.all(np.isfinite(m), axis=(1, 2))
+        ok &= (s[:, 0, 0] > 0.0) & (s[:, 0, 0] * s[:, 1, 1] - s[:, 0, 1] * s[:, 1, 0] > 0.0)  # positive definite
         d2 = np.full(n, np.inf)
         d2[ok] = np.einsum("na,nab,nb->n", r[ok], _inv_2x2(predicted[ok]), r[ok])
-        inside = d2 <= self.params.innovation_gate_chi2
+        inside = (d2 >= 0.0) & (d2 <= self.params.innovation_gate_chi2)
         self.innovations_gated += int(np.count_nonzero(~inside))
         n_used = int(np.count_nonzero(inside))
         if n_used:
@@ -809,20 +822,23 @@ def cluster_sensitivity(
         s[c, 1, 1] += w11
         for j in range(n_bias):
             j0, j1 = jac[i, 0, j], jac[i, 1, j]
-            if j0 == j0 and j1 == j1:  # not NaN
+            if math.isfinite(j0) and math.isfinite(j1):
                 wj[c, 0, r, j] += w00 * j0 + w01 * j1
                 wj[c, 1, r, j] += w01 * j0 + w11 * j1
     for c in range(n_clusters):
         a, b, d = s[c, 0, 0], s[c, 0, 1], s[c, 1, 1]
         det = a * d - b * b
-        if not det > 0.0:
-            continue  # an empty cluster: no sensitivity
+        if not (det > 0.0 and a > 0.0 and math.isfinite(det)):
+            wj[c] = 0.0  # an empty cluster, or a covariance that is not one: no sensitivity known
+            continue
         i00, i01, i11 = d / det, -b / det, a / det
         for r in range(n_radars):
             for j in range(n_bias):
                 u, v = wj[c, 0, r, j], wj[c, 1, r, j]
-                wj[c, 0, r, j] = i00 * u + i01 * v
-                wj[c, 1, r, j] = i01 * u + i11 * v
+                f0, f1 = i00 * u + i01 * v, i01 * u + i11 * v
+                finite = math.isfinite(f0) and math.isfinite(f1)
+                wj[c, 0, r, j] = f0 if finite else 0.0
+                wj[c, 1, r, j] = f1 if finite else 0.0
     return wj
 
 
@@ -852,9 +868,13 @@ def update_sensitivity(
             p11 += w * cov_post[t, j, 3, 3]
         a, b, d = cov_meas[i, 0, 0], cov_meas[i, 0, 1], cov_meas[i, 1, 1]
         det = a * d - b * b
+        if not (det > 0.0 and a > 0.0 and math.isfinite(det)):
+            continue  # no gain known: the track keeps its sensitivity
         r00, r01, r11 = d / det, -b / det, a / det
         k00, k01 = p00 * r00 + p01 * r01, p00 * r01 + p01 * r11
         k10, k11 = p01 * r00 + p11 * r01, p01 * r01 + p11 * r11
+        if not (math.isfinite(k00) and math.isfinite(k01) and math.isfinite(k10) and math.isfinite(k11)):
+            continue
         for r in range(n_radars):
             for j in range(n_bias):
                 e0 = cluster_sens[c, 0, r, j] - track_sens[t, 0, r, j]

@@ -289,7 +289,8 @@ class TrackTable:
         self._fields: dict[str, tuple[tuple[int, ...], Any, Any]] = dict(_FIELDS)
         for name, (shape, dtype, fill) in _MODEL_FIELDS.items():
             self._fields[name] = ((n_models,) + shape, dtype, fill)
-        self._fields["bias_sens"] = ((2, n_radars, N_BIAS), float, 0.0)
+        # NaN: not known (a state read without it); the engine takes the next update's F
+        self._fields["bias_sens"] = ((2, n_radars, N_BIAS), float, np.nan)
         # Each column is the first n rows of a larger buffer, so that appending rows copies
         # nothing most of the time (the model covariances alone are 7 MB at 4,000 tracks);
         # _views holds the arrays handed out, to notice a column replaced from outside.
@@ -555,6 +556,7 @@ _STATE_COLUMNS = (
     "x_models",
     "P_models",
     "mu",
+    "bias_sens",  # the state's sensitivity to the radars' biases (registration.py)
     "held_z_m",  # a measurement held against that state (engine._hold_far)
     "held_R_m2",
     "held_t_s",
