@@ -18,6 +18,7 @@ from radar_fusion.tracking.registration import (
     RANGE_GAIN,
     RANGE_OFFSET,
     TIME_OFFSET,
+    ClusterSensitivity,
     RadarRegistration,
     RegistrationGeometry,
     RegistrationParams,
@@ -617,7 +618,12 @@ def test_track_innovations_give_the_batch_weighted_least_squares_estimate(truth)
         c = reg.correction()
         nu = np.einsum("nak,k->na", m, b_true - c.reshape(n_state))
         nu += np.einsum("nab,nb->na", np.linalg.cholesky(s), rng.standard_normal((k, 2)))
-        assert reg.update_from_innovations(p * PERIOD_S, f_sens, np.arange(k), b_sens, np.arange(k), nu, s, c) == k
+        assert (
+            reg.update_from_innovations(
+                p * PERIOD_S, ClusterSensitivity.from_dense(f_sens), np.arange(k), b_sens, np.arange(k), nu, s, c
+            )
+            == k
+        )
         for i in range(k):
             ell = np.linalg.cholesky(np.linalg.inv(s[i]))  # S^-1 = L L^T
             rows_g.append(ell.T @ m[i])
@@ -649,14 +655,15 @@ def test_an_innovation_far_from_what_the_estimate_predicts_is_gated():
     sens_b[0, :, 1, RANGE_OFFSET] = [1.0, 0.0]  # the track was made of radar 1's plots
     cov = np.eye(2)[None] * 30.0**2
     one = np.zeros(1, np.intp)
-    assert reg.update_from_innovations(0.0, sens_f, one, sens_b, one, np.array([[200.0, 0.0]]), cov) == 1
+    f_cl = ClusterSensitivity.from_dense(sens_f)
+    assert reg.update_from_innovations(0.0, f_cl, one, sens_b, one, np.array([[200.0, 0.0]]), cov) == 1
     for k in range(30):  # the same relative bias, learnt
-        reg.update_from_innovations(4.0 * k, sens_f, one, sens_b, one, np.array([[200.0, 0.0]]), cov)
+        reg.update_from_innovations(4.0 * k, f_cl, one, sens_b, one, np.array([[200.0, 0.0]]), cov)
     assert reg.bias[0, RANGE_OFFSET] - reg.bias[1, RANGE_OFFSET] == pytest.approx(200.0, rel=0.05)
     assert reg.innovations_gated == 0
-    assert reg.update_from_innovations(124.0, sens_f, one, sens_b, one, np.array([[3200.0, 0.0]]), cov) == 0
+    assert reg.update_from_innovations(124.0, f_cl, one, sens_b, one, np.array([[3200.0, 0.0]]), cov) == 0
     assert reg.innovations_gated == 1
-    assert reg.update_from_innovations(128.0, sens_f, one, sens_b, one, np.array([[230.0, -20.0]]), cov) == 1
+    assert reg.update_from_innovations(128.0, f_cl, one, sens_b, one, np.array([[230.0, -20.0]]), cov) == 1
 
 
 def test_the_innovations_leave_the_clock_offset_common_to_all_radars_to_the_prior():
@@ -674,7 +681,7 @@ def test_the_innovations_leave_the_clock_offset_common_to_all_radars_to_the_prio
     nu = rng.normal(0.0, 30.0, (n, 2)) - v * 0.3  # as if all clocks were 0.3 s late
     cov = np.tile(np.eye(2) * 900.0, (n, 1, 1))
     idx = np.arange(n)
-    reg.update_from_innovations(0.0, f_sens, idx, b_sens, idx, nu, cov)
+    reg.update_from_innovations(0.0, ClusterSensitivity.from_dense(f_sens), idx, b_sens, idx, nu, cov)
     t_cols = np.arange(len(SITES)) * N_BIAS + TIME_OFFSET
     ones = np.zeros(N_BIAS * len(SITES))
     ones[t_cols] = 1.0
@@ -685,6 +692,6 @@ def test_the_innovations_leave_the_clock_offset_common_to_all_radars_to_the_prio
     f_sens[:, :, 0, TIME_OFFSET] = -v
     b_sens[:, :, 1, TIME_OFFSET] = -v  # tracks of radar 1's plots
     nu = -v * 0.2 + rng.normal(0.0, 30.0, (n, 2))
-    reg.update_from_innovations(4.0, f_sens, idx, b_sens, idx, nu, cov)
+    reg.update_from_innovations(4.0, ClusterSensitivity.from_dense(f_sens), idx, b_sens, idx, nu, cov)
     rel = reg.bias[:, TIME_OFFSET] - reg.bias[:, TIME_OFFSET].mean()
     assert rel[0] - rel[1] == pytest.approx(0.2, abs=0.02)

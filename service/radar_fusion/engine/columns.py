@@ -25,6 +25,7 @@ import msgpack
 import numpy as np
 
 from ..geo.coordinates import SystemPlane
+from ..tracking.registration import ClusterSensitivity
 from ..tracking.track_management import STATUS_NAMES, TENTATIVE
 from ..wire import mode_s_to_str
 from ..wire_columns import MapRows, array_header, map_header
@@ -543,10 +544,11 @@ class ClusterMeasurements:
     t0_s: np.ndarray | None = None
     z0_m: np.ndarray | None = None
     R0_m2: np.ndarray | None = None
-    # (K, 2, R, 4) the fused position's sensitivity to each radar's biases, F = S^-1 sum_i
-    # W_i J_i, and (K,) whether every plot of the cluster has Mode C: the two-stage
-    # registration's (registration.py; engine._bias_sensitivity), None with it off
-    bias_sens: np.ndarray | None = None
+    # the fused position's sensitivity to each radar's biases, F = S^-1 sum_i W_i J_i
+    # (registration.ClusterSensitivity: sparse over the radars), and (K,) whether every plot
+    # of the cluster has Mode C: the two-stage registration's (registration.py;
+    # engine._bias_sensitivity), None with it off
+    bias_sens: ClusterSensitivity | None = None
     all_heights: np.ndarray | None = None
 
 

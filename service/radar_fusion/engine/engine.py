@@ -794,12 +794,12 @@ class Engine:
         v_mps: np.ndarray,
         R_plot: np.ndarray,
         n_clusters: int,
-    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    ) -> tuple[reg_kernels.ClusterSensitivity | None, np.ndarray | None]:
         """Per cluster, the fused position's sensitivity to each radar's biases (the
         two-stage registration, registration.py): F = S_c^-1 sum_i W_i J_i, W_i = R_i^-1 the
         weights the fusion gave the plots (Shu eq. 5-6), J_i the plot's Jacobian
         (RegistrationGeometry.jacobian, with the velocity it was aligned with), placed at its
-        radar's columns; (K, 2, R, 4) (registration.cluster_sensitivity): the matrix fusion's
+        radar's columns; sparse over the radars (registration.ClusterSensitivity): the matrix fusion's
         (with ``fusion_method`` "scalar", or a new target's cluster fused with its common
         velocity, an approximation). And whether every plot of the cluster has Mode C (a plot
         without it is converted at a guessed height: no bias evidence). None, None with the
@@ -819,8 +819,10 @@ class Engine:
             v_mps if self.registration.params.estimate_time_offset else None,
             self.assumed_altitude_m,
         )
-        sens = reg_kernels.cluster_sensitivity(
-            lab.astype(np.intp), radar.astype(np.intp), np.ascontiguousarray(R_plot), jac, n_clusters, m
+        sens = reg_kernels.ClusterSensitivity(
+            *reg_kernels.cluster_sensitivity(
+                lab.astype(np.intp), radar.astype(np.intp), np.ascontiguousarray(R_plot), jac, n_clusters, m
+            )
         )
         no_height = np.bincount(lab, weights=~np.isfinite(altitude_m), minlength=n_clusters)
         return sens, no_height == 0
@@ -1669,18 +1671,25 @@ class Engine:
             k, r = matched[init], rows[init]
             unknown = np.isnan(tr.bias_sens[r, 0, 0, 0])  # a state read without it: the update's F
             if unknown.any():
-                tr.bias_sens[r[unknown]] = cl.bias_sens[k[unknown]]
+                tr.bias_sens[r[unknown]] = cl.bias_sens.dense(k[unknown], tr.n_radars)
                 k, r = k[~unknown], r[~unknown]
             if self.imm is not None:
                 cov_post, weight = tr.P_models, tr.mu
             else:
                 cov_post, weight = tr.P[:, None], np.ones((len(tr), 1))
             reg_kernels.update_sensitivity(
-                tr.bias_sens, r, cov_post, weight, np.ascontiguousarray(cl.R_m2[k]), cl.bias_sens, k
+                tr.bias_sens,
+                r,
+                cov_post,
+                weight,
+                np.ascontiguousarray(cl.R_m2[k]),
+                cl.bias_sens.values,
+                cl.bias_sens.radars,
+                k,
             )
         two = ~init
         if two.any():
-            tr.bias_sens[rows[two]] = cl.bias_sens[matched[two]]
+            tr.bias_sens[rows[two]] = cl.bias_sens.dense(matched[two], tr.n_radars)
 
     def _follow_registration(self) -> None:
         """At the end of a period: the registration's correction for the next period's plots
@@ -2125,7 +2134,7 @@ class Engine:
         tr.t_state_s[new] = cl.t_s[new_cl]
         tr.z1_m[new], tr.R1_m2[new], tr.t1_s[new] = cl.z_m[new_cl], cl.R_m2[new_cl], cl.t_s[new_cl]
         if cl.bias_sens is not None:
-            tr.bias_sens[new] = cl.bias_sens[new_cl]
+            tr.bias_sens[new] = cl.bias_sens.dense(new_cl, tr.n_radars)
         tr.alt_x[new], tr.alt_P[new] = self.alt_filter.initiate(cl.fl[new_cl])
         self._floor_no_height(np.arange(new.start, new.stop), cl.height_cov_m2, new_cl)
         if cl.dap_v_mps is not None:

@@ -113,7 +113,7 @@ such a reference; relative registration is what removes the shadows and the fuse
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -127,6 +127,7 @@ from .compiled import compiled
 __all__ = [
     "BIAS_NAMES",
     "N_BIAS",
+    "ClusterSensitivity",
     "RadarRegistration",
     "RegistrationGeometry",
     "RegistrationParams",
@@ -493,7 +494,7 @@ class RadarRegistration:
     def update_from_innovations(
         self,
         t_s: float,
-        cluster_sens: NDArray[np.float64],
+        cluster_sens: ClusterSensitivity,
         clusters: NDArray[np.intp],
         track_sens: NDArray[np.float64],
         rows: NDArray[np.intp],
@@ -502,8 +503,9 @@ class RadarRegistration:
         applied: npt.ArrayLike | None = None,
     ) -> int:
         """Tracks' innovations (the two-stage section of the module docstring). Per track
-        (n,): its fused measurement's sensitivity F = ``cluster_sens[clusters]`` and its
-        own B = ``track_sens[rows]`` (both (.., 2, M, 4), :func:`cluster_sensitivity`);
+        (n,): its fused measurement's sensitivity F, of cluster ``clusters`` in
+        ``cluster_sens`` (:func:`cluster_sensitivity`), and its own B = ``track_sens[rows]``
+        ((.., 2, M, 4));
         ``innovation_m`` (n, 2) the fused measurement minus the track's predicted position
         (the plots corrected by ``applied`` (M, 4), the track following it) and ``cov_m2``
         (n, 2, 2) the innovation's covariance P^-_pp + R_f without the biases'. Each is
@@ -522,7 +524,8 @@ class RadarRegistration:
         n_state = N_BIAS * self.n_radars
         c = np.zeros(n_state) if applied is None else np.asarray(applied, dtype=float).reshape(n_state)
         m = _innovation_sensitivity(
-            cluster_sens,
+            cluster_sens.values,
+            cluster_sens.radars,
             np.asarray(clusters, np.intp),
             track_sens,
             np.asarray(rows, np.intp),
@@ -785,15 +788,39 @@ class RadarRegistration:
 
 
 # ------------------------------------------------------------ the two-stage kernels (compiled)
+class ClusterSensitivity(NamedTuple):
+    """Each cluster's fused position's sensitivity F to the biases of the radars that saw it,
+    sparse: an aircraft is seen by a few of the radars (about three of 30 at world scale).
+    ``values`` (K, 2, S, 4): F's columns of the cluster's s-th radar, ``radars`` (K, S) that
+    radar's index, -1 past the cluster's own (S the most radars of any one cluster). F is
+    zero for every other radar."""
+
+    values: NDArray[np.float64]
+    radars: NDArray[np.intp]
+
+    @classmethod
+    def from_dense(cls, dense: NDArray[np.float64]) -> ClusterSensitivity:
+        """From (K, 2, M, 4): every radar a slot of every cluster."""
+        k, m = dense.shape[0], dense.shape[2]
+        return cls(np.ascontiguousarray(dense, dtype=float), np.tile(np.arange(m, dtype=np.intp), (k, 1)))
+
+    def dense(self, clusters: NDArray[np.intp], n_radars: int) -> NDArray[np.float64]:
+        """F of the clusters ``clusters`` over all ``n_radars`` radars, (n, 2, M, 4)."""
+        return _densify(self.values, self.radars, np.asarray(clusters, np.intp), n_radars)
+
+
 def warm_up() -> None:
     """Run the compiled two-stage loops once on one plot and one track, so that they are
     compiled (or loaded from the cache) now, not in the first period (association.warm_up)."""
-    sens = cluster_sensitivity(
+    values, radars = cluster_sensitivity(
         np.zeros(1, np.intp), np.zeros(1, np.intp), np.eye(2)[None].copy(), np.zeros((1, 2, N_BIAS)), 1, 1
     )
     rows = np.zeros(1, np.intp)
-    _innovation_sensitivity(sens, rows, sens.copy(), rows, -1)
-    update_sensitivity(sens.copy(), rows, np.zeros((1, 1, 6, 6)), np.ones((1, 1)), np.eye(2)[None].copy(), sens, rows)
+    track = _densify(values, radars, rows, 1)
+    _innovation_sensitivity(values, radars, rows, track, rows, -1)
+    update_sensitivity(
+        track, rows, np.zeros((1, 1, 6, 6)), np.ones((1, 1)), np.eye(2)[None].copy(), values, radars, rows
+    )
 
 
 @compiled
@@ -804,16 +831,34 @@ def cluster_sensitivity(
     jac: NDArray[np.float64],
     n_clusters: int,
     n_radars: int,
-) -> NDArray[np.float64]:
-    """F (K, 2, M, 4) per cluster: its fused position's sensitivity to each radar's biases,
-    S_c^-1 sum_i W_i J_i over its plots (W_i = cov_i^-1 the fusion's weights, Shu eq. 5-6;
-    J_i (n, 2, 4) the plot's Jacobian, placed at its radar's columns). A plot with a
-    non-finite Jacobian row (the cone of silence) adds its weight but no sensitivity."""
+) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    """F per cluster, its fused position's sensitivity to each radar's biases, S_c^-1 sum_i
+    W_i J_i over its plots (W_i = cov_i^-1 the fusion's weights, Shu eq. 5-6; J_i (n, 2, 4)
+    the plot's Jacobian, placed at its radar's columns), as the ``values`` and ``radars`` of
+    a :class:`ClusterSensitivity`. A plot with a non-finite Jacobian row (the cone of
+    silence) adds its weight but no sensitivity; a cluster whose summed weight is not a
+    covariance's inverse gets none."""
     n_bias = jac.shape[2]
-    s = np.zeros((n_clusters, 2, 2))
-    wj = np.zeros((n_clusters, 2, n_radars, n_bias))
-    for i in range(labels.shape[0]):
+    n = labels.shape[0]
+    slot_of = np.full((n_clusters, n_radars), -1, np.intp)
+    count = np.zeros(n_clusters, np.intp)
+    slot = np.empty(n, np.intp)
+    for i in range(n):
         c, r = labels[i], radar[i]
+        if slot_of[c, r] < 0:
+            slot_of[c, r] = count[c]
+            count[c] += 1
+        slot[i] = slot_of[c, r]
+    n_slots = max(1, count.max()) if n_clusters else 1
+    radars = np.full((n_clusters, n_slots), -1, np.intp)
+    for c in range(n_clusters):
+        for r in range(n_radars):
+            if slot_of[c, r] >= 0:
+                radars[c, slot_of[c, r]] = r
+    s = np.zeros((n_clusters, 2, 2))
+    wj = np.zeros((n_clusters, 2, n_slots, n_bias))
+    for i in range(n):
+        c, k = labels[i], slot[i]
         a, b, d = cov_m2[i, 0, 0], cov_m2[i, 0, 1], cov_m2[i, 1, 1]
         det = a * d - b * b
         w00, w01, w11 = d / det, -b / det, a / det
@@ -823,8 +868,8 @@ def cluster_sensitivity(
         for j in range(n_bias):
             j0, j1 = jac[i, 0, j], jac[i, 1, j]
             if math.isfinite(j0) and math.isfinite(j1):
-                wj[c, 0, r, j] += w00 * j0 + w01 * j1
-                wj[c, 1, r, j] += w01 * j0 + w11 * j1
+                wj[c, 0, k, j] += w00 * j0 + w01 * j1
+                wj[c, 1, k, j] += w01 * j0 + w11 * j1
     for c in range(n_clusters):
         a, b, d = s[c, 0, 0], s[c, 0, 1], s[c, 1, 1]
         det = a * d - b * b
@@ -832,14 +877,30 @@ def cluster_sensitivity(
             wj[c] = 0.0  # an empty cluster, or a covariance that is not one: no sensitivity known
             continue
         i00, i01, i11 = d / det, -b / det, a / det
-        for r in range(n_radars):
+        for k in range(n_slots):
             for j in range(n_bias):
-                u, v = wj[c, 0, r, j], wj[c, 1, r, j]
+                u, v = wj[c, 0, k, j], wj[c, 1, k, j]
                 f0, f1 = i00 * u + i01 * v, i01 * u + i11 * v
                 finite = math.isfinite(f0) and math.isfinite(f1)
-                wj[c, 0, r, j] = f0 if finite else 0.0
-                wj[c, 1, r, j] = f1 if finite else 0.0
-    return wj
+                wj[c, 0, k, j] = f0 if finite else 0.0
+                wj[c, 1, k, j] = f1 if finite else 0.0
+    return wj, radars
+
+
+@compiled
+def _densify(
+    values: NDArray[np.float64], radars: NDArray[np.intp], clusters: NDArray[np.intp], n_radars: int
+) -> NDArray[np.float64]:
+    """:meth:`ClusterSensitivity.dense`: (n, 2, M, 4), zero for the radars a cluster lacks."""
+    out = np.zeros((clusters.shape[0], 2, n_radars, values.shape[3]))
+    for i in range(clusters.shape[0]):
+        c = clusters[i]
+        for k in range(radars.shape[1]):
+            r = radars[c, k]
+            if r < 0:
+                break
+            out[i, :, r, :] = values[c, :, k, :]
+    return out
 
 
 @compiled
@@ -849,15 +910,18 @@ def update_sensitivity(
     cov_post: NDArray[np.float64],
     weight: NDArray[np.float64],
     cov_meas: NDArray[np.float64],
-    cluster_sens: NDArray[np.float64],
+    cluster_values: NDArray[np.float64],
+    cluster_radars: NDArray[np.intp],
     clusters: NDArray[np.intp],
 ) -> None:
     """In place, per updated track: B[row] += K (F[cluster] - B[row]), K the gain of its
     update on the position, K = sum_j weight[row, j] P+_j,pp R^-1 with P+_j = ``cov_post[row,
     j]`` (6, 6) (Singer order: the position at 0 and 3; the IMM's models and their
     probabilities, or the one filter with weight 1) and R = ``cov_meas`` (n, 2, 2) the fused
-    measurement's covariance (engine._update_bias_sens)."""
+    measurement's covariance (engine._update_bias_sens). F as a :class:`ClusterSensitivity`'s
+    ``values`` and ``radars``."""
     n_radars, n_bias = track_sens.shape[2], track_sens.shape[3]
+    f = np.zeros((2, n_radars, n_bias))
     for i in range(rows.shape[0]):
         t, c = rows[i], clusters[i]
         p00 = p01 = p11 = 0.0
@@ -875,25 +939,32 @@ def update_sensitivity(
         k10, k11 = p01 * r00 + p11 * r01, p01 * r01 + p11 * r11
         if not (math.isfinite(k00) and math.isfinite(k01) and math.isfinite(k10) and math.isfinite(k11)):
             continue
+        f[:] = 0.0
+        for k in range(cluster_radars.shape[1]):
+            r = cluster_radars[c, k]
+            if r < 0:
+                break
+            f[:, r, :] = cluster_values[c, :, k, :]
         for r in range(n_radars):
             for j in range(n_bias):
-                e0 = cluster_sens[c, 0, r, j] - track_sens[t, 0, r, j]
-                e1 = cluster_sens[c, 1, r, j] - track_sens[t, 1, r, j]
+                e0 = f[0, r, j] - track_sens[t, 0, r, j]
+                e1 = f[1, r, j] - track_sens[t, 1, r, j]
                 track_sens[t, 0, r, j] += k00 * e0 + k01 * e1
                 track_sens[t, 1, r, j] += k10 * e0 + k11 * e1
 
 
 @compiled
 def _innovation_sensitivity(
-    cluster_sens: NDArray[np.float64],
+    cluster_values: NDArray[np.float64],
+    cluster_radars: NDArray[np.intp],
     clusters: NDArray[np.intp],
     track_sens: NDArray[np.float64],
     rows: NDArray[np.intp],
     held_column: int,
 ) -> NDArray[np.float64]:
     """m = F[cluster] - B[row] per innovation, (n, 2, 4M) with the columns radar-major as the
-    state's. The bias column ``held_column`` (the time offset when it is not estimated;
-    -1: none) is left at 0."""
+    state's; F as a :class:`ClusterSensitivity`'s ``values`` and ``radars``. The bias column
+    ``held_column`` (the time offset when it is not estimated; -1: none) is left at 0."""
     n = rows.shape[0]
     n_radars, n_bias = track_sens.shape[2], track_sens.shape[3]
     m = np.zeros((n, 2, n_radars * n_bias))
@@ -901,9 +972,19 @@ def _innovation_sensitivity(
         t, c = rows[i], clusters[i]
         for r in range(n_radars):
             for j in range(n_bias):
-                if j != held_column:
-                    m[i, 0, r * n_bias + j] = cluster_sens[c, 0, r, j] - track_sens[t, 0, r, j]
-                    m[i, 1, r * n_bias + j] = cluster_sens[c, 1, r, j] - track_sens[t, 1, r, j]
+                m[i, 0, r * n_bias + j] = -track_sens[t, 0, r, j]
+                m[i, 1, r * n_bias + j] = -track_sens[t, 1, r, j]
+        for k in range(cluster_radars.shape[1]):
+            r = cluster_radars[c, k]
+            if r < 0:
+                break
+            for j in range(n_bias):
+                m[i, 0, r * n_bias + j] += cluster_values[c, 0, k, j]
+                m[i, 1, r * n_bias + j] += cluster_values[c, 1, k, j]
+        if held_column >= 0:
+            for r in range(n_radars):
+                m[i, 0, r * n_bias + held_column] = 0.0
+                m[i, 1, r * n_bias + held_column] = 0.0
     return m
 
 
