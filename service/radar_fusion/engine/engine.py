@@ -1655,7 +1655,7 @@ class Engine:
     def _update_bias_sens(
         self, cl: ClusterMeasurements, matched: np.ndarray, rows: np.ndarray, init: np.ndarray
     ) -> None:
-        """Each updated track's sensitivity to the radars' biases, B (R, 2, 4) of its position
+        """Each updated track's sensitivity to the radars' biases, B (2, R, 4) of its position
         (registration.py, the two-stage section). A Kalman update x+ = x- + K (z_f - x-_p)
         gives B+ = B- + K (F - B-), K the gain on the position: P+_pp R_f^-1 for a Kalman
         filter, and for the IMM the mode-weighted sum of its models' gains, sum_j mu_j
