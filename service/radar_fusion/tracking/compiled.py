@@ -2,8 +2,8 @@
 
 The engine's hot loops that numpy cannot express without many passes over large arrays
 (the IMM's per-track cycle, imm_kernels.py; the association's plot search,
-association.py; the live wild-plot gate, live_gate.py) are compiled with the same
-settings, here.
+association.py; the live wild-plot gate, live_gate.py; the two-stage registration's
+sensitivities, registration.py) are compiled with the same settings, here.
 
 Compilation is lazy: decorating registers the function, and numba is imported, and every
 function a module registered is handed to it, at the first call of any of them. A
