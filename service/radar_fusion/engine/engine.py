@@ -1641,9 +1641,8 @@ class Engine:
         use = quiet & (tr.updates[rows] >= 3) & cl.all_heights[matched]
         use &= ~np.isnan(tr.bias_sens[rows, 0, 0, 0])  # a sensitivity not known (a state read without it)
         k, r = matched[use], rows[use]
-        stride = -(-r.size // reg.params.max_clusters_per_update)  # ceil
-        if stride > 1:  # a rotating subset, as of the clusters (RadarRegistration.update)
-            part = (tr.track_id[r] + reg.updates) % stride == 0
+        part = reg.rotating_subset(tr.track_id[r], r.size)  # at most max_clusters_per_update
+        if part is not None:
             k, r = k[part], r[part]
         if not r.size:
             return

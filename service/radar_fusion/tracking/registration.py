@@ -449,9 +449,8 @@ class RadarRegistration:
         multi = self._multi_radar(c, idx[sel], k_clusters)
         sel, c = sel[multi], c[multi]
         c, k_clusters = _compact(c)
-        stride = -(-k_clusters // self.params.max_clusters_per_update)  # ceil
-        if stride > 1:  # a rotating subset of the clusters: every aircraft contributes in turn
-            part = (c + self.updates) % stride == 0
+        part = self.rotating_subset(c, k_clusters)
+        if part is not None:
             sel, c = sel[part], c[part]
             c, k_clusters = _compact(c)
         jac = self.geometry.jacobian(
@@ -558,6 +557,17 @@ class RadarRegistration:
             self.innovations_used += n_used
             self._solve()
         return n_used
+
+    def rotating_subset(self, keys: NDArray[np.intp], n: int) -> NDArray[np.bool_] | None:
+        """Of ``n`` items (clusters, or tracks' innovations) with integer ``keys``, those this
+        update takes when there are more than ``max_clusters_per_update``: every stride-th
+        key, the stride's phase moving with each update, so that every aircraft contributes
+        in turn. None: all of them."""
+        stride = -(-n // self.params.max_clusters_per_update)  # ceil
+        if stride <= 1:
+            return None
+        out: NDArray[np.bool_] = (keys + self.updates) % stride == 0
+        return out
 
     def _forget(self, t_s: float) -> None:
         """Lambda <- lam Lambda + (1 - lam) Lambda_0, eta <- lam eta, lam = exp(-dt / tau)."""
@@ -888,18 +898,24 @@ def cluster_sensitivity(
 
 
 @compiled
+def _cluster_dense(values: NDArray[np.float64], radars: NDArray[np.intp], c: int, out: NDArray[np.float64]) -> None:
+    """Cluster ``c``'s F over all radars into ``out`` (2, M, 4): zero for the radars it lacks."""
+    out[:] = 0.0
+    for k in range(radars.shape[1]):
+        r = radars[c, k]
+        if r < 0:
+            break
+        out[:, r, :] = values[c, :, k, :]
+
+
+@compiled
 def _densify(
     values: NDArray[np.float64], radars: NDArray[np.intp], clusters: NDArray[np.intp], n_radars: int
 ) -> NDArray[np.float64]:
     """:meth:`ClusterSensitivity.dense`: (n, 2, M, 4), zero for the radars a cluster lacks."""
-    out = np.zeros((clusters.shape[0], 2, n_radars, values.shape[3]))
+    out = np.empty((clusters.shape[0], 2, n_radars, values.shape[3]))
     for i in range(clusters.shape[0]):
-        c = clusters[i]
-        for k in range(radars.shape[1]):
-            r = radars[c, k]
-            if r < 0:
-                break
-            out[i, :, r, :] = values[c, :, k, :]
+        _cluster_dense(values, radars, clusters[i], out[i])
     return out
 
 
@@ -939,12 +955,7 @@ def update_sensitivity(
         k10, k11 = p01 * r00 + p11 * r01, p01 * r01 + p11 * r11
         if not (math.isfinite(k00) and math.isfinite(k01) and math.isfinite(k10) and math.isfinite(k11)):
             continue
-        f[:] = 0.0
-        for k in range(cluster_radars.shape[1]):
-            r = cluster_radars[c, k]
-            if r < 0:
-                break
-            f[:, r, :] = cluster_values[c, :, k, :]
+        _cluster_dense(cluster_values, cluster_radars, c, f)
         for r in range(n_radars):
             for j in range(n_bias):
                 e0 = f[0, r, j] - track_sens[t, 0, r, j]
@@ -968,19 +979,14 @@ def _innovation_sensitivity(
     n = rows.shape[0]
     n_radars, n_bias = track_sens.shape[2], track_sens.shape[3]
     m = np.zeros((n, 2, n_radars * n_bias))
+    f = np.zeros((2, n_radars, n_bias))
     for i in range(n):
-        t, c = rows[i], clusters[i]
+        t = rows[i]
+        _cluster_dense(cluster_values, cluster_radars, clusters[i], f)
         for r in range(n_radars):
             for j in range(n_bias):
-                m[i, 0, r * n_bias + j] = -track_sens[t, 0, r, j]
-                m[i, 1, r * n_bias + j] = -track_sens[t, 1, r, j]
-        for k in range(cluster_radars.shape[1]):
-            r = cluster_radars[c, k]
-            if r < 0:
-                break
-            for j in range(n_bias):
-                m[i, 0, r * n_bias + j] += cluster_values[c, 0, k, j]
-                m[i, 1, r * n_bias + j] += cluster_values[c, 1, k, j]
+                m[i, 0, r * n_bias + j] = f[0, r, j] - track_sens[t, 0, r, j]
+                m[i, 1, r * n_bias + j] = f[1, r, j] - track_sens[t, 1, r, j]
         if held_column >= 0:
             for r in range(n_radars):
                 m[i, 0, r * n_bias + held_column] = 0.0
