@@ -219,6 +219,123 @@ def test_a_radar_back_from_a_long_outage_is_accepted_and_a_jump_is_not():
     assert accepted == [0] * 8 + [1, 1] and solo.counters["radar_time_relocks"] == 1
 
 
+class TwoRadars:
+    """An engine of radars a and b, each batch numbered on (plots() helper)."""
+
+    def __init__(self, **system):
+        self.eng = Engine(settings(**system))
+        self.seq = {"a": 0, "b": 0}
+
+    def send(self, radar_id, t_s):
+        self.seq[radar_id] += 1
+        return self.eng.ingest_plots(plots(radar_id, self.seq[radar_id], t_s))
+
+    def status(self, radar_id, t_s):
+        self.eng.ingest_status(RadarStatus(radar_id=radar_id, t=t_s, kind="heartbeat"))
+
+
+def test_one_radars_clock_jump_is_refused_for_as_long_as_the_other_keeps_time():
+    """Radar b's clock jumps an hour ahead while a keeps time: b is never followed (it
+    would lead every period, make a look silent and turn a's good plots late)."""
+    r = TwoRadars()
+    for k in range(30):
+        r.send("a", T0 + k)
+        r.send("b", T0 + k + 0.3)
+        r.eng.poll()
+    took_a = []
+    for k in range(30, 90):
+        assert r.send("b", T0 + k + 3600.0) == 0
+        took_a.append(r.send("a", T0 + k))
+        r.eng.poll()
+    assert took_a == [1] * 60
+    assert r.eng.rejected == {"plot_future": 60} and r.eng.counters["radar_time_relocks"] == 0
+    assert r.eng.health()["radars"]["a"]["live"] is True
+
+
+def test_a_burst_of_forged_status_times_is_not_followed():
+    """Nine heartbeats of radar b all stamped far ahead, nothing else between them: one
+    stamp repeated is no running clock, so b's time is not re-locked to it."""
+    r = TwoRadars()
+    for k in range(10):
+        r.send("a", T0 + k)
+        r.send("b", T0 + k + 0.3)
+    for _ in range(9):
+        r.status("b", 9.9e9)
+    assert r.eng.rejected == {"status_future": 9} and r.eng.counters["radar_time_relocks"] == 0
+    assert [r.send(rid, T0 + 10 + k) for k in range(5) for rid in "ab"] == [1] * 10
+    assert r.eng.buffer.closed_until_s < T0 + 60
+
+
+def test_a_radar_whose_clock_runs_fast_is_held_to_the_others_time():
+    """Radar b's clock gains 0.8 s a second (drift, or a front-end stepping its time):
+    measured from its own watermark it could walk ahead until a looked silent. Held to a's
+    time, b's plots beyond the margin are refused and a's are all taken."""
+    r = TwoRadars()
+    took_a, took_b = [], []
+    for k in range(120):
+        took_a.append(r.send("a", T0 + k))
+        took_b.append(r.send("b", T0 + 1.8 * k + 0.3))
+        r.eng.poll()
+    assert took_a == [1] * 120
+    assert r.eng.rejected["plot_future"] > 0 and set(r.eng.rejected) == {"plot_future"}
+    margin_s = 20.0  # min(max_future_s, radar_timeout_s)
+    assert r.eng.buffer.watermark_s[1] <= T0 + 119 + margin_s
+    assert r.eng.health()["radars"]["a"]["live"] is True
+
+
+@pytest.mark.parametrize("step_s", [1.0, 4.0, 9.0])
+def test_a_radar_that_falls_silent_does_not_hold_the_others_time_back(step_s):
+    """b falls silent; a goes on, one batch per ``step_s`` (one per rotation at 9 s): a's
+    time passes b's last plus the margin without a refusal."""
+    r = TwoRadars()
+    for k in range(10):
+        r.send("a", T0 + k)
+        r.send("b", T0 + k + 0.3)
+    t = T0 + 10
+    took = []
+    while t < T0 + 100:
+        took.append(r.send("a", t))
+        r.eng.poll()
+        t += step_s
+    assert took == [1] * len(took) and not r.eng.rejected
+
+
+def test_every_radar_ahead_of_a_restored_state_is_followed():
+    """The whole system's time moved on (a restart from a state saved hours ago): each
+    radar is refused until the first is re-locked (nobody else moved meanwhile); then
+    the others are in step with it."""
+    r = TwoRadars()
+    for k in range(5):
+        r.send("a", T0 + k)
+        r.send("b", T0 + k + 0.3)
+    t1 = T0 + 7200.0
+    took = [(r.send("a", t1 + k), r.send("b", t1 + k + 0.3)) for k in range(12)]
+    assert took[:8] == [(0, 0)] * 8 and took[8] == (1, 1) and took[9:] == [(1, 1)] * 3
+    assert r.eng.counters["radar_time_relocks"] == 1
+
+
+def test_a_front_end_that_numbers_from_the_start_again_costs_two_batches():
+    """A front-end restarted: its batches are numbered from 0 again, with new plots. The
+    third such batch in a row shows the restart (one damaged or forged number is no
+    restart); then its batches are taken again, and true copies are still refused."""
+    r = TwoRadars(max_future_s=1e6, radar_timeout_s=1e6)
+    t = T0
+    for seq in range(100):
+        assert r.eng.ingest_plots(plots("a", seq, t)) == 1
+        t += 0.1
+        r.eng.poll()
+    took = []
+    for seq in range(20):
+        took.append(r.eng.ingest_plots(plots("a", seq, t)))
+        t += 0.1
+    assert took == [0, 0] + [1] * 18
+    h = r.eng.health()["radars"]["a"]
+    assert h["seq_restarts"] == 1 and h["rejected"] == {"duplicate": 2} and h["last_seq"] == 19
+    assert r.eng.ingest_plots(plots("a", 19, t - 0.1)) == 0  # a copy of the last one
+    assert r.eng.ingest_plots(plots("a", 5, t)) == 0  # one used number with new plots: no restart
+    assert r.eng.rejected["duplicate"] == 4
+
+
 # ------------------------------------------------------------ realistic radar timing
 # Four rotating radars, 4-10 s a turn, 8 sector messages per turn, random phases
 # (issue 16 item 5): at the end of each sector's sweep a front-end sends that sector's

@@ -49,6 +49,7 @@ _RADAR_COUNTERS = {  # health radars[<id>] field → metric name suffix, help
     "plots": ("radar_plots", "plots of the radar accepted into the period buffer"),
     "batches": ("radar_batches", "plot batches received from the radar"),
     "seq_gaps": ("radar_seq_gaps", "missing sequence numbers in the radar's batches"),
+    "seq_restarts": ("radar_seq_restarts", "times the radar's batch numbering started again (a front-end restart)"),
     "wild": ("radar_wild_plots", "plots of the radar rejected as wild by the outlier gate"),
 }
 

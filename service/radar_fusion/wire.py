@@ -220,6 +220,11 @@ class RadarHealth(BaseModel):
     batches: int = 0
     last_seq: int | None = None
     seq_gaps: int = 0
+    seq_restarts: int = Field(
+        0,
+        description="times the radar's batch numbers started again below its last one with newer plots (a "
+        "front-end restart): its batches are taken, not refused as duplicates (v1 extension)",
+    )
     rejected: dict[str, int] = Field(default_factory=dict)
     wild: int = Field(0, description="plots dropped by the live wild-plot gate (counted apart from rejections)")
     clock_offset_s: float | None = Field(

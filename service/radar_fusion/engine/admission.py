@@ -4,9 +4,11 @@ Per message, cheap and constant per batch (the expensive per-plot work waits for
 period to close, engine.py):
 
 * unknown radar, duplicate sequence numbers (a resent or doubled message), sequence gaps
-  and out-of-order batches (counted, not refused: the period buffer orders by time);
+  and out-of-order batches (counted, not refused: the period buffer orders by time), a
+  front-end that numbers its batches from the start again (counted, followed);
 * plots beyond the radar's instrumented range, late plots (their period already closed),
-  plots too far in the future (a clock jump or a forged time), a per-radar buffer limit;
+  plots too far in the future of the other radars (a clock jump, a fast clock or a forged
+  time: refused for as long as the others keep time), a per-radar buffer limit;
 * every refusal counted by reason, in total and per radar, for the health key;
 * :class:`ClockCheck`: each radar's clock against the other radars', in event time.
 """
@@ -25,8 +27,12 @@ from .columns import PlotChunk
 from .period_buffer import PeriodBuffer
 
 #: consecutive batches of a radar refused whole as too far in the future after which its
-#: new time base is accepted (a radar back from an outage longer than the future limit)
+#: new time base is accepted (a radar back from an outage longer than the future limit),
+#: provided no other radar's time moved on meanwhile (Admission._may_relock)
 FUTURE_RELOCK_BATCHES = 8
+#: batches in a row numbered again below the last one, with newer plots, that show a
+#: radar's front-end restarted its numbering (Admission._seq_restarted)
+SEQ_RESTART_BATCHES = 3
 
 
 @dataclass
@@ -44,6 +50,14 @@ class RadarState:
     rotation_period_s: float | None = None
     wild: int = 0
     future_streak: int = 0  # consecutive batches refused whole as plot_future
+    others_moved_at_streak: int = 0  # Admission.moved less this radar's own, when the streak began
+    streak_first_t_s: float = math.nan  # the streak's first and newest refused times,
+    streak_last_t_s: float = math.nan  # and whether they never went back
+    streak_in_order: bool = True
+    moved: int = 0  # messages of this radar that moved its watermark on
+    seq_restarts: int = 0  # the front-end numbered its batches from the start again
+    restart_streak: int = 0  # batches in a row that look like a restart's (Admission._seq_restarted)
+    restart_last_seq: int = 0
 
 
 class Admission:
@@ -69,6 +83,10 @@ class Admission:
         self.counters = counters
         self.rejected = rejected
         self.radars = [RadarState() for _ in radar_ids]
+        self.moved = 0  # messages of any radar that moved its watermark on
+        # the newest watermark of all radars when each radar's own last moved on: how long
+        # ago, in event time, it last kept time (_future_limit_s)
+        self.moved_at_newest_s = [-math.inf] * len(radar_ids)
 
     def reject(self, reason: str, n: int = 1, radar_id: str | None = None) -> None:
         """Count ``n`` rejections (also those the codec made before the engine saw them)."""
@@ -85,15 +103,77 @@ class Admission:
             self.reject("unknown_radar")
             return
         radar = self.radars[i]
-        if status.t > self._future_limit_s(i) and radar.future_streak < FUTURE_RELOCK_BATCHES:
-            self.reject("status_future", radar_id=status.radar_id)
-            radar.future_streak += 1
-            return
+        if status.t > self._future_limit_s(i):
+            if not self._may_relock(i):
+                self.reject("status_future", radar_id=status.radar_id)
+                self._future_refused(i, status.t)
+                return
+            self.counters["radar_time_relocks"] += 1
         radar.future_streak = 0
         self.counters["status_messages"] += 1
         if status.rotation_period_s is not None:
             radar.rotation_period_s = status.rotation_period_s
-        self.buffer.advance_watermark(i, status.t)
+        self._advance(i, status.t)
+
+    def _seq_restarted(self, radar: RadarState, batch: DecodedPlots, i: int) -> bool:
+        """Whether ``batch``, whose number this radar used recently, shows that its
+        front-end restarted and numbers from the start again: the ``SEQ_RESTART_BATCHES``th
+        batch in a row numbered below the last one, each above the one before, whose plots
+        are all newer than anything the radar sent. A copy's are not (its original moved
+        the watermark at least to its earliest plot, or was refused whole), and one damaged
+        or forged message is not taken for a restart. The batches before it in the run are
+        refused as duplicates."""
+        fresh = (
+            radar.last_seq is not None
+            and batch.seq < radar.last_seq
+            and len(batch) > 0
+            and float(batch.t_s.min()) > self.buffer.watermark_s[i]
+        )
+        if not fresh:
+            radar.restart_streak = 0
+            return False
+        if radar.restart_streak and batch.seq <= radar.restart_last_seq:
+            radar.restart_streak = 0
+        radar.restart_streak += 1
+        radar.restart_last_seq = batch.seq
+        return radar.restart_streak >= SEQ_RESTART_BATCHES
+
+    def _advance(self, i: int, t_s: float) -> None:
+        """Move radar ``i``'s watermark to ``t_s`` (if later), counting that it moved."""
+        if t_s > self.buffer.watermark_s[i]:
+            self.moved += 1
+            self.radars[i].moved += 1
+            self.buffer.advance_watermark(i, t_s)
+            self.moved_at_newest_s[i] = max(self.buffer.watermark_s.tolist())
+
+    def _future_refused(self, i: int, t_s: float) -> None:
+        """A message of radar ``i`` stamped ``t_s`` refused whole as too far in the future."""
+        radar = self.radars[i]
+        if radar.future_streak == 0:
+            radar.others_moved_at_streak = self.moved - radar.moved
+            radar.streak_first_t_s, radar.streak_in_order = t_s, True
+        else:
+            radar.streak_in_order &= t_s >= radar.streak_last_t_s
+        radar.streak_last_t_s = t_s
+        radar.future_streak += 1
+
+    def _may_relock(self, i: int) -> bool:
+        """Whether radar ``i``'s time, refused as too far in the future, is now taken as its
+        new time base: after ``FUTURE_RELOCK_BATCHES`` refusals in a row, and only if no
+        other radar's time moved on meanwhile. A radar back from a long outage alone, or
+        every radar's time ahead of a restored state, is followed; one radar ahead of
+        others that keep time (a clock jump, a forged time) is refused for as long as it
+        stays ahead. Followed, it would lead every period and turn the others' good plots
+        late (and a state saved then would carry its time). The refused times must also
+        run on, as a clock does: repeats of one time (a forged or stuck stamp) are not
+        followed."""
+        radar = self.radars[i]
+        return (
+            radar.future_streak >= FUTURE_RELOCK_BATCHES
+            and self.moved - radar.moved == radar.others_moved_at_streak
+            and radar.streak_in_order
+            and radar.streak_last_t_s > radar.streak_first_t_s
+        )
 
     def _future_limit_s(self, i: int) -> float:
         """Latest plausible event time from radar ``i``; later is refused as
@@ -101,14 +181,31 @@ class Admission:
         beyond ``radar_timeout_s`` past the others it would make them all look silent,
         close every period on this radar alone and turn their good plots late.
 
-        The limit is the newest watermark of all radars (this one included) plus
-        min(max_future_s, radar_timeout_s): a radar's time advances by about a rotation
-        per rotation, and one back from an outage is in step with the others again. A
-        radar with no other radar to follow that comes back after a longer outage is
-        re-locked by :meth:`admit_plots` after ``FUTURE_RELOCK_BATCHES`` batches.
+        The limit is the margin min(max_future_s, radar_timeout_s) past the newest
+        watermark of the *other* radars that keep time: live, and moved on within half the
+        margin of this radar's own time (reckoned on the newest watermark of all when they
+        last moved). A radar's time advances by about a rotation per rotation, and one back
+        from an outage is in step with them again. Only when no other radar keeps time (all
+        silent, or this radar alone) is it the newest watermark of all, its own included:
+        measured from its own, a radar could walk ahead by the margin at each batch until
+        the others were no longer live and their plots late; measured from a radar that
+        has fallen silent, the others' time could not pass it. A radar whose time stays
+        ahead is re-locked after ``FUTURE_RELOCK_BATCHES`` batches if nothing else moves on
+        (:meth:`_may_relock`). Not covered: a sender that steps its own time ahead, within
+        the margin each time, in a burst of batches while no other radar sends.
         """
-        newest: float = max(self.buffer.watermark_s.tolist())  # asked per message: floats beat a numpy call
-        return newest + self.future_margin_s if math.isfinite(newest) else math.inf
+        wm: list[float] = self.buffer.watermark_s.tolist()  # asked per message: floats beat numpy calls
+        newest = max(wm)
+        if not math.isfinite(newest):
+            return math.inf
+        live_from_s = newest - self.buffer.radar_timeout_s
+        recent_from_s = wm[i] - 0.5 * self.future_margin_s
+        moved_at = self.moved_at_newest_s
+        base = max(
+            (w for j, w in enumerate(wm) if j != i and w >= live_from_s and moved_at[j] >= recent_from_s),
+            default=newest,
+        )
+        return base + self.future_margin_s
 
     def admit_plots(self, batch: DecodedPlots) -> int:
         """Check one radar's batch and buffer what passes; returns the plots accepted."""
@@ -121,8 +218,15 @@ class Admission:
             return 0
         radar = self.radars[i]
         if batch.seq in radar.recent_set:
-            self.reject("duplicate", 1, batch.radar_id)
-            return 0
+            if not self._seq_restarted(radar, batch, i):
+                self.reject("duplicate", 1, batch.radar_id)
+                return 0
+            radar.seq_restarts += 1
+            self.counters["radar_seq_restarts"] += 1
+            radar.last_seq = None
+            radar.recent_seqs.clear()
+            radar.recent_set.clear()
+        radar.restart_streak = 0
         if len(radar.recent_seqs) == radar.recent_seqs.maxlen:
             radar.recent_set.discard(radar.recent_seqs[0])
         radar.recent_seqs.append(batch.seq)
@@ -146,9 +250,10 @@ class Admission:
         closed_s, future_s = buf.closed_until_s, self._future_limit_s(i)
         if not math.isfinite(buf.watermark_s[i]):  # a first batch: also against its own start
             future_s = min(future_s, t_min_s + self.future_margin_s)
-        if radar.future_streak >= FUTURE_RELOCK_BATCHES:
-            # This radar's time has stayed ahead, consistently: it came back after an
-            # outage (or its clock was set right); follow it from this batch on.
+        if t_max_s > future_s and self._may_relock(i):
+            # This radar's time has stayed ahead, consistently, and no other radar's moved
+            # on: it came back alone after an outage (or its clock was set right); follow
+            # it from this batch on.
             future_s = math.inf
             radar.future_streak = 0
             self.counters["radar_time_relocks"] += 1
@@ -167,7 +272,10 @@ class Admission:
             keep &= ~future
             idx = np.flatnonzero(keep)
             n_ok = int(np.count_nonzero(keep))
-            radar.future_streak = radar.future_streak + 1 if n_ok == 0 and future.any() else 0
+            if n_ok == 0 and future.any():
+                self._future_refused(i, t_min_s)
+            else:
+                radar.future_streak = 0
             if n_ok == 0:
                 return 0
             t_min_s, t_max_s = float(t_s[idx].min()), float(t_s[idx].max())
@@ -176,7 +284,7 @@ class Admission:
             # Bounded memory: a radar far ahead of the others (or flooding) may not fill
             # the buffer without limit. The earliest plots are kept.
             self.reject("buffer_full", n_ok - max(room, 0), batch.radar_id)
-            buf.advance_watermark(i, t_max_s)  # valid plots: the radar's time has moved on
+            self._advance(i, t_max_s)  # valid plots: the radar's time has moved on
             if room <= 0:
                 return 0
             idx = (np.arange(n_in) if isinstance(idx, slice) else idx)[np.argsort(t_s[idx], kind="stable")[:room]]
@@ -201,7 +309,7 @@ class Admission:
             i,
             t_min_s,
         )
-        buf.advance_watermark(i, t_max_s)
+        self._advance(i, t_max_s)
         radar.plots += n_ok
         self.counters["plots_accepted"] += n_ok
         return n_ok

@@ -2300,6 +2300,7 @@ class Engine:
                 "batches": r.batches,
                 "last_seq": r.last_seq,
                 "seq_gaps": r.seq_gaps,
+                "seq_restarts": r.seq_restarts,
                 "rejected": dict(r.rejected),
                 "wild": r.wild,
                 "clock_offset_s": offsets_s[i],
