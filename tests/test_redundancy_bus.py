@@ -426,3 +426,44 @@ def test_a_pair_of_peers_that_listen_elects_one_active(demo_140s, free_port):
     periods = [x["period"] for x in seen.batches]
     assert periods == list(range(periods[0], periods[0] + len(periods)))
     assert len({x["instance"] for x in seen.batches}) == 2
+
+
+def test_a_damaged_state_on_the_bus_is_refused_and_the_daemon_goes_on(demo_140s, free_port):
+    """A state that decodes, of this configuration and a newer active's epoch, with a
+    field that is not what it should be: counted as refused, and the processing thread
+    goes on (it died of it once, the daemon still on the bus but silent)."""
+    import msgpack
+
+    from radar_fusion.engine import state as engine_state
+
+    out, simulation = demo_140s
+    base = load_settings(out / "config.toml")
+    bus = base.bus.model_copy(
+        update={"mode": "router", "listen": [f"tcp/127.0.0.1:{free_port}"], "connect": [], "health_period_s": 0.2}
+    )
+    red = base.redundancy.model_copy(update={"enabled": True, "instance": "victim"})
+    settings = base.model_copy(update={"bus": bus, "redundancy": red})
+    records = [Record(t, k, p) for t, k, p in simulation.messages]
+    half = len(records) // 2
+    damaged = []
+    for field, value in (("next_period", "x"), ("address_memory", [[1, 2]])):
+        state = engine_state.decode(engine_state.snapshot(Engine(settings)))
+        state.update(epoch=2**40 + len(damaged), instance="zz-peer", period=1)
+        state[field] = value
+        damaged.append(msgpack.packb(state, use_bin_type=True))
+    daemon = FusionDaemon(settings, idle_flush_s=600.0).start()
+    client = open_session(zenoh_config("client", connect=[f"tcp/127.0.0.1:{free_port}"]))
+    try:
+        assert wait_until(lambda: daemon.role == "active", 10)
+        n1 = sum(replay_records(client, records[:half], "atc", speed=None).values())
+        assert wait_until(lambda: daemon.messages_processed >= n1, 20)
+        for payload in damaged:
+            client.put("atc/fusion/state", payload)
+        assert wait_until(lambda: daemon.redundancy_counters["states_refused"] == 2, 10)
+        n2 = sum(replay_records(client, records[half:], "atc", speed=None).values())
+        assert wait_until(lambda: daemon.messages_processed >= n1 + n2, 20)
+        assert daemon._thread is not None and daemon._thread.is_alive() and daemon.engine.periods_closed > 0
+        assert not daemon.health_message()["rejected"].get("internal_error")
+    finally:
+        daemon.stop(timeout_s=5)
+        client.close()

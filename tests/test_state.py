@@ -90,6 +90,57 @@ def test_a_state_of_another_configuration_or_no_state_is_refused(demo_case, tmp_
     assert load_state(Engine(settings), tmp_path) is None and aside.exists()
 
 
+def test_a_state_of_another_period_or_with_a_damaged_field_is_refused_and_changes_nothing(demo_case):
+    """Period indices count ``period_s``: a state of other periods would put every plot in
+    the past or decades ahead (all refused as late). And every field that decodes but is
+    not what it should be is a damaged state (StateMismatch: the daemon sets the file
+    aside, a standby counts it), never an error half-way through the restore."""
+    import msgpack
+
+    settings, simulation = demo_case
+    engine = Engine(settings)
+    replay_into_engine(engine, simulation.messages[:400], flush=False)
+    state = msgpack.unpackb(snapshot(engine), raw=False)
+    assert state["period_s"] == settings.system.period_s
+    system = settings.system.model_copy(update={"period_s": settings.system.period_s + 1.0})
+    other_period = settings.model_copy(update={"system": system})
+    with pytest.raises(StateMismatch, match="periods"):
+        restore(Engine(other_period), state)
+    older = {k: v for k, v in state.items() if k != "period_s"}  # a state from before period_s was saved
+    with pytest.raises(StateMismatch, match="another period_s"):
+        restore(Engine(other_period), older)
+    assert restore(Engine(settings), older) == len(engine.tracks)  # of this period: read
+
+    def damaged(path: str, value):
+        bad = msgpack.unpackb(msgpack.packb(state, use_bin_type=True), raw=False)
+        *parents, leaf = path.split(".")
+        node = bad
+        for key in parents:
+            node = node[key]
+        node[leaf] = value
+        return bad
+
+    cases = [
+        ("next_period", "x"),
+        ("next_period", float("nan")),
+        ("next_period", 10**300),
+        ("next_period", True),
+        ("track_t_s", "x"),
+        ("track_t_s", float("inf")),
+        ("address_memory", [[1, 2]]),
+        ("address_memory", [[1, 2, [0.0], [[1.0]], 5.0]]),
+        ("registration.t_last_s", "x"),
+        ("registration.next_update_t_s", [1.0]),
+        ("next_id", "seven"),
+    ]
+    for path, value in cases:
+        fresh = Engine(settings)
+        before = snapshot(fresh)
+        with pytest.raises(StateMismatch):
+            restore(fresh, damaged(path, value))
+        assert snapshot(fresh) == before, path
+
+
 def test_a_state_from_before_a_column_was_added_is_read_with_its_fill(demo_case):
     """The track table's columns added after the state format's first release
     (track_management.OPTIONAL_FIELDS: the far-hold's held measurement, the radars of each

@@ -606,12 +606,12 @@ class FusionDaemon:
             except queue.Empty:
                 pass
             self._count_overload()
-            self._redundancy_step()
+            self._guarded(self._redundancy_step, "the redundancy step")
             if self.role == "active":  # a standby closes no period: it applies the active's state
-                self._poll()
+                self._guarded(self._poll, "closing a period")
             idle_s = time.monotonic() - self._last_processed
             if self.role == "active" and self.messages_processed > processed_at_flush and idle_s > self.idle_flush_s:
-                self._poll(flush=True)
+                self._guarded(lambda: self._poll(flush=True), "flushing the open periods")
                 processed_at_flush = self.messages_processed
             now = time.monotonic()
             if now - last_health >= self.settings.bus.health_period_s:
@@ -640,6 +640,15 @@ class FusionDaemon:
         if n:
             self._overload_counted += n
             self.engine.reject("overload", n)
+
+    def _guarded(self, step: Callable[[], object], what: str) -> None:
+        """One step of the processing loop: a bug in it must not end the loop (the daemon
+        would stay on the bus, silent); it is logged and counted as an internal error."""
+        try:
+            step()
+        except Exception:
+            log.exception("internal error while %s", what)
+            self.engine.reject("internal_error")
 
     def _process_safely(self, key: str, payload: bytes, arrived_s: float | None = None) -> None:
         taken_s = time.monotonic()

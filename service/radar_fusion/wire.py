@@ -320,6 +320,11 @@ class FusionState(_Message):
     radar_ids: list[str] = Field(description="the configuration's radars in order (the sources bits' order)")
     n_models: int = Field(ge=0, description="the IMM's model count, 0 for the Singer filter")
     track_t_s: float | None = Field(description="reference time of the newest closed period, UTC epoch s")
+    period_s: float | None = Field(
+        None,
+        description="the period length the period indices count (v1 extension): a state of another is refused; "
+        "without it, one whose next period lies more than an hour from track_t_s",
+    )
     next_period: int | None = Field(description="the first period not yet closed")
     period: int | None = Field(None, description="the newest closed period (its TrackBatch's period)")
     next_id: int = Field(ge=1)

@@ -14,6 +14,9 @@ Format (version 1): one msgpack map
                     registration rows are indexed by them)
     n_models        the IMM's model count (0: the Singer filter)
     track_t_s       reference time of the newest closed period, UTC epoch s
+    period_s        the period length (s) the period indices count: a state of another
+                    period_s is refused (and, without it, one whose next period lies more
+                    than an hour from track_t_s)
     next_period     the first period not yet closed (plots before it are late)
     next_id         the next track id to hand out
     tracks          {column name: [dtype, shape, raw bytes]}, TrackTable's columns
@@ -118,6 +121,7 @@ def snapshot(engine: Engine, period: int | None = None, epoch: int | None = None
         "radar_ids": list(engine.radar_ids),
         "n_models": tr.n_models,
         "track_t_s": engine.track_t_s,
+        "period_s": engine.buffer.period_s,
         "next_period": engine.buffer.next_period,
         "period": period,
         "next_id": tr.next_id,
@@ -173,6 +177,43 @@ def _unpack_gate(engine: Engine, packed: Any) -> LiveOutlierGate | None:
     return gate
 
 
+#: how far the first open period of a state may lie from its newest closed period's time
+_PERIOD_SLACK_S = 3600.0
+#: event times a state may carry: 1970 to 2286 (UTC epoch seconds)
+_LATEST_T_S = 1e10
+
+
+def _time_or_none(value: Any, name: str) -> float | None:
+    """A state's event time (epoch seconds) or None; anything else is a damaged state."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= _LATEST_T_S:
+        raise StateMismatch(f"a damaged state: {name} {value!r}")
+    return float(value)
+
+
+def _next_period(state: dict[str, Any], engine: Engine, track_t_s: float | None) -> int | None:
+    """The state's first open period on this engine's grid. A period is an index of
+    ``period_s``: a state of another period (or a damaged index) would put every plot in
+    the past or decades ahead, so it is refused."""
+    period_s = float(engine.buffer.period_s)
+    saved_period_s = state.get("period_s")
+    if saved_period_s is not None and saved_period_s != period_s:
+        raise StateMismatch(f"state of {saved_period_s!r} s periods, configured {period_s} s")
+    value = state["next_period"]
+    if value is None:
+        return None
+    if type(value) is not int or not 0 <= value * period_s <= _LATEST_T_S:
+        raise StateMismatch(f"a damaged state: next_period {value!r}")
+    if track_t_s is not None and abs(value * period_s - track_t_s) > _PERIOD_SLACK_S:
+        # a state from before period_s was saved, of another period: its index is not this grid's
+        raise StateMismatch(
+            f"state's next period starts at {value * period_s:.0f} s, its tracks are of {track_t_s:.0f} s: "
+            f"a state of another period_s than {period_s} s"
+        )
+    return value
+
+
 def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False) -> int:
     """Load a :func:`snapshot` (bytes, or :func:`decode`'s map) into an engine of the same
     configuration; returns the number of tracks restored. Without ``replace`` only into a
@@ -196,10 +237,15 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
         registration = {name: _unpack_array(state["registration"][name]) for name in _REGISTRATION_ARRAYS}
         counts = {name: int(state["registration"][name]) for name in _REGISTRATION_COUNTS}
         counts |= {name: int(state["registration"].get(name, 0)) for name in _OPTIONAL_REGISTRATION_COUNTS}
-        memory = [tuple(entry) for entry in state["address_memory"]]
-        next_id, track_t_s, next_period = int(state["next_id"]), state["track_t_s"], state["next_period"]
-        t_last_s = state["registration"].get("t_last_s")
-        next_update_t_s = state["registration"].get("next_update_t_s")
+        memory = [
+            (int(a), int(track_id), np.asarray(xy, float).reshape(2), np.asarray(cov, float).reshape(2, 2), float(t))
+            for a, track_id, xy, cov, t in state["address_memory"]
+        ]
+        next_id = int(state["next_id"])
+        track_t_s = _time_or_none(state["track_t_s"], "track_t_s")
+        next_period = _next_period(state, engine, track_t_s)
+        t_last_s = _time_or_none(state["registration"].get("t_last_s"), "registration t_last_s")
+        next_update_t_s = _time_or_none(state["registration"].get("next_update_t_s"), "registration next_update_t_s")
         gate = _unpack_gate(engine, state.get("live_gate"))
         # the layers' wind (engine._air_velocity_and_wind); a state from before it, or of
         # other layers: learnt again from the reports within minutes
@@ -207,8 +253,10 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
         same_layers = engine.imm is not None and layer_wind.get("layer_ft") == engine.imm.params.wind_layer_ft
         wind_mps = _unpack_array(layer_wind["mps"]) if same_layers else None
         wind_t_s = _unpack_array(layer_wind["t_s"]) if same_layers else None
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise StateMismatch(f"a damaged state: {exc}") from exc
+    except StateMismatch:
+        raise
+    except Exception as exc:  # any field that does not read as what it should be
+        raise StateMismatch(f"a damaged state: {type(exc).__name__}: {exc}") from exc
     # every check before anything is changed: a refused state leaves the engine as it was
     n = {c.shape[0] for c in columns.values()}
     if len(n) == 1:  # a state from before a column was added: that column's fill
@@ -239,7 +287,7 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
     tr.next_id = next_id
     engine.track_t_s = track_t_s
     if next_period is not None:
-        engine.buffer.discard_before(int(next_period))
+        engine.buffer.discard_before(next_period)
     if replace:
         engine.address_memory.clear()
     engine.address_memory.load(memory)
@@ -248,11 +296,11 @@ def restore(engine: Engine, data: bytes | dict[str, Any], replace: bool = False)
     for name, count in counts.items():
         setattr(reg, name, count)
     reg.refresh_covariance()  # the correction's empirical Bayes step reads it
-    reg.t_last_s = None if t_last_s is None else float(t_last_s)
+    reg.t_last_s = t_last_s
     # the correction the tracks are consistent with: the estimator's when the state was taken
     # (engine._follow_registration took it at the end of that period)
     engine._reg_applied = reg.correction()
-    engine._reg_next_t_s = -math.inf if next_update_t_s is None else float(next_update_t_s)
+    engine._reg_next_t_s = -math.inf if next_update_t_s is None else next_update_t_s
     if gate is not None:
         engine.outlier_gate = gate
     if wind_mps is not None and wind_t_s is not None and wind_mps.shape == engine.layer_wind_mps.shape:
