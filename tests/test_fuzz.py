@@ -386,6 +386,57 @@ def test_one_plot_far_in_the_future_does_not_make_the_other_radars_late(nth_batc
     assert dict(engine.rejected) == {"plot_future": 1}
 
 
+@pytest.mark.parametrize("range_m", [5e-324, 1e-300, 1e-9, 0.0])
+def test_a_plot_at_the_antenna_without_mode_c_makes_no_track_that_is_not_finite(range_m):
+    """A schema-valid plot a hair from the antenna with no Mode C: its cross-range variance
+    (g σ_θ)² was ~0 against the range's, its covariance singular and its track's position
+    NaN; a consumer refuses a batch with one such track, and every other track with it."""
+    INPUTS["engine: plots at the antenna"] += 1
+    from radar_fusion.wire import DecodedPlots
+
+    radars = [
+        {
+            "id": rid,
+            "lat": 46.0 + 0.2 * k,
+            "lon": 8.0 - 0.2 * k,
+            "sigma_range_m": 50,
+            "sigma_azimuth_deg": 0.1,
+            "rotation_period_s": 4.0,
+        }
+        for k, rid in enumerate("ab")
+    ]
+    engine = Engine(
+        settings_from_dict({"system": {"center_lat": 46.0, "center_lon": 8.0, "period_s": 4.0}, "radars": radars})
+    )
+    t0 = 1_533_110_400.0
+
+    def batch(rid, seq, t, rng, fl):
+        nan = np.full(1, np.nan)
+        return DecodedPlots(
+            rid,
+            seq,
+            np.full(1, t),
+            np.full(1, rng),
+            np.full(1, 45.0),
+            np.full(1, fl),
+            np.full(1, -1),
+            np.full(1, -1),
+            np.full(1, -1),
+            np.zeros(1, np.int8),
+            nan.copy(),
+        )
+
+    shown = 0
+    for k in range(12):
+        engine.ingest_plots(batch("a", k, t0 + 4 * k + 1.0, range_m, np.nan))
+        engine.ingest_plots(batch("b", k, t0 + 4 * k + 2.0, 50_000.0, 350.0))
+        for out in engine.poll():
+            cols = out.track_columns
+            assert np.isfinite(cols.x_m).all() and np.isfinite(cols.y_m).all() and np.isfinite(cols.cov_xy).all()
+            shown += len(cols.x_m)
+    assert shown > 0 and not engine.counters.get("tracks_ended_not_finite")
+
+
 def test_a_status_far_in_the_future_does_not_make_the_engine_close_every_empty_period():
     """One status from a radar not heard before, 2,000 s ahead (a clock jump), neither
     moves the period clock nor makes the engine close the 500 empty periods in between

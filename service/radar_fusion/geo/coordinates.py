@@ -529,6 +529,13 @@ def mark_unconverted(
     return x_m, y_m, cov, ground_m
 
 
+#: the least cross-range variance of a plot (1 m): only a plot within a few hundred metres
+#: of its antenna (g·σ_θ under a metre) is placed more precisely across the beam, where
+#: (g σ_θ)² would make its covariance singular against the range's (a plot at 1e-9 m gave
+#: a NaN track)
+MIN_CROSS_RANGE_VAR_M2 = 1.0
+
+
 def polar_to_plane(
     plane: SystemPlane,
     sites: RadarSites,
@@ -620,7 +627,7 @@ def polar_to_plane(
     sigma_rho = sites.sigma_range_m[idx]
     sigma_theta = sites.sigma_azimuth_rad[idx]
     var_r = (d_rho * sigma_rho) ** 2 + (d_h * sigma_h) ** 2
-    var_c = (r_m * np.sin(ground_m / r_m) * sigma_theta) ** 2
+    var_c = np.maximum((r_m * np.sin(ground_m / r_m) * sigma_theta) ** 2, MIN_CROSS_RANGE_VAR_M2)
     x_m, y_m, cov = radial_to_plane(plane, sites, idx, theta_safe, ground_m, var_r, var_c)
 
     x_m, y_m, cov, ground_m = mark_unconverted(x_m, y_m, cov, ground_m, rho, sigma_rho, finite_in, valid)

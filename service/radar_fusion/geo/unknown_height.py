@@ -17,7 +17,14 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .coordinates import RadarSites, SystemPlane, mark_unconverted, radial_to_plane, slant_to_ground_range
+from .coordinates import (
+    MIN_CROSS_RANGE_VAR_M2,
+    RadarSites,
+    SystemPlane,
+    mark_unconverted,
+    radial_to_plane,
+    slant_to_ground_range,
+)
 from .units import M_PER_FL
 
 __all__ = [
@@ -232,7 +239,7 @@ def unknown_height_plots(
     # dg/drho is infinite only if the whole feasible interval sits on the cone (h_lo = h_hi
     # = h_r + rho); there 1 (the flat, level value) stands in.
     d_rho = np.where(valid & np.isfinite(d_rho_mid), d_rho_mid, 1.0)
-    var_c = ((r_m * np.sin(ground_m / r_m)) ** 2 + var_g) * sigma_theta**2
+    var_c = np.maximum(((r_m * np.sin(ground_m / r_m)) ** 2 + var_g) * sigma_theta**2, MIN_CROSS_RANGE_VAR_M2)
     x_m, y_m, cov = radial_to_plane(plane, sites, idx, theta_safe, ground_m, (d_rho * sigma_rho) ** 2, var_c)
     # the height part k^2 Var_h[g] u u^T: the same radial line converted with (1, 0)
     _, _, radial = radial_to_plane(plane, sites, idx, theta_safe, ground_m, np.ones_like(var_g), np.zeros_like(var_g))

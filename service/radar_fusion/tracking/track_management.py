@@ -457,6 +457,13 @@ def apply_life_cycle(
     if log_miss_probability is not None and rules.end_miss_probability > 0:
         unseen = log_miss_probability <= math.log(rules.end_miss_probability)
         end |= (status != TENTATIVE) & unseen & (since_update > rules.end_min_scans * revisit)
+    # A state that is not finite (a numerical fault no input should reach) is ended, not
+    # shown: a consumer refuses a batch with one NaN track, and every other track with it.
+    broken = ~(np.isfinite(table.x).all(axis=1) & np.isfinite(table.P).all(axis=(1, 2)))
+    if broken.any():
+        end |= broken
+        if counters is not None:
+            counters["tracks_ended_not_finite"] = counters.get("tracks_ended_not_finite", 0) + int(broken.sum())
     ended: np.ndarray = table.track_id[end].copy()
     if end.any():
         table.keep(~end)
