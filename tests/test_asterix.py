@@ -568,6 +568,118 @@ def test_cat062_blocks_respect_max_size():
     assert sum(len(decode_cat062_block(b)) for b in blocks) == 40
 
 
+def test_cat062_and_cat063_times_of_day_wrap_at_midnight_after_rounding():
+    """I062/070 and I063/030 count 1/128 s in [0, 86400): the last 1/256 s of a day goes out
+    as 0.0 (it went out as 86400.0, rounded after the wrap), and a time just before that
+    rounds to the day's last tick."""
+    from radar_fusion.asterix import Cat063Encoder, decode_cat063_block
+
+    midnight = 1_700_006_400.0
+    assert midnight % 86_400 == 0
+    for before_s, tod_s in ((0.002, 0.0), (0.005, (86_400 * 128 - 1) / 128), (0.5, 86_399.5)):
+        t = midnight - before_s
+        [rec] = decode_cat062_block(Cat062Encoder(0, 1).encode({"t": t, "ended": [], "tracks": [track(t=t)]})[0])
+        assert rec.tod_s == tod_s
+        [status] = decode_cat063_block(
+            Cat063Encoder(0, 1, {"r": (3, 4)}).encode({"t": t, "radars": {"r": {"live": True}}})[0]
+        )
+        assert status.tod_s == tod_s
+
+
+def test_cat062_flight_level_is_clamped_to_the_items_range():
+    """I062/136 holds −15 to 1 500 FL."""
+    enc = Cat062Encoder(0, 1)
+    low, high = (
+        decode_cat062_block(enc.encode({"t": 1.7e9, "ended": [], "tracks": [track(track_id=i, fl=fl)]})[0])[0]
+        for i, fl in ((1, -20.0), (2, 2000.0))
+    )
+    assert (low.fl, high.fl) == (-15.0, 1500.0)
+
+
+def test_cat062_mon_tells_a_multisensor_track_from_a_monosensor_one_across_periods():
+    """MON (I062/080) is what the track is built from, not who spoke this period: a track
+    two radars feed in turns stays multisensor, coasting too; once one radar alone has fed
+    it for 30 s it is monosensor."""
+    enc = Cat062Encoder(0, 1)
+    t0 = 1.7e9
+    feeds = [["a"], ["b"], ["a"], [], [], ["a"]] + [["a"]] * 8
+    mons = []
+    for k, sources in enumerate(feeds):
+        status = "coasting" if not sources else "confirmed"
+        [rec] = decode_cat062_block(
+            enc.encode({"t": t0 + 4 * k, "ended": [], "tracks": [track(t=t0 + 4 * k, sources=sources, status=status)]})[
+                0
+            ]
+        )
+        mons.append(rec.status["MON"])
+    # b's last plot at 4 s: it counts until 34 s (k = 8), then a alone
+    assert mons == [1, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1]
+    single = Cat062Encoder(0, 1)
+    [rec] = decode_cat062_block(
+        single.encode({"t": t0, "ended": [], "tracks": [track(sources=[], status="coasting")]})[0]
+    )
+    assert rec.status["MON"] == 1  # nothing known of it: one radar at most
+
+
+def test_a_field_monitor_reply_is_skipped_not_made_a_plot():
+    """I048/020 RAB = 1 is a fixed transponder's reply (a field monitor): a track of it
+    would stand still on the display forever."""
+    from types import SimpleNamespace
+
+    from radar_fusion.asterix.decode import CAT048
+
+    def record(rab: int):
+        return CAT048.cv_record.create(
+            {
+                "010": (("SAC", 23), ("SIC", 2)),
+                "140": 43200.0,
+                "020": ((("TYP", 2), ("SIM", 0), ("RDP", 0), ("SPI", 0), ("RAB", rab), None),),
+                "040": (("RHO", 3.0), ("THETA", 90.0)),
+                "070": (("V", 0), ("G", 0), ("L", 0), 0, ("MODE3A", 0o7777)),
+            }
+        )
+
+    bridge = AsterixToWire([SimpleNamespace(id="j", sac=23, sic=2)], day=date(2024, 1, 1))
+    msgs = bridge.datagram(CAT048.create([record(1), record(0)]).unparse().to_bytes())
+    plots = [p for m in msgs if m.key.endswith("/plots") for p in m.message.plots]
+    assert len(plots) == 1 and bridge.counters.as_dict()["skipped"] == {"field_monitor": 1}
+
+
+def test_a_recording_sorted_across_midnight_keeps_the_day_its_file_order_gave(tmp_path):
+    """A ring-buffer dump across midnight: its file holds 00:00:10-00:00:49, then
+    23:59:20-23:59:59 of the day before. Sorted by time, each datagram carries the time the
+    sort resolved (in file order, from --date); a bridge without a day keeps it. The
+    bridge resolving the sorted stream again from --date put the pre-midnight part, now
+    first, on --date itself: a day after the BDS 5,0 reference of the same file."""
+    counters = DecodeCounters()
+    jahorina = [b for _, d in iter_file(need(JAHORINA), counters) for b in split_datablocks(d, counters)]
+    blocks = [b for b in jahorina if b[0] == 48 and len(decode_datablock(b, DecodeCounters())) == 1][:80]
+
+    def with_tod(block: bytes, tod_s: float) -> bytes:
+        b = bytearray(block)
+        fspec = 3
+        while b[fspec] & 1:
+            fspec += 1
+        assert b[3] & 0xC0 == 0xC0  # I010 then I140 (FRN 1, 2)
+        b[fspec + 3 : fspec + 6] = round(tod_s * 128).to_bytes(3, "big")
+        return bytes(b)
+
+    path = tmp_path / "ring.ast"
+    after = [with_tod(b, 10.0 + i) for i, b in enumerate(blocks[:40])]
+    before = [with_tod(b, 86_360.0 + i) for i, b in enumerate(blocks[40:])]
+    path.write_bytes(b"".join(after + before))
+    day = date(2023, 5, 2)
+    midnight = datetime(2023, 5, 2, tzinfo=UTC).timestamp()
+    bridge = AsterixToWire(example_settings({"jahorina"}).radars, day=None)
+    times = [
+        m.t_s
+        for ref_s, datagram in sort_by_time(iter_file(path, DecodeCounters()), day)
+        for m in bridge.datagram(datagram, ref_s)
+    ]
+    assert len(times) == 80 and times == sorted(times)
+    assert times[0] == midnight - 40.0 and times[-1] == midnight + 49.0  # file order: the first part is on the day
+
+
 # ============================================================================ I/O paths
 
 

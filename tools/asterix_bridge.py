@@ -312,9 +312,12 @@ def run_in(args: argparse.Namespace) -> int:
         if sock is not None:
             sock.close()
         return 2
-    bridge = AsterixToWire(settings.radars, day=args.date, dedup_window=0 if args.no_dedup else 1024)
+    # a file sorted by time comes with each datagram's resolved time as its reference: the
+    # day was chosen there, in file order (sort_by_time)
+    day = None if not args.udp and args.order == "time" else args.date
+    bridge = AsterixToWire(settings.radars, day=day, dedup_window=0 if args.no_dedup else 1024)
     try:
-        run_bridge_in(settings, source, sink.write, day=args.date, speed=speed, stop=stop, bridge=bridge)
+        run_bridge_in(settings, source, sink.write, day=day, speed=speed, stop=stop, bridge=bridge)
     except ValueError as exc:  # e.g. a file that is not the format it claims
         print(str(exc), file=sys.stderr)
         return 2

@@ -10,9 +10,9 @@ from typing import Any
 
 from asterix.base import Spare
 
-from ..geo.units import SECONDS_PER_DAY
 from ..wire import TrackBatch
 from .decode import CAT062
+from .time_of_day import time_of_day_s
 
 
 def _extended_arg(variation_cls: Any, values: dict[str, int], n_groups: int) -> tuple:
@@ -55,26 +55,47 @@ class Cat062Encoder:
     component sign(σxy)·sqrt(|σxy|), APW σ latitude / longitude (σy, σx in degrees on a
     6 371 km sphere).
 
-    I080: MON = 1 when one radar contributed this period; CNF = 1 while tentative; TSB
+    I080: MON = 1 when one radar fed the track in the last ``mono_window_s`` (a radar
+    counts for that long after its latest plot in it; a track coasting longer keeps its
+    last MON); CNF = 1 while tentative; TSB
     = 1 on the first record of a track id this encoder sends; CST = 1 when coasting.
     Each id in the batch's ``ended`` list gives a last record with TSE = 1 carrying only
     I010, I015, I070, I040 and I080. Values beyond an item's range are clamped to it.
     """
 
-    def __init__(self, sac: int, sic: int, service_id: int = 1, max_block_bytes: int = 1400):
+    def __init__(
+        self, sac: int, sic: int, service_id: int = 1, max_block_bytes: int = 1400, mono_window_s: float = 30.0
+    ):
         if not (0 <= sac <= 255 and 0 <= sic <= 255 and 0 <= service_id <= 255):
             raise ValueError("sac, sic and service_id must be 0..255")
         if max_block_bytes < 128:
             raise ValueError("max_block_bytes must be at least 128")
         self.sac, self.sic, self.service_id = sac, sic, service_id
         self.max_block_bytes = min(max_block_bytes, 65_535)
+        #: how long a radar counts towards a track after its latest plot in it (I080 MON):
+        #: two to three scans of an en-route radar, so that radars updating a track in
+        #: turns, or a coasting period, do not make a multisensor track flicker to MON = 1
+        self.mono_window_s = mono_window_s
         self._seen: set[int] = set()
+        self._fed_by: dict[int, dict[str, float]] = {}  # track id -> radar -> time of its latest plot in it
+        self._mon: dict[int, int] = {}  # track id -> its latest MON
+
+    def _monosensor(self, track_id: int, t_s: float, sources: list[str]) -> int:
+        """I080 MON of the track: 1 when one radar fed it in the last ``mono_window_s``."""
+        fed = self._fed_by.setdefault(track_id, {})
+        for radar in sources:
+            fed[radar] = t_s
+        for radar in [r for r, t in fed.items() if t < t_s - self.mono_window_s]:
+            del fed[radar]
+        if fed:
+            self._mon[track_id] = 1 if len(fed) == 1 else 0
+        return self._mon.get(track_id, 1)
 
     def _common(self, track_no: int, t_s: float, status: dict[str, int], n_groups: int) -> CAT062.cv_record.cv_arg:
         return {
             "010": (("SAC", self.sac), ("SIC", self.sic)),
             "015": self.service_id,
-            "070": float(t_s % SECONDS_PER_DAY),
+            "070": time_of_day_s(t_s),
             "040": track_no % 65_536,
             "080": _extended_arg(_I080, status, n_groups),
         }
@@ -83,7 +104,7 @@ class Cat062Encoder:
         tid = int(tr["track_id"])
         coasting = tr["status"] == "coasting"
         status = {
-            "MON": 1 if len(tr.get("sources") or ()) == 1 else 0,
+            "MON": self._monosensor(tid, float(tr["t"]), list(tr.get("sources") or ())),
             "CNF": 1 if tr["status"] == "tentative" else 0,
             "TSB": 0 if tid in self._seen else 1,
             "CST": 1 if coasting else 0,
@@ -104,7 +125,7 @@ class Cat062Encoder:
                 ("VY", _clamp(float(tr["vy_mps"]), -lim_v, lim_v)),
             )
         if tr.get("fl") is not None:
-            items["136"] = _clamp(float(tr["fl"]), -1500.0, 1500.0)
+            items["136"] = _clamp(float(tr["fl"]), -15.0, 1500.0)  # the item's range, −15 to 1 500 FL
         if tr.get("mode3a") is not None:
             items["060"] = (("V", 0), ("G", 0), ("CH", 0), 0, ("MODE3A", int(tr["mode3a"])))
         if tr.get("mode_s"):
@@ -125,6 +146,8 @@ class Cat062Encoder:
 
     def _ended_record(self, track_id: int, t_s: float) -> Any:
         self._seen.discard(track_id)
+        self._fed_by.pop(track_id, None)
+        self._mon.pop(track_id, None)
         return CAT062.cv_record.create(self._common(track_id, t_s, {"TSE": 1}, 2))
 
     def encode(self, batch: TrackBatch | dict[str, Any]) -> list[bytes]:

@@ -24,10 +24,11 @@ from typing import Any, cast
 
 import asterix.generated as gen
 
-from ..geo.units import M_PER_NM, SECONDS_PER_DAY
+from ..geo.units import M_PER_NM
 from ..wire import Health
 from .decode import _element, _fields, parse_block_records
 from .framing import DecodeCounters
+from .time_of_day import time_of_day_s
 
 CAT063 = gen.Cat_063_1_7
 
@@ -79,7 +80,7 @@ class Cat063Encoder:
         items: dict[str, Any] = {
             "010": (("SAC", self.sac), ("SIC", self.sic)),
             "015": self.service_id,
-            "030": float(t_s % SECONDS_PER_DAY),
+            "030": time_of_day_s(t_s),
             "050": (("SAC", sensor_sac), ("SIC", sensor_sic)),
             "060": ((("CON", CON_OPERATIONAL if radar.get("live") else CON_NOT_CONNECTED), 0, 0, 0, 0, 0, None),),
         }

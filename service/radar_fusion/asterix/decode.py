@@ -147,6 +147,9 @@ def _decode_cat048(record: Any, counters: DecodeCounters) -> TargetReport | None
         if f020.get("TST", 0):
             counters.skip("test_target")
             return None
+        if f020.get("RAB", 0):  # a fixed transponder's reply (field monitor), not an aircraft
+            counters.skip("field_monitor")
+            return None
         kind = TYP_TO_KIND.get(f020["TYP"])  # type: ignore[assignment]
     if i040 is None:
         counters.skip("no_position")

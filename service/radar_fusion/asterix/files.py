@@ -152,8 +152,15 @@ def sort_by_time(
     Some recordings are not in time order (the Jahorina sample is a ring-buffer dump:
     its second part is older than its first, then the start repeats). Fed in file order,
     the older part would arrive after its periods closed. Each datagram is keyed by the
-    earliest time of day in it (resolved as :class:`TimeOfDayResolver` does with
-    ``day``); a datagram without a decodable time keeps its predecessor's key.
+    earliest time of day in it (resolved in file order as :class:`TimeOfDayResolver`
+    does with ``day``, as :func:`.bridge.bds50_reference` does); a datagram without a
+    decodable time keeps its predecessor's key.
+
+    Each datagram comes with that key as its reference epoch (or its own reference when
+    no time was decodable before it): a bridge without a ``day`` then puts each report
+    on the day the sort chose. Resolved again in the sorted order from ``day``, a
+    recording that crosses midnight out of order put its reports before midnight on
+    the next day, a day away from the file-order times.
     """
     scratch = DecodeCounters()
     clock = TimeOfDayResolver(day)
@@ -169,4 +176,4 @@ def sort_by_time(
             key = min(times)
         keyed.append((key, ref_s, datagram))
     keyed.sort(key=lambda k: k[0])
-    return [(ref_s, datagram) for _, ref_s, datagram in keyed]
+    return [(key if math.isfinite(key) else ref_s, datagram) for key, ref_s, datagram in keyed]

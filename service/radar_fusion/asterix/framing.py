@@ -26,6 +26,7 @@ SKIP_REASONS = (
     "no_detection",  # I048/020 TYP = 0 (track-only record, no measurement)
     "simulated",  # I048/020 SIM = 1
     "test_target",  # I048/020 TST = 1
+    "field_monitor",  # I048/020 RAB = 1: a fixed transponder's reply (a field monitor), not an aircraft
     "invalid_plot",  # a value the wire contract refuses (should not happen after the checks)
     "cat034_other_message",  # CAT034 message types other than north marker / sector crossing
     "resync_bytes",  # raw file: bytes skipped to find the next plausible block header

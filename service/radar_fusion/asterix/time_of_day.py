@@ -7,6 +7,17 @@ from datetime import UTC, date, datetime
 
 from ..geo.units import SECONDS_PER_DAY
 
+#: ASTERIX times of day count 1/128 s (I048/140, I062/070, I063/030)
+TOD_LSB_PER_S = 128
+
+
+def time_of_day_s(t_s: float) -> float:
+    """UTC epoch seconds -> the time of day an encoder sends: rounded to its 1/128 s first,
+    then wrapped, so that the last 1/256 s of a day is 0.0 of the next (the items allow
+    [0, 86400); rounded after the wrap it went out as 86400.0)."""
+    ticks = round(t_s * TOD_LSB_PER_S) % (SECONDS_PER_DAY * TOD_LSB_PER_S)
+    return ticks / TOD_LSB_PER_S
+
 
 def _midnight_epoch_s(day: date) -> float:
     return datetime(day.year, day.month, day.day, tzinfo=UTC).timestamp()
