@@ -255,6 +255,39 @@ def test_per_area_override_uses_3nm():
     assert nets(stca_confirm_periods=1, stca_overrides=[tma]).update(0.0, arrays(rows)) == []
 
 
+def test_overlapping_volumes_a_pair_takes_the_first_that_holds_both():
+    """Volumes may nest: an approach core (2.5 NM) inside a TMA (3 NM), or a small 3 NM
+    sector listed before a 5 NM upper airspace. A at the core, B in the TMA outside it, 4 NM
+    apart, parallel at one level: the pair is in the TMA only, whatever A is in besides.
+    (Tagged with each track's own first volume, the pair fell back to the default: a
+    nuisance alert in the first case, a missed one in the second.)"""
+    lat0, lon0 = 47.0, 8.0
+
+    def box(south, north, half_width):
+        return [
+            [lat0 + south, lon0 - half_width],
+            [lat0 + south, lon0 + half_width],
+            [lat0 + north, lon0 + half_width],
+            [lat0 + north, lon0 - half_width],
+        ]
+
+    north_edge = 0.03  # the inner volume ends 3.3 km north of A; B is 7.4 km north
+    rows = [dict(id=1, x=0, y=0, vx=128.6, vy=0, fl=60), dict(id=2, x=0, y=4 * M_PER_NM, vx=128.6, vy=0, fl=60)]
+    assert PLANE.to_geodetic(np.array([0.0]), np.array([4 * M_PER_NM]))[0][0] > lat0 + north_edge
+    core = dict(name="APP-CORE", h_min_nm=2.5, polygon_latlon_deg=box(-0.5, north_edge, 0.5))
+    tma = dict(name="TMA", h_min_nm=3.0, polygon_latlon_deg=box(-0.6, 0.6, 0.6))
+    once = dict(stca_confirm_periods=1, stca_confirm_periods_far=1)
+    assert nets(**once).update(0.0, arrays(rows))  # 5 NM by default
+    assert nets(**once, stca_overrides=[tma]).update(0.0, arrays(rows)) == []
+    assert nets(**once, stca_overrides=[core, tma]).update(0.0, arrays(rows)) == []
+    high = [dict(r, fl=350) for r in rows]
+    sector = dict(name="SECTOR-X", h_min_nm=3.0, polygon_latlon_deg=box(-0.5, north_edge, 0.5))
+    upper = dict(name="UPPER", h_min_nm=5.0, lower_fl=245, polygon_latlon_deg=box(-2.0, 2.0, 2.0))
+    assert nets(**once, stca_h_min_nm=3.0).update(0.0, arrays(high)) == []
+    alerts = nets(**once, stca_h_min_nm=3.0, stca_overrides=[sector, upper]).update(0.0, arrays(high))
+    assert [(a["kind"], a["status"]) for a in alerts] == [("stca", "new")]
+
+
 def test_current_proximity_alerts_at_once_and_mode_s_duplicates_are_skipped():
     rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=1000, vx=200, vy=0)]
     out = nets().update(0.0, arrays(rows))  # confirmation 2, but separation is already lost
@@ -342,6 +375,33 @@ def test_apw_predicted_entry_and_inside(tmp_path):
     assert out[0]["time_to_entry_s"] == 0.0
     above = [dict(id=9, x=float(x0) + 2000, y=float(y0), vx=200, vy=0, fl=120)]
     assert nets(areas_file=_areas_file(tmp_path), apw_confirm_periods=1).update(0.0, arrays(above)) == []
+
+
+def test_apw_sees_a_corner_clipped_between_two_samples(tmp_path):
+    """A straight path that cuts R1's south-east corner over 30-400 m, at a random phase of
+    the 2 s samples (500 m apart at 250 m/s): both samples either side of the clip can be
+    outside. Every path is warned of, at the time it enters, which is found here by
+    testing points 5 cm apart along it."""
+    from radar_fusion.safety_nets.polygon import Polygon, ring_xy
+
+    ring = [[8.1, 47.1], [8.3, 47.1], [8.3, 47.2], [8.1, 47.2]]
+    poly = Polygon([(ring_xy(PLANE, ring), [])])
+    cx, cy = (float(np.ravel(v)[0]) for v in PLANE.to_plane(np.array([47.1]), np.array([8.3])))
+    v = 250.0
+    vx = vy = v / math.sqrt(2.0)  # north-east, past the corner
+    rng = np.random.default_rng(3)
+    for off_m in np.linspace(20.0, 280.0, 14):
+        px, py = cx - off_m / math.sqrt(2.0), cy + off_m / math.sqrt(2.0)  # off_m inside the corner
+        lead_s = 60.0 + rng.uniform(0.0, 2.0)
+        x0, y0 = px - vx * lead_s, py - vy * lead_s
+        fine_t = np.arange(0.0, 2 * lead_s, 0.0002 * 1000 / v)  # 5 cm apart
+        truth = poly.contains(np.column_stack([x0 + vx * fine_t, y0 + vy * fine_t]))
+        assert truth.any() and not truth[0]
+        out = nets(areas_file=_areas_file(tmp_path), apw_confirm_periods=1).update(
+            0.0, arrays([dict(id=1, x=x0, y=y0, vx=vx, vy=vy, fl=80)])
+        )
+        assert [a["area_id"] for a in out] == ["R1"], off_m
+        assert out[0]["time_to_entry_s"] == pytest.approx(fine_t[np.argmax(truth)], abs=0.01)
 
 
 def test_msaw_descent_towards_high_terrain_with_vertical_rate():

@@ -248,6 +248,42 @@ def test_a_track_stream_that_goes_back_in_time():
     assert svc.counters["batches_processed"] == 6 and svc.rejected["out_of_order"] == 2
 
 
+def test_a_daemon_restarted_without_its_state_is_a_new_stream_though_time_goes_on():
+    """A stand-alone safety-nets process; the daemon restarts without --state-dir: its
+    time goes on, but its track ids start at 1 again, on other aircraft. The open alert of
+    the old tracks 1 and 2 ends, and the new pair 1, 2 (a far conflict, to be confirmed)
+    is raised as new with a new alert id once confirmed, not carried on as the old one."""
+    svc = service()
+    v = 240.0
+
+    def batch(t_s, rows, age_s):
+        tr = engine_columns(t_s=t_s, n=2)
+        tr.track_id[:] = [1, 2]
+        tr.status[:] = CONFIRMED
+        tr.x[:] = [[x, vx, 0.0, y, 0.0, 0.0] for x, y, vx in rows]
+        tr.fl[:] = 200.0
+        tr.vrate_fpm[:] = 0.0
+        tr.age_s[:] = age_s
+        return tr.to_msgpack()
+
+    t0 = 1.7e9
+    first = []
+    for k in range(4):  # head-on, 30 km apart: a conflict
+        d = 15e3 - v * 4 * k
+        first += svc.process(batch(t0 + 4 * k, [(-d, 0.0, v), (d, 0.0, -v)], 60.0 + 4 * k))
+    opened = {a["alert_id"] for a in first if a["status"] == "new"}
+    assert len(opened) == 1
+    later = []
+    for k in range(6):  # 40 s on: new aircraft 1 and 2, 80 km north, 60 km apart head-on
+        d = 30e3 - v * 4 * k
+        later.append(svc.process(batch(t0 + 40 + 4 * k, [(-d, 80e3, v), (d, 80e3, -v)], 4.0 * k)))
+    assert svc.counters["stream_restarts"] == 1
+    assert [(a["alert_id"], a["status"]) for a in later[0] if a["alert_id"] in opened] == [(min(opened), "ended")]
+    new = [a for out in later for a in out if a["status"] == "new"]
+    assert len(new) == 1 and new[0]["alert_id"] not in opened and new[0]["track_ids"] == [1, 2]
+    assert not [a for a in later[0] if a["status"] == "new"]  # confirmed over periods, not at once
+
+
 def test_the_health_message_follows_the_contract():
     svc = service()
     svc.process(engine_columns().to_msgpack())

@@ -20,7 +20,10 @@ def apw_hits(cfg: SafetyNetsConfig, areas: list[Area], tr: TrackColumns, accel: 
     """[APW-GUID]: inside a volume now, or predicted to enter it within the look-ahead.
 
     The horizontal path is the turn prediction for turning tracks, linear otherwise;
-    samples every ``sample_step_s``; inside = in the polygon and lower ≤ FL ≤ upper.
+    samples every ``sample_step_s``; inside = in the polygon and lower ≤ FL ≤ upper. A
+    path between two samples that crosses the polygon's boundary enters it there too
+    (a corner clipped between samples, both outside: at 250 m/s a 2 s step is 500 m),
+    when the level at either sample is inside the volume's band.
     """
     e = np.flatnonzero(eligible(tr) & moving(tr))
     if e.size == 0:
@@ -43,10 +46,16 @@ def apw_hits(cfg: SafetyNetsConfig, areas: list[Area], tr: TrackColumns, accel: 
         if cfg.apw_unknown_fl_inside:
             vert |= ~np.isfinite(f)
         inside = lat_in & vert
-        any_in = inside.any(axis=1)
-        first = np.argmax(inside, axis=1)
-        for k in np.flatnonzero(any_in):
+        t_in = np.where(inside.any(axis=1), pred.t_s[np.argmax(inside, axis=1)], np.inf)
+        if m > 1:  # the boundary crossed between two samples
+            xc, yc = xs[cand], ys[cand]
+            p0 = np.column_stack([xc[:, :-1].ravel(), yc[:, :-1].ravel()])
+            p1 = np.column_stack([xc[:, 1:].ravel(), yc[:, 1:].ravel()])
+            u = area.polygon.first_crossing(p0, p1).reshape(cand.size, m - 1)
+            t_cross = pred.t_s[:-1] + np.where(vert[:, :-1] | vert[:, 1:], u, np.inf) * np.diff(pred.t_s)
+            t_in = np.minimum(t_in, t_cross.min(axis=1))
+        for k in np.flatnonzero(np.isfinite(t_in)):
             tid = int(tr.track_id[e[cand[k]]])
-            figures = {"area_id": area.area_id, "time_to_entry_s": float(pred.t_s[first[k]])}
+            figures = {"area_id": area.area_id, "time_to_entry_s": float(t_in[k])}
             out.append(Hit(("apw", tid, area.area_id), "apw", [tid], figures))
     return out

@@ -74,6 +74,30 @@ def ring_contains(ring_xy: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return inside & np.isfinite(px) & np.isfinite(py)
 
 
+def ring_crossings(ring_xy: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """For N segments p0 → p1 ((N, 2) each), the least fraction u in [0, 1] at which each
+    crosses or touches an edge of the ring ((K, 2), implicitly closed); +inf where none.
+
+    Segment p0 + u d and edge e0 + v e meet where u = (w × e) / (d × e) and
+    v = (w × d) / (d × e), w = e0 − p0, both in [0, 1] (× the 2-D cross product);
+    parallel pairs (d × e = 0) are not counted: a path along an edge is decided by the
+    samples' point-in-polygon test."""
+    u_min = np.full(p0.shape[0], np.inf)
+    dx, dy = p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1]
+    x0s, y0s = ring_xy[:, 0], ring_xy[:, 1]
+    x1s, y1s = np.roll(x0s, -1), np.roll(y0s, -1)
+    for x0, y0, x1, y1 in zip(x0s.tolist(), y0s.tolist(), x1s.tolist(), y1s.tolist()):
+        ex, ey = x1 - x0, y1 - y0
+        wx, wy = x0 - p0[:, 0], y0 - p0[:, 1]
+        denom = dx * ey - dy * ex
+        with np.errstate(invalid="ignore", divide="ignore"):
+            u = (wx * ey - wy * ex) / denom
+            v = (wx * dy - wy * dx) / denom
+        hit = (denom != 0.0) & (u >= 0.0) & (u <= 1.0) & (v >= 0.0) & (v <= 1.0)
+        u_min = np.where(hit, np.minimum(u_min, u), u_min)
+    return u_min
+
+
 def ring_xy(plane: SystemPlane, ring_lonlat: Sequence[Sequence[float]]) -> np.ndarray:
     """A GeoJSON ring ([lon, lat] positions) as (K, 2) system-plane vertices in metres."""
     arr = np.asarray(ring_lonlat, dtype=float)
@@ -105,6 +129,17 @@ class Polygon:
                 m &= ~ring_contains(h, xy)
             inside |= m
         return inside
+
+    def first_crossing(self, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+        """For segments p0 → p1 ((N, 2) each): the least fraction at which each crosses
+        the polygon's boundary (any ring, holes too), +inf where none (:func:`ring_crossings`).
+        A path sampled every few seconds can clip a corner between two samples that are
+        both outside."""
+        u = np.full(p0.shape[0], np.inf)
+        for outer, holes in self.parts:
+            for ring in (outer, *holes):
+                u = np.minimum(u, ring_crossings(ring, p0, p1))
+        return u
 
     @classmethod
     def from_geojson(cls, plane: SystemPlane, geometry: dict[str, Any]) -> Polygon:

@@ -16,7 +16,9 @@ health key (``rejected``: ``oversize``, ``malformed_msgpack``, ``version``, ``sc
 ``out_of_order``) and logged at a bounded rate; an exception in the nets is counted as
 ``internal_error``. A batch older than the previous one is refused as ``out_of_order``;
 ``STREAM_RESTART_BATCHES`` of them in a row mean a new tracks stream (a daemon restarted
-on older data, a replay): the open alerts are ended and the new stream is judged.
+on older data, a replay): the open alerts are ended and the new stream is judged. So
+does a track id of the previous batch that is a younger track now (a daemon restarted
+without its state, its ids from 1 again, its time moving on).
 
 ``serve`` runs it as its child (:mod:`.supervisor`): the settings then come on stdin
 (one JSON line) and the end of stdin means the parent is gone, however it died, so the
@@ -55,6 +57,7 @@ if TYPE_CHECKING:
     import argparse
 
     from ..config import Settings
+    from ..engine.columns import TrackColumns
 
 log = logging.getLogger("radar_fusion.safety_nets")
 
@@ -65,6 +68,9 @@ part of a period, so only a replay at full speed queues; there every period is j
 the daemon judged them in process (a bound in batches, 8, dropped periods of the demo's
 replay and changed its alerts)."""
 STREAM_RESTART_BATCHES = 3
+#: a track's age may read this much younger in a later batch (rounding) and still be the
+#: same track (:meth:`SafetyNetsProcess._ids_given_again`)
+AGE_SLACK_S = 0.01
 """Consecutive out-of-order batches taken as a new tracks stream (see the module docstring)."""
 LINGER_S = 0.3
 """At shutdown, wait until no batch has arrived for this long (at most 10×) before the last
@@ -122,6 +128,7 @@ class SafetyNetsProcess:
         self.newest_period: int | None = None
         self.newest_t: float | None = None
         self._out_of_order_run = 0
+        self._ids_ages: tuple[np.ndarray, np.ndarray] | None = None  # the previous batch's track ids and ages
         self._batch_instance: str | None = None  # the stamp of the batch being judged
         self._session: Any = None
         self._sub: Any = None
@@ -279,13 +286,29 @@ class SafetyNetsProcess:
             log.warning("a new tracks stream (t went back to %s): the open alerts end", columns.t_s)
             self.counters["stream_restarts"] += 1
             alerts += self.nets.restart(self.newest_t)
+        elif self.newest_t is not None and self._ids_given_again(columns):
+            log.warning("a new tracks stream (its track ids were given to new tracks): the open alerts end")
+            self.counters["stream_restarts"] += 1
+            alerts += self.nets.restart(self.newest_t)
         self._out_of_order_run = 0
+        self._ids_ages = (columns.track_id.copy(), columns.age_s.copy())
         self.newest_period, self.newest_t = columns.period, columns.t_s
         alerts += self.nets.update(columns.t_s, columns)
         if columns.epoch is not None:
             for alert in alerts:
                 alert["epoch"] = columns.epoch
         return alerts
+
+    def _ids_given_again(self, columns: TrackColumns) -> bool:
+        """Whether a track id of the previous batch is a younger track now: in one stream a
+        track's age only grows (a merged track keeps its oldest start), so the daemon
+        restarted without its state and hands out ids from 1 again, with time moving on.
+        Its open alerts, vertical-rate histories and confirmations belong to other aircraft."""
+        if self._ids_ages is None:
+            return False
+        ids, ages = self._ids_ages
+        _, before, now = np.intersect1d(ids, columns.track_id, assume_unique=True, return_indices=True)
+        return bool((columns.age_s[now] < ages[before] - AGE_SLACK_S).any())
 
     def _reject(self, reason: str, detail: str) -> None:
         self.rejected[reason] += 1

@@ -66,18 +66,19 @@ class Stca:
         v = np.full(ia.shape[0], cfg.stca_v_min_ft)
         if not self._overrides or ia.size == 0:
             return h, v
-        region = np.full(e.size, -1, dtype=np.int64)
+        # every volume each track is in (volumes may overlap or nest): a pair takes the
+        # first listed that holds both, not the first of each track's own
         xy = np.column_stack([tr.x_m[e], tr.y_m[e]])
         fl = tr.fl[e]
-        for r in range(len(self._overrides) - 1, -1, -1):  # first listed wins
-            poly, o = self._overrides[r]
-            inside = poly.contains(xy) & ~(fl < o.lower_fl) & ~(fl > o.upper_fl)
-            region[inside] = r
-        same = (region[ia] == region[ib]) & (region[ia] >= 0)
-        for r, (_, o) in enumerate(self._overrides):
-            m = same & (region[ia] == r)
-            h[m] = o.h_min_nm * M_PER_NM
-            v[m] = o.v_min_ft
+        inside = np.column_stack(
+            [poly.contains(xy) & ~(fl < o.lower_fl) & ~(fl > o.upper_fl) for poly, o in self._overrides]
+        )  # (tracks, volumes)
+        both = inside[ia] & inside[ib]
+        held = both.any(axis=1)
+        first = np.argmax(both, axis=1)
+        h_vol = np.array([o.h_min_nm * M_PER_NM for _, o in self._overrides])
+        v_vol = np.array([o.v_min_ft for _, o in self._overrides])
+        h[held], v[held] = h_vol[first[held]], v_vol[first[held]]
         return h, v
 
     def hits(self, tr: TrackColumns, accel: np.ndarray) -> list[Hit]:
