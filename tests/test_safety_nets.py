@@ -236,6 +236,83 @@ def test_turn_prediction_warns_earlier_than_linear():
     assert nets(stca_confirm_periods=1, stca_confirm_periods_far=1).update(0.0, tr) == []
 
 
+def test_vertical_rate_history_is_the_least_squares_slope_of_the_last_periods():
+    """The vertical acceleration per track against numpy's own line fit through its last
+    HISTORY_PERIODS (t, rate) points; tracks come in any order; NaN below three points."""
+    from radar_fusion.safety_nets.prediction import HISTORY_PERIODS, VerticalRateHistory
+
+    rng = np.random.default_rng(5)
+    hist = VerticalRateHistory()
+    ids = np.array([11, 3, 7, 42])
+    seen: dict[int, list[tuple[float, float]]] = {int(i): [] for i in ids}
+    for k in range(7):
+        t_s = 1.7e9 + 4.0 * k + rng.uniform(-0.2, 0.2)
+        present = ids if k < 4 else np.append(ids, 99)  # 99 appears at the fifth period
+        seen.setdefault(99, [])
+        order = rng.permutation(present.size)
+        rates = rng.normal(0.0, 1500.0, present.size)
+        got = hist.update(t_s, present[order], rates[order])
+        for track, rate, slope in zip(present[order].tolist(), rates[order].tolist(), got.tolist()):
+            seen[track].append((t_s, rate))
+            last = seen[track][-HISTORY_PERIODS:]
+            if len(last) < 3:
+                assert math.isnan(slope)
+            else:
+                tt, vv = np.array(last).T
+                assert slope == pytest.approx(np.polyfit(tt - tt[0], vv, 1)[0], rel=1e-9, abs=1e-9)
+
+
+def test_level_off_anticipation_spares_a_climb_that_captures_below_the_traffic_above():
+    """A climbs from FL170 at 2,000 fpm, slowing by 50 fpm/s (a capture at FL176.7, 40 s
+    on); B flies level at FL200 head-on, 70 km away. Straight-line, A's climb would cross
+    FL191 while they pass; levelling off, it stays 2,333 ft below. From its third period
+    on, the vertical rates' history shows the capture: no alert. Without the anticipation
+    the same tracks alert."""
+
+    def run(**cfg) -> list[dict]:
+        net = nets(**cfg)
+        alerts = []
+        for k in range(10):
+            t = 4.0 * k
+            rate_fpm = max(2000.0 - 50.0 * t, 0.0)
+            t_c = min(t, 40.0)
+            z_ft = 17_000.0 + (2000.0 * t_c - 25.0 * t_c * t_c) / 60.0
+            rows = [
+                dict(id=1, x=0.0 + 240.0 * t, y=0.0, vx=240.0, vy=0.0, fl=z_ft / 100.0, vr=rate_fpm),
+                dict(id=2, x=69_700.0 - 240.0 * t, y=0.0, vx=-240.0, vy=0.0, fl=200.0),
+            ]
+            alerts += net.update(1.7e9 + t, arrays(rows))
+        return alerts
+
+    assert run() == []
+    assert [a["status"] for a in run(level_off_anticipation=False)][:1] == ["new"]
+
+
+def test_stca_vertical_minimum_is_lowered_by_the_quantisation_tolerance():
+    """Level, head-on: 950 ft apart is no conflict (1,000 ft less the 100 ft tolerance for
+    Mode C's 100 ft steps), 850 ft is."""
+    once = dict(stca_confirm_periods=1, stca_confirm_periods_far=1)
+    for sep_ft, alerted in ((950.0, False), (850.0, True)):
+        rows = [
+            dict(id=1, x=0, y=0, vx=200, vy=0, fl=200.0),
+            dict(id=2, x=30e3, y=0, vx=-200, vy=0, fl=200.0 + sep_ft / 100),
+        ]
+        assert bool(nets(**once).update(0.0, arrays(rows))) is alerted, sep_ft
+
+
+def test_msaw_reads_altitude_from_the_flight_level_with_the_qnh():
+    """An aircraft at FL100 over ALPS-EX1 (10,000 ft): its altitude is 10,000 ft plus 27 ft
+    per hPa of QNH above standard, computed here by hand. A low QNH puts it below the
+    minimum, a high one above."""
+    _, y_edge = PLANE.to_plane(46.75, 8.0)
+    row = [dict(id=3, x=0.0, y=float(y_edge) - 5_000, vx=0, vy=-150, fl=100.5)]
+    for qnh_hpa in (990.0, 1013.25, 1030.0):
+        altitude_ft = 100.5 * 100 + (qnh_hpa - 1013.25) * 27.0
+        net = nets(msa_file=REPO / "deploy" / "msa-example.geojson", msaw_confirm_periods=1, qnh_hpa=qnh_hpa)
+        out = net.update(0.0, arrays(row))
+        assert bool(out) is (altitude_ft < 10_000.0), qnh_hpa
+
+
 def test_per_area_override_uses_3nm():
     # 4 NM apart, parallel, same level: conflict with 5 NM, none inside a 3 NM TMA
     rows = [dict(id=1, x=0, y=0, vx=200, vy=0), dict(id=2, x=0, y=4 * M_PER_NM, vx=200, vy=0)]

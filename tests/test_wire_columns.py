@@ -793,6 +793,17 @@ def test_the_bytes_path_hands_back_what_it_cannot_take_as_is(payload):
     same_result(payload)
 
 
+@pytest.mark.parametrize("depth", [3, 300, 1100, 100_000])
+def test_an_ignored_field_nested_deep_is_read_as_msgpack_reads_it(depth):
+    """An extra field of arrays in arrays: the byte path skips it while it is plainly
+    nested, and beyond its depth hands the batch to msgpack, which refuses one nested
+    past its own limit (1,024): the daemon took those plots, the contract's reading not."""
+    body = pack({"v": 1, "radar_id": "r1", "seq": 7, "plots": [full_plot()]})
+    payload = bytes([body[0] + 1]) + body[1:] + b"\xa1x" + b"\x91" * depth + b"\xc0"
+    assert (decode_plot_batch_bytes(payload) is not None) is (depth < 256)
+    same_result(payload)
+
+
 def test_damaged_batches_are_read_safely(simulated):
     """Realistic batches cut, bit-flipped, overwritten and with bytes inserted, the way a
     link damages them: the bytes parser never reads past the payload (it would crash the

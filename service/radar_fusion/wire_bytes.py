@@ -238,14 +238,26 @@ def _number(buf: np.ndarray, pos: int) -> tuple[int, int, float, int]:
     return _INT, v, 0.0, pos + 1 + size
 
 
+#: arrays an ignored field may nest before the general path (msgpack) reads it instead
+_MAX_SKIP_DEPTH = 256
+
+
 @_compiled
 def _skip(buf: np.ndarray, pos: int) -> int:
     """Past one value of an ignored field: the position after it, or −1 where msgpack's
     reading of it is not plain (see the module docstring): a map, a non-ASCII str, an ext
-    type, beyond msgpack's limits, cut short."""
+    type, beyond msgpack's limits (nesting among them), cut short."""
     n = buf.size
+    # arrays left open around the value being read, and how many values each still holds:
+    # nested deeper than _MAX_SKIP_DEPTH, msgpack (whose C reader stops at 1,024) decides
+    left = np.empty(_MAX_SKIP_DEPTH, np.int64)
+    depth = 0
     todo = 1
-    while todo > 0:
+    while todo > 0 or depth > 0:
+        if todo == 0:
+            depth -= 1
+            todo = left[depth]
+            continue
         if pos >= n:
             return -1
         todo -= 1
@@ -256,7 +268,12 @@ def _skip(buf: np.ndarray, pos: int) -> int:
             count, pos = _container(buf, pos, True)
             if count < 0:
                 return -1
-            todo += count
+            if count > 0:
+                if depth == _MAX_SKIP_DEPTH:
+                    return -1
+                left[depth] = todo
+                depth += 1
+                todo = count
         elif 0xA0 <= b <= 0xBF or 0xD9 <= b <= 0xDB:
             start, length, pos = _string(buf, pos)
             if start < 0 or not _ascii(buf, start, length):
