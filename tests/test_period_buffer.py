@@ -336,6 +336,32 @@ def test_a_front_end_that_numbers_from_the_start_again_costs_two_batches():
     assert r.eng.rejected["duplicate"] == 4
 
 
+def test_a_batch_numbered_far_ahead_is_a_jump_not_lost_batches():
+    """One batch numbered 2^63 - 1 (damaged, forged, a front-end numbering anew): counted
+    as a restart of the numbering, not as 9.2e18 batches lost, and the radar's next
+    batches, numbered on from before, are followed again (not all out of order). A
+    restart from 0 after more batches than the window of recent numbers is followed at
+    once."""
+    r = TwoRadars(max_future_s=1e6, radar_timeout_s=1e6)
+    t = T0
+    for seq in range(1, 6):
+        assert r.eng.ingest_plots(plots("a", seq, t)) == 1
+        t += 0.1
+    assert r.eng.ingest_plots(plots("a", 2**63 - 1, t)) == 1
+    t += 0.1
+    for seq in range(6, 20):
+        assert r.eng.ingest_plots(plots("a", seq, t)) == 1
+        t += 0.1
+    h = r.eng.health()["radars"]["a"]
+    assert (h["seq_gaps"], h["seq_restarts"], h["last_seq"]) == (0, 2, 19)
+    assert r.eng.counters["batches_out_of_order"] == 0
+    for seq in range(20, 4200):
+        r.eng.ingest_plots(plots("a", seq, t))
+        t += 0.1
+    assert r.eng.ingest_plots(plots("a", 0, t)) == 1  # 0 is no longer among the recent numbers
+    assert r.eng.health()["radars"]["a"]["seq_restarts"] == 3 and not r.eng.rejected
+
+
 # ------------------------------------------------------------ realistic radar timing
 # Four rotating radars, 4-10 s a turn, 8 sector messages per turn, random phases
 # (issue 16 item 5): at the end of each sector's sweep a front-end sends that sector's

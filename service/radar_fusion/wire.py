@@ -222,8 +222,9 @@ class RadarHealth(BaseModel):
     seq_gaps: int = 0
     seq_restarts: int = Field(
         0,
-        description="times the radar's batch numbers started again below its last one with newer plots (a "
-        "front-end restart): its batches are taken, not refused as duplicates (v1 extension)",
+        description="times the radar's batch numbering started again: numbers used recently with newer plots "
+        "(a front-end restart: taken, not refused as duplicates), or a number more than 4,096 from the last one "
+        "(not counted as lost or out-of-order batches) (v1 extension)",
     )
     rejected: dict[str, int] = Field(default_factory=dict)
     wild: int = Field(0, description="plots dropped by the live wild-plot gate (counted apart from rejections)")

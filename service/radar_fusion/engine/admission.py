@@ -231,9 +231,22 @@ class Admission:
             radar.recent_set.discard(radar.recent_seqs[0])
         radar.recent_seqs.append(batch.seq)
         radar.recent_set.add(batch.seq)
+        window = radar.recent_seqs.maxlen or 0
         if radar.last_seq is None or batch.seq > radar.last_seq:
             if radar.last_seq is not None and batch.seq > radar.last_seq + 1:
-                radar.seq_gaps += batch.seq - radar.last_seq - 1
+                gap = batch.seq - radar.last_seq - 1
+                if gap < window:
+                    radar.seq_gaps += gap
+                else:  # a jump, not lost batches: a front-end numbering anew (or a damaged number)
+                    radar.seq_restarts += 1
+                    self.counters["radar_seq_restarts"] += 1
+            radar.last_seq = batch.seq
+        elif batch.seq < radar.last_seq - window:
+            # far behind the last number, and not one of the recent ones: the numbering
+            # started again (after a jump far ahead, a damaged number, its batches would
+            # all count as out of order)
+            radar.seq_restarts += 1
+            self.counters["radar_seq_restarts"] += 1
             radar.last_seq = batch.seq
         else:
             radar.out_of_order += 1
