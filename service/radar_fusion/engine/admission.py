@@ -222,7 +222,7 @@ class Admission:
                 self.reject("duplicate", 1, batch.radar_id)
                 return 0
             radar.seq_restarts += 1
-            self.counters["radar_seq_restarts"] += 1
+            self.counters["seq_restarts"] += 1
             radar.last_seq = None
             radar.recent_seqs.clear()
             radar.recent_set.clear()
@@ -239,14 +239,14 @@ class Admission:
                     radar.seq_gaps += gap
                 else:  # a jump, not lost batches: a front-end numbering anew (or a damaged number)
                     radar.seq_restarts += 1
-                    self.counters["radar_seq_restarts"] += 1
+                    self.counters["seq_restarts"] += 1
             radar.last_seq = batch.seq
         elif batch.seq < radar.last_seq - window:
             # far behind the last number, and not one of the recent ones: the numbering
             # started again (after a jump far ahead, a damaged number, its batches would
             # all count as out of order)
             radar.seq_restarts += 1
-            self.counters["radar_seq_restarts"] += 1
+            self.counters["seq_restarts"] += 1
             radar.last_seq = batch.seq
         else:
             radar.out_of_order += 1
