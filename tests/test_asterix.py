@@ -645,6 +645,30 @@ def test_a_field_monitor_reply_is_skipped_not_made_a_plot():
     assert len(plots) == 1 and bridge.counters.as_dict()["skipped"] == {"field_monitor": 1}
 
 
+def test_a_time_of_day_past_midnight_is_skipped_not_put_on_the_next_day():
+    """I048/140 holds 24 bits of 1/128 s, up to 36 h: 90,000 s is no time of day (it was
+    put at 01:00 the next day)."""
+    from types import SimpleNamespace
+
+    from radar_fusion.asterix.decode import CAT048
+
+    def record(tod_s: float):
+        return CAT048.cv_record.create(
+            {
+                "010": (("SAC", 23), ("SIC", 2)),
+                "140": tod_s,
+                "020": ((("TYP", 2), ("SIM", 0), ("RDP", 0), ("SPI", 0), ("RAB", 0), None),),
+                "040": (("RHO", 3.0), ("THETA", 90.0)),
+            }
+        )
+
+    bridge = AsterixToWire([SimpleNamespace(id="j", sac=23, sic=2)], day=date(2024, 1, 1))
+    msgs = bridge.datagram(CAT048.create([record(90_000.0), record(86_399.5)]).unparse().to_bytes())
+    plots = [p for m in msgs if m.key.endswith("/plots") for p in m.message.plots]
+    assert [p.t for p in plots] == [datetime(2024, 1, 1, tzinfo=UTC).timestamp() + 86_399.5]
+    assert bridge.counters.as_dict()["skipped"] == {"bad_time_of_day": 1}
+
+
 def test_a_recording_sorted_across_midnight_keeps_the_day_its_file_order_gave(tmp_path):
     """A ring-buffer dump across midnight: its file holds 00:00:10-00:00:49, then
     23:59:20-23:59:59 of the day before. Sorted by time, each datagram carries the time the

@@ -20,7 +20,7 @@ from typing import Any, Literal
 import asterix.generated as gen
 from asterix.base import Bits, Extended, Group, Item, RawDatablock
 
-from ..geo.units import M_PER_NM
+from ..geo.units import M_PER_NM, SECONDS_PER_DAY
 from .framing import DecodeCounters
 
 CAT048 = gen.Cat_048_1_32
@@ -134,6 +134,10 @@ def _decode_cat048(record: Any, counters: DecodeCounters) -> TargetReport | None
     if i140 is None:
         counters.skip("no_time")
         return None
+    tod_s = _element(i140).as_quantity("s")
+    if not 0.0 <= tod_s < SECONDS_PER_DAY:  # 24 bits of 1/128 s reach 36 h: beyond midnight is no time of day
+        counters.skip("bad_time_of_day")
+        return None
     kind: ReportKind = None
     i020 = record.get_item("020")
     if i020 is not None:
@@ -187,7 +191,7 @@ def _decode_cat048(record: Any, counters: DecodeCounters) -> TargetReport | None
     return TargetReport(
         sac=src[0],
         sic=src[1],
-        tod_s=_element(i140).as_quantity("s"),
+        tod_s=tod_s,
         range_m=range_m,
         azimuth_deg=azimuth_deg,
         fl=fl,
@@ -212,6 +216,10 @@ def _decode_cat034(record: Any, counters: DecodeCounters) -> SectorMessage | Non
     if i030 is None:
         counters.skip("no_time")
         return None
+    tod_s = _element(i030).as_quantity("s")
+    if not 0.0 <= tod_s < SECONDS_PER_DAY:
+        counters.skip("bad_time_of_day")
+        return None
     sector = azimuth = None
     i020 = record.get_item("020")
     if i020 is not None:
@@ -225,7 +233,7 @@ def _decode_cat034(record: Any, counters: DecodeCounters) -> SectorMessage | Non
     return SectorMessage(
         sac=src[0],
         sic=src[1],
-        tod_s=_element(i030).as_quantity("s"),
+        tod_s=tod_s,
         kind="north" if msg_type == 1 else "sector",
         sector=sector,
         sector_azimuth_deg=azimuth,

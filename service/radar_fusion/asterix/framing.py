@@ -22,6 +22,7 @@ SKIP_REASONS = (
     "no_source",  # record without I010 SAC/SIC
     "unknown_sac_sic",  # SAC/SIC of no configured radar
     "no_time",  # CAT048 without I140 / CAT034 without I030
+    "bad_time_of_day",  # I048/140 or I034/030 at 86,400 s or more (24 bits of 1/128 s reach 36 h)
     "no_position",  # CAT048 without I040 polar position
     "no_detection",  # I048/020 TYP = 0 (track-only record, no measurement)
     "simulated",  # I048/020 SIM = 1
