@@ -229,6 +229,37 @@ def test_alert_book_follows_the_life_cycle_and_drops_stale_alerts():
     assert book.active == {}
 
 
+def test_an_alert_or_batch_stamped_beyond_any_event_time_is_refused_and_a_future_alert_pruned():
+    """A TrackBatch at t = 1e13 broke the page's clock on every redraw and made every open
+    alert look stale; an alert stamped a day ahead stayed on the display for ever (it was
+    never behind the newest batch)."""
+    feed, _sent = _feed()
+    feed.handle([("atc/fusion/alerts/stca", alert(5))], batch([track(1), track(2)]))
+    feed.handle([], batch([track(1), track(2)], t=1e13))
+    feed.handle([("atc/fusion/alerts/stca", alert(6, t=1e13))], None)
+    assert feed.rejected == {"schema": 2}
+    assert [a["alert_id"] for a in feed.alerts.frame()["alerts"]] == [5]
+    book = AlertBook(period_s=4.0)
+    book.apply({"alert_id": 7, "status": "new", "t": 1.7e9 + 86_400.0})
+    book.apply({"alert_id": 8, "status": "new", "t": 1.7e9 + ALERT_STALE_PERIODS * 4.0})
+    assert book.prune(1.7e9) and list(book.active) == [8]  # a day ahead: dropped; 3 periods: kept
+
+
+def test_a_daemon_restarted_without_its_state_starts_a_new_picture():
+    """The daemon's ids start at 1 again on other aircraft (a track id of the last batch is
+    a younger track now): the open alerts end and the page is told to drop its trails,
+    which would join one aircraft's past to another's present."""
+    feed, sent = _feed()
+    feed.handle([("atc/fusion/alerts/stca", alert(5))], batch([track(1, age_s=600.0), track(2, age_s=580.0)]))
+    feed.handle([], batch([track(1, age_s=604.0), track(2, age_s=584.0)], period=8, t=1.7e9 + 4))
+    assert "new_stream" not in sent[-1][1] and feed.alerts.active
+    feed.handle([], batch([track(1, age_s=4.0), track(2, age_s=4.0)], period=10, t=1.7e9 + 12))
+    frames = [f for ch, f in sent if ch == "tracks"]
+    assert frames[-1]["new_stream"] is True and feed.stream_restarts == 1
+    assert sent[-1] == ("alerts", {"type": "alerts", "alerts": []})
+    assert feed.stats()["tracks_age_s"] >= 0.0 and feed.stats()["tracks_stale_after_s"] == 3 * 4.0
+
+
 # --------------------------------------------------------------------- the server
 
 
@@ -305,6 +336,8 @@ def test_the_page_and_everything_it_loads_come_from_the_server():
             server.hub.publish("health", '{"type":"health"}')
             ws = await client.ws_connect("/ws")
             assert json.loads(await ws.receive_str(timeout=5)) == {"type": "health"}
+            age = json.loads(await ws.receive_str(timeout=5))  # the picture's age, at once
+            assert age["type"] == "display"
             server.hub.publish("tracks", '{"type":"tracks","n":0}')
             assert json.loads(await ws.receive_str(timeout=5))["type"] == "tracks"
             assert len(server.hub.clients) == 1

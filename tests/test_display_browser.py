@@ -254,6 +254,67 @@ def synthetic_batch(period: int, n: int, base: dict) -> bytes:
 
 
 @pytest.mark.slow
+def _track_batch(t_s: float, period: int, age_s: float) -> bytes:
+    tracks = [
+        {
+            "track_id": i, "t": t_s, "status": "confirmed", "lat_deg": 46.9, "lon_deg": 8.3 + 0.05 * i,
+            "x_m": 4000.0 * i, "y_m": -2000.0 * i, "vx_mps": 200.0, "vy_mps": -20.0, "fl": 350.0,
+            "cov_xy": [400.0, 0.0, 100.0], "sources": ["app"], "mode3a": 0o1234, "mode_s": None,
+            "updates": 12, "age_s": age_s, "vrate_fpm": 0.0,
+        }
+        for i in (1, 2)
+    ]  # fmt: skip
+    return msgpack.packb({"v": 1, "t": t_s, "period": period, "tracks": tracks, "ended": []})
+
+
+def test_a_picture_no_longer_fed_is_shown_stale_not_live_also_after_a_reload(browser, scenario, free_port):
+    """The daemon stops: the page said "live" over the last picture for as long as its
+    WebSocket was open, and again after a reload (the server replays its latest frames).
+    Now, three periods of wall time without a TrackBatch, the header says NO TRACK DATA
+    and the picture is greyed; a batch with a clock beyond any event time does not break
+    the page; the next batch of a daemon restarted without its state is a new picture."""
+    base = settings_on_port(scenario / "config.toml", free_port)
+    settings = base.model_copy(update={"system": base.system.model_copy(update={"period_s": 1.0})})
+    endpoint = settings.bus.listen[0]
+    router = open_session(zenoh_config("router", listen=[endpoint]))
+    display = DisplayServer(settings, port=0, zenoh_config=zenoh_config("client", connect=[endpoint]))
+    page = None
+    try:
+        display.start()
+        page, errors = open_page(browser, display.url)
+        time.sleep(0.5)  # the display's subscriptions reach the router
+        tracks = reliable_sender(router, "atc/fusion/tracks")
+        t0 = 1.7e9
+        for k in range(3):
+            tracks.put(_track_batch(t0 + k, 100 + k, 600.0 + k))
+            time.sleep(0.3)
+        conn = page.locator("#conn")
+        assert wait_until(lambda: dataset(page)["period"] == "102" and conn.text_content() == "live", 10)
+        assert dataset(page)["stale"] == "false"
+        assert colour_pixels(page.locator("#scope").screenshot(), CONFIRMED_RGB) >= 2 * 20  # two symbols, labels
+        tracks.put(msgpack.packb({**msgpack.unpackb(_track_batch(t0 + 3, 103, 603.0)), "t": 1e13}))
+        assert wait_until(lambda: display.stats()["rejected"].get("schema", 0) == 1, 10)
+        # nothing more comes: stale after 3 periods (3 s here), greyed and said so
+        assert wait_until(lambda: dataset(page)["stale"] == "true", 10)
+        assert "NO TRACK DATA" in conn.text_content()
+        time.sleep(0.2)  # the redraw
+        assert colour_pixels(page.locator("#scope").screenshot(), CONFIRMED_RGB) == 0  # greyed
+        page.reload()
+        page.wait_for_function("() => document.getElementById('display').dataset.connected === 'true'")
+        assert wait_until(lambda: dataset(page).get("stale") == "true" and "NO TRACK DATA" in conn.text_content(), 5)
+        assert dataset(page)["period"] == "102"  # the last picture, shown for what it is
+        # a restarted daemon, without its state: ids from 1 again, young tracks
+        tracks.put(_track_batch(t0 + 40, 140, 4.0))
+        assert wait_until(lambda: dataset(page)["period"] == "140" and dataset(page)["stale"] == "false", 10)
+        assert conn.text_content() == "live" and display.stats()["stream_restarts"] == 1
+        assert errors == []
+    finally:
+        if page is not None:
+            page.close()
+        display.stop()
+        router.close()
+
+
 def test_frame_time_at_4000_tracks(browser, tmp_path, free_port, record_property):
     """4,000 tracks, one TrackBatch per update, all on screen with labels, trails and
     vectors: the page's own draw time (performance.now() around the draw) per update."""

@@ -47,6 +47,12 @@ STATUS_CODES = {"confirmed": 0, "coasting": 1, "tentative": 2}
 ALERT_STALE_PERIODS = 3.0
 """An alert not refreshed for this many periods is dropped (the daemon sends ``ongoing``
 every period and ``ended`` at the end; this covers an ``ended`` that never arrived)."""
+TRACKS_STALE_PERIODS = 3.0
+"""No TrackBatch for this many periods of wall time: the picture is stale (the daemon
+stopped, or the bus between): the page says so and greys it, rather than show it live."""
+MAX_EVENT_T_S = 1e10
+"""Event times a frame may carry (UTC epoch s, until 2286): a TrackBatch or an alert
+beyond is refused (the page's clock cannot show it, and its alerts would outlive all)."""
 INBOX_LIMIT = 10_000
 """Alerts, health and status messages waiting to be decoded; beyond, the oldest are dropped."""
 CALLSIGN_MAX_CHARS = 8
@@ -85,6 +91,8 @@ def tracks_frame(payload: bytes, max_bytes: int = 16 << 20) -> dict[str, Any] | 
     if isinstance(checked, Rejection):
         return checked
     raw, batch = checked
+    if not 0.0 < batch.t < MAX_EVENT_T_S:
+        return Rejection("schema", f"t: {batch.t} is no event time")
     tracks = batch.tracks
     raw_tracks = raw.get("tracks") or []
     return {
@@ -125,6 +133,8 @@ def decode_alert(payload: bytes, kind: str, max_bytes: int = 1 << 20) -> dict[st
     alert = checked[1]
     if alert.kind != kind:
         return Rejection("key_mismatch", f"{alert.kind} alert on the {kind} key")
+    if not 0.0 < alert.t < MAX_EVENT_T_S:
+        return Rejection("schema", f"t: {alert.t} is no event time")
     return alert.model_dump(mode="json")
 
 
@@ -146,7 +156,8 @@ def decode_status(payload: bytes, radar_id: str, max_bytes: int = 1 << 16) -> di
 class AlertBook:
     """The alerts open now, by ``alert_id``: ``new`` and ``ongoing`` refresh one,
     ``ended`` removes it, and one not refreshed for :data:`ALERT_STALE_PERIODS` periods
-    of event time (behind the newest track batch) is dropped."""
+    of event time (behind the newest track batch) is dropped, as is one stamped as many
+    periods ahead of it (it would never be behind: one damaged alert shown for ever)."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
@@ -160,8 +171,8 @@ class AlertBook:
 
     def prune(self, now_t: float) -> bool:
         """Drop stale alerts at event time ``now_t``; True when any was dropped."""
-        limit_t = now_t - ALERT_STALE_PERIODS * self.period_s
-        stale = [k for k, a in self.active.items() if a["t"] < limit_t]
+        margin_s = ALERT_STALE_PERIODS * self.period_s
+        stale = [k for k, a in self.active.items() if not now_t - margin_s <= a["t"] <= now_t + margin_s]
         for k in stale:
             del self.active[k]
         return bool(stale)
@@ -195,6 +206,10 @@ class Feed:
         self.decode_ms_last: float | None = None
         self.last_tracks_t: float | None = None
         self.last_tracks_n: int | None = None
+        self.last_tracks_mono: float | None = None  # monotonic wall time of the newest TrackBatch shown
+        self.period_s = period_s
+        self._ids_ages: tuple[list[int], list[float]] | None = None  # the newest batch's track ids and ages
+        self.stream_restarts = 0
         self.radar_status: dict[str, dict[str, Any]] = {}
         self.highest_epoch = 0  # a hot-standby pair's: what is below is a stale active's
         self._cond = threading.Condition()
@@ -313,7 +328,16 @@ class Feed:
             key = f"{self.prefix}/fusion/tracks"
             if self._ok(frame, key) and self._current(frame, key):
                 assert isinstance(frame, dict)
+                if self._ids_given_again(frame):
+                    # the daemon restarted without its state: its ids from 1 again, on other
+                    # aircraft; the old alerts and the page's trails are not theirs
+                    self.stream_restarts += 1
+                    frame["new_stream"] = True
+                    alerts_changed |= bool(self.alerts.active)
+                    self.alerts.active.clear()
+                self._ids_ages = (frame["id"], frame["age_s"])
                 self.last_tracks_t, self.last_tracks_n = frame["t"], frame["n"]
+                self.last_tracks_mono = time.monotonic()
                 alerts_changed |= self.alerts.prune(frame["t"])
                 self.sink("tracks", json.dumps(frame, separators=(",", ":")))
                 self.frames_built += 1
@@ -324,6 +348,14 @@ class Feed:
             self.sink("radars", json.dumps({"type": "radars", "status": self.radar_status}, separators=(",", ":")))
         if health is not None:
             self.sink("health", json.dumps({"type": "health", "health": health}, separators=(",", ":")))
+
+    def _ids_given_again(self, frame: dict[str, Any]) -> bool:
+        """Whether a track id of the previous batch is a younger track in this one: in one
+        stream a track's age only grows (as the safety nets' process.py judges it)."""
+        if self._ids_ages is None:
+            return False
+        before = dict(zip(*self._ids_ages, strict=True))
+        return any(age < before[i] - 0.1 for i, age in zip(frame["id"], frame["age_s"], strict=True) if i in before)
 
     def _count(self, counter: Counter[str], name: str) -> None:
         with self._cond:  # stats() copies the counters from another thread
@@ -358,5 +390,9 @@ class Feed:
                 "decode_ms_last": self.decode_ms_last,
                 "last_tracks_t": self.last_tracks_t,
                 "last_tracks_n": self.last_tracks_n,
+                # wall seconds since the newest TrackBatch, and beyond what the picture is stale
+                "tracks_age_s": None if self.last_tracks_mono is None else time.monotonic() - self.last_tracks_mono,
+                "tracks_stale_after_s": TRACKS_STALE_PERIODS * self.period_s,
+                "stream_restarts": self.stream_restarts,
                 "alerts_active": len(self.alerts.active),
             }

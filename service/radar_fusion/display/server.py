@@ -269,14 +269,19 @@ class DisplayServer:
             await asyncio.sleep(STATS_PERIOD_S)
             stats = self.stats()
             for client in self.hub.clients:
-                own = {"frames_sent": client.frames_sent, "frames_dropped": client.frames_dropped}
-                client.offer("display", json.dumps({"type": "display", **stats, "client": own}))
+                self._offer_stats(client, stats)
+
+    @staticmethod
+    def _offer_stats(client: ClientSlot, stats: dict[str, Any]) -> None:
+        own = {"frames_sent": client.frames_sent, "frames_dropped": client.frames_dropped}
+        client.offer("display", json.dumps({"type": "display", **stats, "client": own}))
 
     async def _ws(self, request: web.Request) -> web.WebSocketResponse:
         ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=1 << 16)
         await ws.prepare(request)
         client = ClientSlot(ws, str(request.remote))
         self.hub.join(client)
+        self._offer_stats(client, self.stats())  # the picture's age at once: a reload shows no stale picture live
         sender = asyncio.create_task(_send_loop(client))
         try:
             async for msg in ws:  # the page sends nothing the server needs; read to see it go

@@ -84,6 +84,10 @@
     width: 0,
     height: 0,
     dpr: 1,
+    tracksAgeS: null, // wall seconds since the server's newest TrackBatch (its "display" frames)
+    staleAfterS: null, // beyond, the picture is stale: greyed, and the header says so
+    stale: false,
+    alpha: 1.0, // the track layer's opacity: 0.3 while stale
   };
 
   // ------------------------------------------------------------------ view
@@ -266,6 +270,12 @@
   }
 
   function ingestTracks(f) {
+    if (f.new_stream) {
+      // the daemon restarted without its state: its track ids were given to other aircraft
+      state.trails.clear();
+      state.alerts = [];
+      updateAlerts();
+    }
     const index = new Map();
     for (let i = 0; i < f.n; i++) index.set(f.id[i], i);
     // trails: append this period's position, forget the tracks that are gone
@@ -295,6 +305,16 @@
   function drawTracks(c) {
     const f = state.tracks;
     if (!f) return { drawn: 0, stcaLines: 0 };
+    state.alpha = state.stale ? 0.3 : 1.0; // a stale picture is not shown as the present
+    c.globalAlpha = state.alpha;
+    try {
+      return drawTrackLayer(c, f);
+    } finally {
+      c.globalAlpha = 1.0;
+    }
+  }
+
+  function drawTrackLayer(c, f) {
     const n = f.n;
     const vectorS = Number(ui.vector.value);
     const showTrails = ui.trails.checked;
@@ -320,10 +340,10 @@
             c.rect(sx(tr.x[j]) - 1, sy(tr.y[j]) - 1, 2, 2);
           }
         }
-        c.globalAlpha = 0.55;
+        c.globalAlpha = 0.55 * state.alpha;
         c.fillStyle = colour;
         c.fill();
-        c.globalAlpha = 1;
+        c.globalAlpha = state.alpha;
       }
       // speed vector: where the track will be in vectorS seconds at its present velocity
       if (vectorS > 0) {
@@ -486,7 +506,7 @@
     root.dataset.alerts = String(state.alerts.length);
     root.dataset.stcaLines = String(stcaLines);
     ui.count.textContent = `${drawn} tracks`;
-    if (state.tracks) ui.clock.textContent = new Date(state.tracks.t * 1000).toISOString().slice(11, 19) + "Z";
+    if (state.tracks) ui.clock.textContent = clock(state.tracks.t);
     updateDetails();
   }
 
@@ -543,6 +563,24 @@
     ui.details.replaceChildren(...box);
   }
 
+  function clock(t) {
+    const d = new Date(t * 1000);
+    return Number.isNaN(d.getTime()) ? "--:--:--Z" : d.toISOString().slice(11, 19) + "Z";
+  }
+
+  function updateFreshness() {
+    const age = state.tracksAgeS, after = state.staleAfterS;
+    const stale = age != null && after != null && age > after;
+    const changed = stale !== state.stale;
+    state.stale = stale;
+    root.dataset.stale = String(stale);
+    if (root.dataset.connected === "true") {
+      ui.conn.textContent = stale ? `NO TRACK DATA for ${Math.round(age)} s` : state.tracks ? "live" : "waiting for tracks";
+      ui.conn.className = stale ? "bad" : "good";
+    }
+    return changed;
+  }
+
   function identOf(id) {
     const f = state.tracks;
     const i = f ? state.index.get(id) : undefined;
@@ -583,7 +621,7 @@
         const live = rh ? (rh.live ? "live" : "silent") : "?";
         const cls = rh ? (rh.live ? (rh.clock_suspect ? "warn" : "good") : "bad") : "muted";
         const extra = rh ? ` ${rh.plots} plots${rh.clock_suspect ? ", clock suspect" : ""}` : "";
-        const last = st ? ` · ${st.kind} ${new Date(st.t * 1000).toISOString().slice(11, 19)}Z` : "";
+        const last = st ? ` · ${st.kind} ${clock(st.t)}` : "";
         radarItems.push(text("li", `● ${r.id} ${live}${extra}${last}`, cls));
       }
     }
@@ -633,6 +671,9 @@
     switch (msg.type) {
       case "tracks":
         ingestTracks(msg);
+        updateAlerts(); // the alerts' names: a reload sends the alerts before their tracks
+        state.tracksAgeS = 0; // this one is new (a reload's replayed frame is aged by the "display" frame after it)
+        updateFreshness();
         root.dataset.ingestMs = (performance.now() - t0).toFixed(1);
         break;
       case "alerts":
@@ -646,10 +687,13 @@
       case "radars":
         state.radarStatus = msg.status;
         updateHealth();
-        break;
+        return; // the side panel only: the scope draws each radar's liveness from health
       case "display":
         updateDisplayStats(msg);
-        return;
+        state.tracksAgeS = msg.tracks_age_s;
+        state.staleAfterS = msg.tracks_stale_after_s;
+        if (!updateFreshness()) return;
+        break;
       default:
         return;
     }
@@ -661,8 +705,8 @@
     const ws = new WebSocket(`${proto}//${location.host}/ws`);
     ws.onopen = () => {
       root.dataset.connected = "true";
-      ui.conn.textContent = "live";
-      ui.conn.className = "good";
+      ui.conn.textContent = "connected";
+      ui.conn.className = "muted";
     };
     ws.onmessage = onMessage;
     ws.onclose = () => {
