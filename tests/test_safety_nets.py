@@ -481,6 +481,47 @@ def test_apw_sees_a_corner_clipped_between_two_samples(tmp_path):
         assert out[0]["time_to_entry_s"] == pytest.approx(fine_t[np.argmax(truth)], abs=0.01)
 
 
+def test_msaw_sees_a_corner_of_high_terrain_clipped_between_two_samples(tmp_path):
+    """As APW: level at FL80, a straight path cuts the corner of a 10,000 ft MSA polygon
+    over 30-400 m, between two samples 500 m apart that are both outside. Warned of at the
+    time it enters, found here by testing points 5 cm apart; and not warned of above it."""
+    from radar_fusion.safety_nets.polygon import Polygon, ring_xy
+
+    ring = [[8.1, 47.1], [8.3, 47.1], [8.3, 47.2], [8.1, 47.2]]
+    msa = tmp_path / "msa.geojson"
+    msa.write_text(
+        json.dumps(
+            {
+                "type": "FeatureCollection",
+                "features": [
+                    {
+                        "type": "Feature",
+                        "properties": {"id": "RIDGE", "min_alt_ft": 10_000},
+                        "geometry": {"type": "Polygon", "coordinates": [ring + ring[:1]]},
+                    }
+                ],
+            }
+        )
+    )
+    poly = Polygon([(ring_xy(PLANE, ring), [])])
+    cx, cy = (float(np.ravel(v)[0]) for v in PLANE.to_plane(np.array([47.1]), np.array([8.3])))
+    v = 250.0
+    vx = vy = v / math.sqrt(2.0)
+    rng = np.random.default_rng(4)
+    for off_m in np.linspace(20.0, 280.0, 14):
+        px, py = cx - off_m / math.sqrt(2.0), cy + off_m / math.sqrt(2.0)
+        lead_s = 60.0 + rng.uniform(0.0, 2.0)
+        x0, y0 = px - vx * lead_s, py - vy * lead_s
+        fine_t = np.arange(0.0, 2 * lead_s, 0.0002 * 1000 / v)
+        truth = poly.contains(np.column_stack([x0 + vx * fine_t, y0 + vy * fine_t]))
+        assert truth.any() and not truth[0]
+        row = dict(id=1, x=x0, y=y0, vx=vx, vy=vy, fl=80)
+        out = nets(msa_file=msa, msaw_confirm_periods=1).update(0.0, arrays([row]))
+        assert [(a["area_id"], a["min_alt_ft"]) for a in out] == [("RIDGE", 10_000.0)], off_m
+        assert out[0]["time_to_violation_s"] == pytest.approx(fine_t[np.argmax(truth)], abs=0.01)
+        assert nets(msa_file=msa, msaw_confirm_periods=1).update(0.0, arrays([dict(row, fl=105)])) == []
+
+
 def test_msaw_descent_towards_high_terrain_with_vertical_rate():
     net = nets(msa_file=REPO / "deploy" / "msa-example.geojson", msaw_confirm_periods=1)
     _, y_edge = PLANE.to_plane(46.75, 8.0)  # ALPS-EX1 (10,000 ft) begins south of here

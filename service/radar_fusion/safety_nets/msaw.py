@@ -22,7 +22,9 @@ def msaw_hits(
     """[MSAW-GUID]: below the minimum safe altitude now, or predicted to be within the look-ahead.
 
     Altitude (ft) = 100·FL + (QNH − 1013.25)·27; the path is sampled every
-    ``sample_step_s`` with the vertical prediction (rate, capture, selected level).
+    ``sample_step_s`` with the vertical prediction (rate, capture, selected level), and
+    the path between two samples is tested against each MSA polygon's edges (a corner
+    clipped between samples: the altitude there interpolated between them).
     Grid maps are looked up in lat/lon through the local Jacobian of the plane's
     inverse projection at each track (error ≪ a grid cell over the look-ahead).
     """
@@ -51,16 +53,42 @@ def msaw_hits(
     msa, src = msa_map.lookup(pts, latlon)
     msa, src = msa.reshape(cand.size, m), src.reshape(cand.size, m)
     below = alt[cand] < msa
-    any_b = below.any(axis=1)
     first = np.argmax(below, axis=1)
+    t_first = np.where(below.any(axis=1), pred.t_s[first], np.inf)
+    min_alt = msa[np.arange(cand.size), first]
+    area = src[np.arange(cand.size), first]
+    if m > 1 and msa_map.polygons:
+        # a polygon's corner clipped between two samples that are both outside it (at
+        # 250 m/s a 2 s step is 500 m): the boundary crossed below its minimum
+        p0 = np.column_stack([xs[:, :-1].ravel(), ys[:, :-1].ravel()])
+        p1 = np.column_stack([xs[:, 1:].ravel(), ys[:, 1:].ravel()])
+        a0, a1 = alt[cand][:, :-1].ravel(), alt[cand][:, 1:].ravel()
+        seg_lo, seg_hi = np.minimum(p0, p1), np.maximum(p0, p1)
+        t0_s, dt_s = np.tile(pred.t_s[:-1], cand.size), np.tile(np.diff(pred.t_s), cand.size)
+        path = np.repeat(np.arange(cand.size), m - 1)
+        for k, (_, poly, min_alt_ft) in enumerate(msa_map.polygons):
+            x0, y0, x1, y1 = poly.bbox
+            near = np.flatnonzero(
+                (seg_hi[:, 0] >= x0) & (seg_lo[:, 0] <= x1) & (seg_hi[:, 1] >= y0) & (seg_lo[:, 1] <= y1)
+                & (np.minimum(a0, a1) < min_alt_ft)
+            )  # fmt: skip
+            if near.size == 0:
+                continue
+            u = poly.first_crossing(p0[near], p1[near])
+            hit = np.isfinite(u)
+            u = np.where(hit, u, 0.0)
+            low = hit & (a0[near] + u * (a1[near] - a0[near]) < min_alt_ft)
+            t_cross = np.full(cand.size, np.inf)
+            np.minimum.at(t_cross, path[near[low]], t0_s[near[low]] + u[low] * dt_s[near[low]])
+            sooner = t_cross < t_first
+            t_first[sooner], min_alt[sooner], area[sooner] = t_cross[sooner], min_alt_ft, k
     out = []
-    for k in np.flatnonzero(any_b):
+    for k in np.flatnonzero(np.isfinite(t_first)):
         tid = int(tr.track_id[e[cand[k]]])
-        f = first[k]
         figures = {
-            "time_to_violation_s": float(pred.t_s[f]),
-            "min_alt_ft": float(msa[k, f]),
-            "area_id": msa_map.source_id(int(src[k, f])),
+            "time_to_violation_s": float(t_first[k]),
+            "min_alt_ft": float(min_alt[k]),
+            "area_id": msa_map.source_id(int(area[k])),
         }
         out.append(Hit(("msaw", tid), "msaw", [tid], figures))
     return out
