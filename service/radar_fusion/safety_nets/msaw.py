@@ -66,7 +66,7 @@ def msaw_hits(
         seg_lo, seg_hi = np.minimum(p0, p1), np.maximum(p0, p1)
         t0_s, dt_s = np.tile(pred.t_s[:-1], cand.size), np.tile(np.diff(pred.t_s), cand.size)
         path = np.repeat(np.arange(cand.size), m - 1)
-        for k, (_, poly, min_alt_ft) in enumerate(msa_map.polygons):
+        for j, (_, poly, min_alt_ft) in enumerate(msa_map.polygons):
             x0, y0, x1, y1 = poly.bbox
             near = np.flatnonzero(
                 (seg_hi[:, 0] >= x0) & (seg_lo[:, 0] <= x1) & (seg_hi[:, 1] >= y0) & (seg_lo[:, 1] <= y1)
@@ -81,7 +81,7 @@ def msaw_hits(
             t_cross = np.full(cand.size, np.inf)
             np.minimum.at(t_cross, path[near[low]], t0_s[near[low]] + u[low] * dt_s[near[low]])
             sooner = t_cross < t_first
-            t_first[sooner], min_alt[sooner], area[sooner] = t_cross[sooner], min_alt_ft, k
+            t_first[sooner], min_alt[sooner], area[sooner] = t_cross[sooner], min_alt_ft, j
     out = []
     for k in np.flatnonzero(np.isfinite(t_first)):
         tid = int(tr.track_id[e[cand[k]]])
