@@ -246,7 +246,7 @@ def test_a_steady_banked_turn_is_tracked_as_closely_as_straight_flight():
     same information (the PCRB argument of bench's measurement_floor). Positions alone, two
     radars 150 km off, eight noise draws of 280 s, after 60 s. Measured (2026-12-07): 50.1
     against 48.8 m (1.03×); with the 15° bank model alone, which does not fit the turn, 1.86×.
-    What the simulated traffic's turns lose beyond this is their onset and end (README,
+    What the simulated traffic's turns lose beyond this is their onset and end (docs/measurements.md,
     session 28)."""
 
     def rms_m(truth) -> float:

@@ -224,7 +224,7 @@ class TrackingConfig(_Section):
         "safety nets share those cores, neither the full-speed throughput nor the end-to-end p99 gained "
         "(71k -> 71k plots/s; 103 -> 108 ms and 103 -> 92 ms in two runs). Remeasured 2026-12-06 on that VM, "
         "the engine alone gained nothing either (117-131k against 127-132k plots/s): the pool's thread, asleep "
-        "between a period's kernel calls, wakes too late there (README, 'The IMM on more threads')",
+        "between a period's kernel calls, wakes too late there (docs/measurements.md, 'The IMM on more threads')",
     )
     fusion_method: Literal["scalar", "matrix"] = Field(
         "matrix",
