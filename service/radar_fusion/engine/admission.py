@@ -118,11 +118,13 @@ class Admission:
     def _seq_restarted(self, radar: RadarState, batch: DecodedPlots, i: int) -> bool:
         """Whether ``batch``, whose number this radar used recently, shows that its
         front-end restarted and numbers from the start again: the ``SEQ_RESTART_BATCHES``th
-        batch in a row numbered below the last one, each above the one before, whose plots
-        are all newer than anything the radar sent. A copy's are not (its original moved
-        the watermark at least to its earliest plot, or was refused whole), and one damaged
-        or forged message is not taken for a restart. The batches before it in the run are
-        refused as duplicates."""
+        batch in a row numbered below the last one, each numbered one more than the one
+        before, whose plots are all newer than anything the radar sent. A copy's are not
+        (its original moved the watermark at least to its earliest plot, or was refused
+        whole), and damaged or forged messages with used numbers are not taken for a
+        restart (the fuzz's, numbers drawn from those used, took a run of three for one
+        when any increase would do). The batches before it in the run are refused as
+        duplicates."""
         fresh = (
             radar.last_seq is not None
             and batch.seq < radar.last_seq
@@ -132,7 +134,7 @@ class Admission:
         if not fresh:
             radar.restart_streak = 0
             return False
-        if radar.restart_streak and batch.seq <= radar.restart_last_seq:
+        if radar.restart_streak and batch.seq != radar.restart_last_seq + 1:
             radar.restart_streak = 0
         radar.restart_streak += 1
         radar.restart_last_seq = batch.seq
