@@ -324,6 +324,12 @@ def test_a_front_end_that_numbers_from_the_start_again_costs_two_batches():
         assert r.eng.ingest_plots(plots("a", seq, t)) == 1
         t += 0.1
         r.eng.poll()
+    # used numbers drawn at random, rising, with fresh plots (forged, or the fuzz's): no restart
+    assert [r.eng.ingest_plots(plots("a", seq, t + 0.01 * seq)) for seq in (5, 9, 30, 31, 77)] == [0] * 5
+    assert r.eng.rejected["duplicate"] == 5 and r.eng.health()["radars"]["a"]["seq_restarts"] == 0
+    r.eng.rejected.clear()
+    r.eng.radars[0].rejected.clear()
+    t += 1.0
     took = []
     for seq in range(20):
         took.append(r.eng.ingest_plots(plots("a", seq, t)))
