@@ -2,7 +2,7 @@
 #   make run    builds the virtual environment and runs the demo (daemon + embedded Zenoh router)
 #   make test   builds the virtual environment and runs the test suite (every tier)
 # and, while working:
-#   make test-fast   the fast tier: no Zenoh session, nothing slow (about 2 min on 2 cores)
+#   make test-fast   the fast tier: no Zenoh session, nothing slow (about 1 min 45 s on 2 cores)
 #   make lint        ruff check, ruff format --check and mypy (what .ci/run runs before the tests)
 PYTHON ?= python3
 VENV   ?= .venv

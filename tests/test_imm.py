@@ -970,6 +970,7 @@ def test_mixed_covariances_are_exactly_symmetric() -> None:
     assert (np.linalg.eigvalsh(P0) > 0).all()
 
 
+@pytest.mark.slow  # a child interpreter compiles every kernel afresh: ~20 s, a sixth of the fast tier
 def test_kernels_run_uncached_where_no_cache_directory_is_writable() -> None:
     """A read-only install run by a user without a writable cache directory: numba refuses
     cache=True at import ("no locator available"; forced here by allowing only its zip
