@@ -104,3 +104,67 @@ def test_safety_net_section_is_validated_with_file_and_field(tmp_path):
     with pytest.raises(ConfigError) as err:
         load_settings(path)
     assert str(path) in str(err.value) and "safety_nets.look_ahead_s" in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "change, says",
+    [
+        (("lat = 45.1\nlon = 16.1", "lat = 16.1\nlon = 45.1"), "km from the system centre"),  # swapped
+        (("center_lat = 45.0", "center_lat = -45.0"), "km from the system centre"),  # a sign
+        (("lat = 45.1", "lat = 90.0"), "radars.0.lat"),  # at a pole: the engine cannot place it
+        (("rotation_period_s = 4.0", 'rotation_period_s = 4.0\n[metrics]\nlisten = "127.0.0.1:99999"'), "1 to 65535"),
+    ],
+)
+def test_a_config_the_engine_could_not_use_is_refused_at_load(tmp_path, change, says):
+    """Each of these started silently (tracks thousands of km off, STCA measuring on a plane
+    far from its origin) or crashed after the start with a traceback, whose exit code
+    systemd restarts ten times over (deploy's unit stops on 2 only)."""
+    with pytest.raises(ConfigError, match=says):
+        load_settings(write(tmp_path, GOOD.replace(*change)))
+
+
+def test_a_config_that_cannot_be_read_or_an_environment_value_that_cannot_is_a_config_error(tmp_path, monkeypatch):
+    with pytest.raises(ConfigError, match="cannot be read"):
+        load_settings(tmp_path)  # a directory
+    bad = tmp_path / "latin1.toml"
+    bad.write_bytes(GOOD.replace("r1", "r\xe9").encode("latin-1"))
+    with pytest.raises(ConfigError, match="not UTF-8"):
+        load_settings(bad)
+    too_many = GOOD + "".join(
+        f'\n[[radars]]\nid = "x{k}"\nlat = 45.1\nlon = 16.1\nsigma_range_m = 60\nsigma_azimuth_deg = 0.1\n'
+        "rotation_period_s = 4.0\n"
+        for k in range(64)
+    )
+    with pytest.raises(ConfigError, match="radars"):
+        load_settings(write(tmp_path, too_many))
+    monkeypatch.setenv("RADAR_FUSION_SYSTEM__PERIOD_S", "abc")
+    with pytest.raises(ConfigError, match="RADAR_FUSION_SYSTEM__PERIOD_S from the environment"):
+        load_settings(write(tmp_path, GOOD))
+    monkeypatch.delenv("RADAR_FUSION_SYSTEM__PERIOD_S")
+    monkeypatch.setenv("RADAR_FUSION_RADARS", "[not json")
+    with pytest.raises(ConfigError, match="RADAR_FUSION_RADARS"):
+        load_settings(write(tmp_path, GOOD))
+
+
+def test_serve_refuses_to_start_without_its_safety_nets_maps_or_a_writable_state_dir(tmp_path):
+    """A missing areas file let serve start: its safety-nets child died at every start
+    (restarted for ever), the tracks ran without STCA, APW and MSAW, and serve exited 0. A
+    state directory that is a file failed every period's save. Both are now refused before
+    the start; external safety nets are not asked for their maps."""
+    import argparse
+
+    from radar_fusion.cli import _serve_preflight
+
+    path = write(tmp_path, GOOD + '\n[safety_nets]\nmsa_file = "missing-msa.geojson"\n')
+    settings = load_settings(path)
+
+    def args(**kw):
+        return argparse.Namespace(**{"config": str(path), "safety_nets": None, "state_dir": None, **kw})
+
+    assert "missing-msa.geojson" in (_serve_preflight(settings, args()) or "")
+    assert _serve_preflight(settings, args(safety_nets="external")) is None
+    good = load_settings(write(tmp_path, GOOD))
+    a_file = tmp_path / "state-is-a-file"
+    a_file.write_text("x")
+    assert "cannot be written" in (_serve_preflight(good, args(state_dir=str(a_file))) or "")
+    assert _serve_preflight(good, args(state_dir=str(tmp_path / "state"))) is None

@@ -22,6 +22,7 @@ import logging
 import signal
 import sys
 import threading
+from typing import Any
 
 # subcommand: (module, add-arguments function, run function, one-line help)
 SUBCOMMANDS = {
@@ -168,6 +169,30 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _serve_preflight(settings: Any, args: argparse.Namespace) -> str | None:
+    """What would make serve fail after it started, asked before: the safety nets' maps (in
+    a child they died at every start, serve running on without STCA, APW and MSAW), and a
+    state directory that cannot be written (every period's save failed)."""
+    from pathlib import Path
+
+    mode = args.safety_nets.replace("-", "_") if args.safety_nets else settings.safety_nets.process
+    if mode != "external":
+        from .safety_nets.nets import check_maps
+
+        problem = check_maps(settings, Path(args.config).resolve().parent)
+        if problem is not None:
+            return problem
+    if args.state_dir is not None:
+        probe = Path(args.state_dir) / ".write-test"
+        try:
+            probe.parent.mkdir(parents=True, exist_ok=True)
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            return f"--state-dir {args.state_dir}: cannot be written: {exc.strerror or exc}"
+    return None
+
+
 def _serve(args: argparse.Namespace) -> int:
     from .bus import FusionDaemon
     from .config import ConfigError, load_settings
@@ -179,10 +204,15 @@ def _serve(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"configuration error, not starting:\n{exc}", file=sys.stderr)
         return 2
+    from pathlib import Path
+
+    problem = _serve_preflight(settings, args)
+    if problem is not None:
+        print(f"configuration error, not starting:\n{problem}", file=sys.stderr)
+        return 2
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    from pathlib import Path
 
     import zenoh
 

@@ -19,6 +19,7 @@ whose message names the file and the field; the daemon refuses to start on it.
 
 from __future__ import annotations
 
+import os
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
@@ -141,7 +142,7 @@ class MetricsConfig(_Section):
 
 class RadarConfig(_Section):
     id: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,32}$")
-    lat: float = Field(ge=-90, le=90)
+    lat: float = Field(gt=-90, lt=90, description="antenna latitude, degrees (not at a pole)")
     lon: float = Field(ge=-180, le=180)
     alt_m: float = Field(0.0, ge=-500, le=9000, description="antenna height above the WGS-84 ellipsoid")
     sigma_range_m: float = Field(gt=0, le=5000)
@@ -263,6 +264,10 @@ class TrackingConfig(_Section):
     )
 
 
+#: the farthest a radar may be from the system centre: the world-scale case's disc is 1,260 km
+MAX_RADAR_FROM_CENTRE_M = 2_000_000.0
+
+
 class Settings(BaseSettings):
     """The whole daemon configuration."""
 
@@ -272,7 +277,9 @@ class Settings(BaseSettings):
 
     system: SystemConfig
     bus: BusConfig = Field(default_factory=BusConfig)
-    radars: list[RadarConfig] = Field(min_length=1)
+    radars: list[RadarConfig] = Field(
+        min_length=1, max_length=64, description="at most 64 (a track's sources are bits of 64)"
+    )
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
     clustering: ClusteringParams = Field(default_factory=ClusteringParams)
     life_cycle: LifeCycle = Field(default_factory=LifeCycle)
@@ -312,6 +319,32 @@ class Settings(BaseSettings):
         return self
 
     @model_validator(mode="after")
+    def _radars_near_the_centre(self) -> Settings:
+        """Every radar within ``MAX_RADAR_FROM_CENTRE_M`` of the system plane's origin: a
+        radar's latitude and longitude swapped, a sign flipped or the centre put at the
+        antipode all started silently, with tracks thousands of kilometres off (and
+        separations measured on a plane far from its origin: 5 NM read as 10.7)."""
+        from .geo.coordinates import WGS84_GEOD
+
+        c = self.system
+        for r in self.radars:
+            _, _, dist_m = WGS84_GEOD.inv(c.center_lon, c.center_lat, r.lon, r.lat)
+            if dist_m > MAX_RADAR_FROM_CENTRE_M:
+                raise ValueError(
+                    f"radar {r.id} at ({r.lat}, {r.lon}) is {dist_m / 1000:,.0f} km from the system centre "
+                    f"({c.center_lat}, {c.center_lon}); at most {MAX_RADAR_FROM_CENTRE_M / 1000:,.0f} km "
+                    "(degrees, latitude first?)"
+                )
+        return self
+
+    @model_validator(mode="after")
+    def _metrics_port(self) -> Settings:
+        listen = self.metrics.listen
+        if listen is not None and not 0 < int(listen.rpartition(":")[2]) < 65536:
+            raise ValueError(f"[metrics] listen {listen!r}: the port must be 1 to 65535")
+        return self
+
+    @model_validator(mode="after")
     def _pair_peers_listen(self) -> Settings:
         # Zenoh routers do not route between peers (peers mesh directly): a peer of a pair
         # that no one can reach never sees the other's election tokens, and both go active
@@ -340,11 +373,19 @@ def _config_error(exc: ValidationError, source: str) -> ConfigError:
 
 
 def settings_from_dict(data: dict[str, Any], source: str = "<dict>") -> Settings:
-    """Validate a configuration mapping; errors name the source and the field."""
+    """Validate a configuration mapping; errors name the source and the field (a value from
+    the environment, RADAR_FUSION_..., is named as such)."""
+    from pydantic_settings import SettingsError
+
+    env = sorted(k for k in os.environ if k.startswith("RADAR_FUSION_"))
+    if env:
+        source = f"{source} (with {', '.join(env)} from the environment)"
     try:
         return Settings(**data)
     except ValidationError as exc:
         raise _config_error(exc, source) from None
+    except SettingsError as exc:  # an environment value that does not parse (JSON of a list, ...)
+        raise ConfigError(f"{source}: {exc}") from None
 
 
 def load_settings(path: str | Path) -> Settings:
@@ -356,4 +397,8 @@ def load_settings(path: str | Path) -> Settings:
         raise ConfigError(f"{path}: file not found") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text: {exc}") from None
+    except OSError as exc:  # a directory, no permission, ...
+        raise ConfigError(f"{path}: cannot be read: {exc.strerror or exc}") from None
     return settings_from_dict(data, str(path))

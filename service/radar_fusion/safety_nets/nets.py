@@ -30,6 +30,19 @@ log = logging.getLogger(__name__)
 ALERT_KINDS = ("stca", "apw", "msaw")
 
 
+def check_maps(settings: Settings, base_dir: Path | None) -> str | None:
+    """Why the safety nets of ``settings`` could not start (their areas or MSA map missing or
+    unreadable), or None: asked before a daemon starts, so that a wrong path is refused at
+    once instead of a child that dies at every start while the tracks run without STCA,
+    APW and MSAW."""
+    plane = SystemPlane(settings.system.center_lat, settings.system.center_lon)
+    try:
+        SafetyNets(settings.safety_nets, plane, hooks=Hooks(), base_dir=base_dir)
+    except (OSError, ValueError) as exc:
+        return f"[safety_nets]: {exc}"
+    return None
+
+
 class SafetyNets:
     """STCA, APW and MSAW over the fused tracks, with the alert life cycle and hooks.
 

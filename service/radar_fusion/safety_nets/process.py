@@ -399,6 +399,12 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as exc:
         print(f"configuration error, not starting:\n{exc}", file=sys.stderr)
         return 2
+    from .nets import check_maps
+
+    problem = check_maps(settings, base_dir)
+    if problem is not None:
+        print(f"configuration error, not starting:\n{problem}", file=sys.stderr)
+        return 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     if args.settings_from_stdin:
