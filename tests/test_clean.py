@@ -269,3 +269,19 @@ def test_cli_writes_the_recording_and_a_json_report(tmp_path, capsys):
     assert cli.main(["clean", str(report), "--out", str(tmp_path / "x.rec")]) == 2
     assert cli.main(["clean", str(src), "--out", str(src)]) == 2
     assert cli.main(["clean", str(src), "--out", str(tmp_path / "x.rec"), "--window", "30"]) == 2
+
+
+def test_a_tools_bad_input_is_one_line_and_exit_2_not_a_traceback(tmp_path, capsys):
+    """An empty recording (clean raised StopIteration), a missing tracks file (evaluate raised
+    FileNotFoundError), a speed of 0 (replay raised ValueError): each a line naming the tool
+    and the fault, exit 2; RADAR_FUSION_TRACEBACK=1 gives the traceback back."""
+    empty = tmp_path / "empty.rec"
+    empty.write_bytes(b"")
+    capsys.readouterr()
+    assert cli.main(["clean", str(empty), "--out", str(tmp_path / "x.rec")]) == 2
+    assert "not a radar-fusion recording" in capsys.readouterr().err
+    assert cli.main(["evaluate", "--tracks", str(tmp_path / "nope.rec"), "--truth", str(empty)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("radar-fusion evaluate: FileNotFoundError") and "Traceback" not in err
+    assert cli.main(["replay", str(empty), "--config", "x.toml", "--speed", "0"]) == 2
+    assert "--speed must be > 0" in capsys.readouterr().err

@@ -546,3 +546,32 @@ def test_turn_age_counts_from_the_first_batch_time_of_each_turn():
     nan = np.nan
     np.testing.assert_array_equal(got[0], [nan, nan, 0.0, 4.0, 8.0, nan, 0.0])
     np.testing.assert_array_equal(got[1], [0.0, 4.0, nan, 0.0, 4.0, 8.0, 12.0])
+
+
+@pytest.mark.parametrize("suffix", [".rec", ".rec.gz"])
+def test_a_recording_cut_short_is_read_to_its_last_whole_record_and_says_so(tmp_path, caplog, suffix):
+    """A recorder killed, a copy interrupted: msgpack's reader stopped at the cut without a
+    word, and replay, evaluate and clean went on with part of a recording as if whole."""
+    import gzip
+    import logging
+
+    from radar_fusion.recording import read_recording
+
+    whole = tmp_path / f"whole{suffix}"
+    with RecordingWriter(whole) as w:
+        for k in range(50):
+            w.write(1.7e9 + k, "radar/a/plots", bytes(range(200)))
+    raw = gzip.decompress(whole.read_bytes()) if suffix.endswith(".gz") else whole.read_bytes()
+    cut = tmp_path / f"cut{suffix}"
+    part = raw[: len(raw) - 150]  # inside the last record's payload
+    cut.write_bytes(gzip.compress(part) if suffix.endswith(".gz") else part)
+    with caplog.at_level(logging.WARNING, logger="radar_fusion.recording"):
+        assert len(list(read_recording(whole))) == 50 and not caplog.records
+        assert len(list(read_recording(cut))) == 49
+    assert len(caplog.records) == 1 and "cut short: 49 whole records read" in caplog.records[0].getMessage()
+    bad = tmp_path / "bad.rec"
+    with RecordingWriter(bad) as w:
+        w.write(1.7e9, "radar/a/plots", b"x")
+        w._f.write(w._packer.pack({"not": "a record"}))
+    with pytest.raises(ValueError, match="record 2 is not"):
+        list(read_recording(bad))

@@ -19,10 +19,15 @@ import argparse
 import gc
 import importlib
 import logging
+import os
 import signal
 import sys
 import threading
 from typing import Any
+
+#: the daemons: an exception of theirs is a crash their supervisor restarts (systemd stops
+#: restarting on exit code 2, a configuration error), never a one-line tool error
+LONG_RUNNING = frozenset({"serve", "safety-nets", "display"})
 
 # subcommand: (module, add-arguments function, run function, one-line help)
 SUBCOMMANDS = {
@@ -333,7 +338,20 @@ def main(argv: list[str] | None = None) -> int:
     only = argv[0] if argv and argv[0] in SUBCOMMANDS else None
     args = build_parser(only).parse_args(argv)
     module, run_fn = args._run
-    return int(getattr(importlib.import_module(module), run_fn)(args) or 0)
+    if args.command in LONG_RUNNING:
+        return int(getattr(importlib.import_module(module), run_fn)(args) or 0)
+    try:
+        return int(getattr(importlib.import_module(module), run_fn)(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+    except Exception as exc:  # a tool's input not what it should be: said in a line, not a traceback
+        if os.environ.get("RADAR_FUSION_TRACEBACK"):
+            raise
+        print(
+            f"radar-fusion {args.command}: {type(exc).__name__}: {exc}\n(RADAR_FUSION_TRACEBACK=1 shows where)",
+            file=sys.stderr,
+        )
+        return 2 if isinstance(exc, OSError | ValueError | EOFError) else 1
 
 
 if __name__ == "__main__":

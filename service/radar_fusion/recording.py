@@ -12,12 +12,15 @@ replay tool sends gives back the same payloads byte for byte.
 from __future__ import annotations
 
 import gzip
+import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO, Literal
 
 import msgpack
+
+log = logging.getLogger("radar_fusion.recording")
 
 FORMAT = "radar-fusion-recording"
 
@@ -65,19 +68,39 @@ class RecordingWriter:
 def read_header(path: str | Path) -> dict[str, Any]:
     with _open(Path(path), "r") as f:
         unpacker = msgpack.Unpacker(f, raw=False, max_bin_len=1 << 26)
-        header = next(unpacker)
+        header = next(unpacker, None)  # an empty file: not a recording
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ValueError(f"{path}: not a radar-fusion recording")
     return header
 
 
 def read_recording(path: str | Path) -> Iterator[Record]:
-    """Yield the records of a recording file in file order."""
+    """Yield the records of a recording file in file order.
+
+    A file cut short (a recorder killed, a copy interrupted) gives its whole records and
+    then a warning on the log that names where it ends and how many records were read:
+    msgpack's reader stopped there without a word, and replay, evaluate and clean went on
+    with half a recording as if it were all. A record that is not (t, key, payload)
+    raises ValueError."""
+    n = 0
     with _open(Path(path), "r") as f:
         unpacker = msgpack.Unpacker(f, raw=False, max_bin_len=1 << 26)
         header = next(unpacker, None)
         if not isinstance(header, dict) or header.get("format") != FORMAT:
             raise ValueError(f"{path}: not a radar-fusion recording")
         for item in unpacker:
+            if not (isinstance(item, list | tuple) and len(item) == 3 and isinstance(item[1], str)):
+                raise ValueError(f"{path}: record {n + 1} is not (time, key, payload)")
             t_s, key, payload = item
             yield Record(float(t_s), key, payload)
+            n += 1
+        read, size = unpacker.tell(), f.tell()
+    if read != size:
+        log.warning(
+            "%s: cut short: %d whole records read, %d bytes of an incomplete one at its end (byte %d of %d)",
+            path,
+            n,
+            size - read,
+            read,
+            size,
+        )
