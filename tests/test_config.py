@@ -112,6 +112,10 @@ def test_safety_net_section_is_validated_with_file_and_field(tmp_path):
         (("lat = 45.1\nlon = 16.1", "lat = 16.1\nlon = 45.1"), "km from the system centre"),  # swapped
         (("center_lat = 45.0", "center_lat = -45.0"), "km from the system centre"),  # a sign
         (("lat = 45.1", "lat = 90.0"), "radars.0.lat"),  # at a pole: the engine cannot place it
+        (("\nperiod_s = 4.0", "\nperiod_s = 12.0"), "longer than the shortest rotation"),  # 4 s radars
+        (("sigma_azimuth_deg = 0.1", "sigma_azimuth_deg = 0.0017"), "sigma_azimuth_deg"),  # radians
+        (("rotation_period_s = 4.0", "rotation_period_s = 0.067"), "rotation_period_s"),  # minutes
+        (("rotation_period_s = 4.0", "rotation_period_s = 4.0\nmax_range_m = 250"), "max_range_m"),  # NM
         (("rotation_period_s = 4.0", 'rotation_period_s = 4.0\n[metrics]\nlisten = "127.0.0.1:99999"'), "1 to 65535"),
     ],
 )
