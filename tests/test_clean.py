@@ -285,3 +285,46 @@ def test_a_tools_bad_input_is_one_line_and_exit_2_not_a_traceback(tmp_path, caps
     assert err.startswith("radar-fusion evaluate: FileNotFoundError") and "Traceback" not in err
     assert cli.main(["replay", str(empty), "--config", "x.toml", "--speed", "0"]) == 2
     assert "--speed must be > 0" in capsys.readouterr().err
+    # a recording is not overwritten by a new one, and numbers out of range are refused when parsed
+    kept = tmp_path / "kept.rec"
+    kept.write_bytes(b"a recording of an incident")
+    assert cli.main(["record", "--out", str(kept), "--duration-s", "1"]) == 2
+    assert kept.read_bytes() == b"a recording of an incident" and "--force" in capsys.readouterr().err
+    for argv in (
+        ["record", "--out", str(tmp_path / "r.rec"), "--duration-s", "nan"],
+        ["evaluate", "--tracks", str(empty), "--truth", str(empty), "--gate-m", "0"],
+        ["evaluate", "--tracks", str(empty), "--truth", str(empty), "--gospa-p", "-1"],
+    ):
+        with pytest.raises(SystemExit) as stop:
+            cli.main(argv)
+        assert stop.value.code == 2, argv
+    assert cli.main(["clean", str(empty), "--out", str(tmp_path / "y.rec"), "--threshold", "nan"]) == 2
+    assert "--threshold nan" in capsys.readouterr().err
+
+
+def test_replay_refuses_a_recording_of_another_site_unless_forced(tmp_path, capsys):
+    """A recording made for a scenario centred near Fiji, replayed into a Swiss daemon whose
+    radar 'east' shares a name with one of it: its plots were taken there, tracks
+    16,600 km from their aircraft, and replay said 'sent 17280 messages'."""
+    from radar_fusion.recording import RecordingWriter
+    from radar_fusion.tools import replay
+    from radar_fusion.tools import simulate as sim
+
+    scenario = sim.preset("demo")
+    config = tmp_path / "site.toml"
+    config.write_text(sim.config_toml(scenario))
+    far = tmp_path / "far.rec"
+    with RecordingWriter(far, {"center_lat": -17.8, "center_lon": 178.0, "radars": ["west", "east"]}):
+        pass
+    assert "km from the config's centre" in (replay.other_site(str(far), str(config)) or "")
+    strange = tmp_path / "strange.rec"
+    with RecordingWriter(strange, {"radars": ["x1", "x2"]}):
+        pass
+    assert "none of the config's" in (replay.other_site(str(strange), str(config)) or "")
+    ours = tmp_path / "ours.rec"
+    with RecordingWriter(ours, {"center_lat": scenario.center_lat_deg, "center_lon": scenario.center_lon_deg}):
+        pass
+    assert replay.other_site(str(ours), str(config)) is None
+    capsys.readouterr()
+    assert cli.main(["replay", str(far), "--config", str(config), "--speed", "max"]) == 2
+    assert "not replaying it (--force does)" in capsys.readouterr().err

@@ -599,6 +599,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def params_from_args(args: argparse.Namespace) -> CleanParams:
     """CleanParams from the parsed arguments (ValueError on bad values)."""
     threshold = None if str(args.threshold).lower() == "robust" else float(args.threshold)
+    if threshold is not None and not 0.0 <= threshold <= 2.0:  # NaN too: it removed nothing, silently
+        raise ValueError(f"--threshold {args.threshold}: an outlier factor in [0, 2], or 'robust'")
     outlier = OutlierParams(
         window=args.window,
         k=args.k,

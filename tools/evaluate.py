@@ -92,6 +92,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from ..cli import positive_float
 from ..recording import read_recording
 from .gospa import Gospa, cutoff_assignment, gospa
 from .truth import TRUTH_COLUMNS, Truth, TruthAtTimes, as_truth, interpolate_truth, load_truth
@@ -727,15 +728,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--truth", required=True, help="truth CSV written by the simulator")
     parser.add_argument("--png", default=None, help="write a plot of truth and tracks to this PNG")
     parser.add_argument("--json", default=None, help="write the figures (and per-target details) as JSON")
-    parser.add_argument("--gate-m", type=float, default=d.gate_m, help="association gate, metres (%(default)s)")
+    parser.add_argument(
+        "--gate-m", type=positive_float, default=d.gate_m, help="association gate, metres (%(default)s)"
+    )
     parser.add_argument(
         "--settle-s",
         type=float,
         default=d.settle_s,
         help="skip each track's first seconds for the settled figures (%(default)s)",
     )
-    parser.add_argument("--gospa-c-m", type=float, default=d.gospa_c_m, help="GOSPA cut-off c, metres (%(default)s)")
-    parser.add_argument("--gospa-p", type=float, default=d.gospa_p, help="GOSPA order p (%(default)s)")
+    parser.add_argument(
+        "--gospa-c-m", type=positive_float, default=d.gospa_c_m, help="GOSPA cut-off c, metres (%(default)s)"
+    )
+    parser.add_argument("--gospa-p", type=positive_float, default=d.gospa_p, help="GOSPA order p (%(default)s)")
     parser.add_argument(
         "--false-fraction",
         type=float,

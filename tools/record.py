@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import argparse
 import signal
+import sys
 import threading
 import time
+from pathlib import Path
 
+from ..cli import positive_float
 from ..recording import RecordingWriter
 
 
@@ -23,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="daemon config: connect to its bus endpoints and use its prefix")
     p.add_argument("--connect", action="append", help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447)")
     p.add_argument("--prefix", help="key prefix (default: the config's, else 'atc')")
-    p.add_argument("--duration-s", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--duration-s", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
 
 
 class Recorder:
@@ -73,6 +77,9 @@ class Recorder:
 def run(args: argparse.Namespace) -> int:
     from radar_fusion.bus import open_session, tool_client_config
 
+    if Path(args.out).exists() and not args.force:
+        print(f"record: {args.out} exists; not overwriting it (--force does)", file=sys.stderr)
+        return 2
     cfg, prefix = tool_client_config(args.config, args.connect, args.prefix)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -25,6 +25,43 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", help="Zenoh endpoint to connect to (default tcp/127.0.0.1:7447)")
     p.add_argument("--prefix", help="key prefix (default: the config's, else 'atc')")
     p.add_argument("--only", default="radar/", help="publish only keys starting with this (default radar/)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replay a recording whose header names another site than --config's (its centre far away, none of "
+        "its radars configured)",
+    )
+
+
+#: a recording centred farther than this from the config's centre is of another site
+OTHER_SITE_M = 200_000.0
+
+
+def other_site(file: str, config_path: str) -> str | None:
+    """Why the recording ``file`` is not of ``config_path``'s site, from its header (what
+    ``simulate`` writes: centre and radars), or None. Replayed into another site's daemon,
+    its plots were taken by the radars of the same name there: tracks 16,600 km from their
+    aircraft, and nothing said."""
+    from radar_fusion.config import load_settings
+    from radar_fusion.geo.coordinates import WGS84_GEOD
+    from radar_fusion.recording import read_header
+
+    meta = read_header(file).get("meta") or {}
+    settings = load_settings(config_path)
+    ids = {r.id for r in settings.radars}
+    radars = meta.get("radars")
+    if isinstance(radars, list) and radars and not ids & set(map(str, radars)):
+        return f"{file}: its radars {radars} are none of the config's {sorted(ids)}"
+    lat, lon = meta.get("center_lat"), meta.get("center_lon")
+    if isinstance(lat, int | float) and isinstance(lon, int | float):
+        c = settings.system
+        _, _, dist_m = WGS84_GEOD.inv(c.center_lon, c.center_lat, float(lon), float(lat))
+        if dist_m > OTHER_SITE_M:
+            return (
+                f"{file}: recorded for a site centred at ({lat}, {lon}), {dist_m / 1000:,.0f} km from the config's "
+                f"centre ({c.center_lat}, {c.center_lon})"
+            )
+    return None
 
 
 def parse_speed(text: str) -> float | None:
@@ -74,6 +111,9 @@ def run(args: argparse.Namespace) -> int:
     from radar_fusion.bus import open_session, tool_client_config
 
     speed = parse_speed(args.speed)
+    if args.config and not args.force and (why := other_site(args.file, args.config)) is not None:
+        print(f"replay: {why}; not replaying it (--force does)", file=sys.stderr)
+        return 2
     cfg, prefix = tool_client_config(args.config, args.connect, args.prefix)
     total = sum(1 for _ in read_recording(args.file)) if sys.stderr.isatty() else 0
     session = open_session(cfg)

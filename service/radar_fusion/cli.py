@@ -19,11 +19,24 @@ import argparse
 import gc
 import importlib
 import logging
+import math
 import os
 import signal
 import sys
 import threading
 from typing import Any
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number above 0 (NaN, 0 and negatives refused when parsed)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number above 0")
+    return value
+
 
 #: the daemons: an exception of theirs is a crash their supervisor restarts (systemd stops
 #: restarting on exit code 2, a configuration error), never a one-line tool error
