@@ -575,3 +575,27 @@ def test_a_recording_cut_short_is_read_to_its_last_whole_record_and_says_so(tmp_
         w._f.write(w._packer.pack({"not": "a record"}))
     with pytest.raises(ValueError, match="record 2 is not"):
         list(read_recording(bad))
+
+
+def test_tracks_of_another_plane_or_time_are_not_scored(demo_case):
+    """Scores compare positions in the system plane: a daemon whose centre was moved 0.2°
+    scored 1,405 m for tracks 17 m from their aircraft, and another scenario's truth gave
+    a table of n/a, both with exit 0. Checked on the ground, by latitude and longitude."""
+    from radar_fusion.engine import Engine
+    from radar_fusion.tools.evaluate import not_comparable
+    from radar_fusion.tools.replay import replay_into_engine
+
+    settings, simulation = demo_case
+    messages = simulation.messages[:3000]
+
+    def batches(s):
+        return [o.track_batch for o in replay_into_engine(Engine(s), messages)]
+
+    truth = simulation.truth
+    same = batches(settings)
+    assert not_comparable(same, truth) is None
+    system = settings.system.model_copy(update={"center_lat": settings.system.center_lat + 0.2})
+    moved = batches(settings.model_copy(update={"system": system}))
+    assert "system plane is not the truth's" in (not_comparable(moved, truth) or "")
+    later = [{**b, "t": b["t"] + 86_400.0} for b in same]
+    assert "do not overlap" in (not_comparable(later, truth) or "")
