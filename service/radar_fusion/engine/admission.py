@@ -30,8 +30,9 @@ from .period_buffer import PeriodBuffer
 #: new time base is accepted (a radar back from an outage longer than the future limit),
 #: provided no other radar's time moved on meanwhile (Admission._may_relock)
 FUTURE_RELOCK_BATCHES = 8
-#: batches in a row numbered again below the last one, with newer plots, that show a
-#: radar's front-end restarted its numbering (Admission._seq_restarted)
+#: batches in a row numbered again below the last one, each one more than the one before
+#: and with newer plots, that show a radar's front-end restarted its numbering
+#: (Admission._seq_restarted)
 SEQ_RESTART_BATCHES = 3
 
 
