@@ -634,7 +634,8 @@
       ["periods closed", String(h.periods_closed)],
       ["tracks", String(h.tracks)],
       ["period p50 / p99", `${fmt(h.processing_ms_p50, 1)} / ${fmt(h.processing_ms_p99, 1)} ms`],
-      ["lag (wall − event)", fmt(h.lag_s, 1, " s")],
+      // a replay of old data is days behind the wall clock: no lag to speak of
+      ["lag (wall − event)", h.lag_s != null && Math.abs(h.lag_s) > 86400 ? "– (replayed data)" : fmt(h.lag_s, 1, " s")],
       ["plots accepted", fmt(c.plots_accepted)],
       ["plots wild", fmt(c.plots_wild)],
       ["rejected", String(total), total ? "warn" : ""],
