@@ -317,6 +317,34 @@ def test_a_picture_no_longer_fed_is_shown_stale_not_live_also_after_a_reload(bro
         router.close()
 
 
+def test_the_labels_of_close_aircraft_are_placed_apart(browser, scenario, free_port):
+    """Two aircraft 300 m apart (a pair a controller watches), a third 40 km off so that the
+    view takes them all: the second label goes where the first does not cover it (they
+    were drawn one over the other)."""
+    settings = settings_on_port(scenario / "config.toml", free_port)
+    endpoint = settings.bus.listen[0]
+    router = open_session(zenoh_config("router", listen=[endpoint]))
+    display = DisplayServer(settings, port=0, zenoh_config=zenoh_config("client", connect=[endpoint]))
+    page = None
+    try:
+        display.start()
+        page, errors = open_page(browser, display.url)
+        time.sleep(0.5)
+        tracks = msgpack.unpackb(_track_batch(1.7e9, 5, 60.0))["tracks"]
+        third = dict(tracks[0], track_id=3, x_m=40_000.0, y_m=20_000.0)
+        tracks[0].update(x_m=0.0, y_m=0.0)
+        tracks[1].update(x_m=300.0, y_m=0.0)
+        batch = {"v": 1, "t": 1.7e9, "period": 5, "tracks": [*tracks, third], "ended": []}
+        reliable_sender(router, "atc/fusion/tracks").put(msgpack.packb(batch))
+        assert wait_until(lambda: dataset(page).get("period") == "5" and "labelOverlaps" in dataset(page), 10)
+        assert dataset(page)["labelOverlaps"] == "0" and errors == []
+    finally:
+        if page is not None:
+            page.close()
+        display.stop()
+        router.close()
+
+
 def test_frame_time_at_4000_tracks(browser, tmp_path, free_port, record_property):
     """4,000 tracks, one TrackBatch per update, all on screen with labels, trails and
     vectors: the page's own draw time (performance.now() around the draw) per update."""

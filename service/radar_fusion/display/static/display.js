@@ -314,6 +314,76 @@
     }
   }
 
+  // Label placement: each label takes the first of four places around its symbol (right
+  // above, then left above, right below, left below) whose box no label placed before it
+  // covers, on a grid of LABEL_CELL px; the alerted tracks' first, then by status. A label
+  // with no free place takes the least covered (counted in data-label-overlaps).
+  const LABEL_CELL = 6;
+  const LABEL_W = 96, LABEL_H = 24; // two lines of 11 px monospace, up to 14 characters
+  const LABEL_PLACES = [
+    [10, -10], // the label's first baseline, from the symbol: right above
+    [-10 - LABEL_W, -10], // left above
+    [10, 24], // right below
+    [-10 - LABEL_W, 24], // left below
+  ];
+
+  function drawLabels(c, f, px, py, W, H) {
+    c.font = LABEL_FONT;
+    c.textBaseline = "alphabetic";
+    const cols = Math.ceil((W + 2 * LABEL_W) / LABEL_CELL), rows = Math.ceil((H + 4 * LABEL_H) / LABEL_CELL);
+    const taken = new Uint8Array(cols * rows);
+    const box = (x, y, h) => { // cells of a label box whose first baseline is at (x, y)
+      const c0 = Math.floor((x + LABEL_W) / LABEL_CELL), c1 = Math.floor((x + 2 * LABEL_W) / LABEL_CELL);
+      const r0 = Math.floor((y - 10 + 2 * LABEL_H) / LABEL_CELL), r1 = Math.floor((y - 10 + h + 2 * LABEL_H) / LABEL_CELL);
+      return [Math.max(c0, 0), Math.min(c1, cols - 1), Math.max(r0, 0), Math.min(r1, rows - 1)];
+    };
+    const covered = ([c0, c1, r0, r1]) => { // cells of the box that labels placed before cover
+      let n = 0;
+      for (let r = r0; r <= r1; r++) for (let k = c0; k <= c1; k++) n += taken[r * cols + k];
+      return n;
+    };
+    const take = ([c0, c1, r0, r1]) => {
+      for (let r = r0; r <= r1; r++) taken.fill(1, r * cols + c0, r * cols + c1 + 1);
+    };
+    const order = [];
+    for (const id of state.alertByTrack.keys()) {
+      const i = state.index.get(id);
+      if (i !== undefined) order.push(i);
+    }
+    for (let s = 0; s < 3; s++) {
+      for (let i = 0; i < f.n; i++) if (f.status[i] === s && !state.alertByTrack.has(f.id[i])) order.push(i);
+    }
+    const leader = new Path2D();
+    let overlaps = 0;
+    for (const i of order) {
+      const x = px[i], y = py[i];
+      if (!(x >= -80 && x <= W && y >= -10 && y <= H + 40)) continue;
+      const alerts = state.alertByTrack.get(f.id[i]);
+      const h = alerts ? LABEL_H + 12 : LABEL_H;
+      let place = LABEL_PLACES[0], least = Infinity;
+      for (const p of LABEL_PLACES) {
+        const n = covered(box(x + p[0], y + p[1], h));
+        if (n < least) [place, least] = [p, n];
+        if (n === 0) break;
+      }
+      if (least > 0) overlaps++;
+      const lx = x + place[0], ly = y + place[1];
+      take(box(lx, ly, h));
+      c.fillStyle = alerts ? COLOURS[alerts[0].kind] : STATUS_COLOUR[f.status[i]];
+      const ms = f.mode_s[i];
+      c.fillText(ms ? `${ident(f, i)} ${ms}` : ident(f, i), lx, ly);
+      c.fillText(levelLine(f, i), lx, ly + 11);
+      if (alerts) c.fillText(alerts.map((a) => alertTag(a)).join(" "), lx, ly + 22);
+      // the leader: from the symbol's corner towards the label's nearest corner
+      const right = place[0] > 0, below = place[1] > 0;
+      leader.moveTo(x + (right ? 4 : -4), y + (below ? 4 : -4));
+      leader.lineTo(right ? lx - 1 : lx + LABEL_W + 1, below ? ly - 10 : ly + 1);
+    }
+    c.strokeStyle = "rgba(200, 214, 229, 0.35)";
+    c.stroke(leader);
+    root.dataset.labelOverlaps = String(overlaps);
+  }
+
   function drawTrackLayer(c, f) {
     const n = f.n;
     const vectorS = Number(ui.vector.value);
@@ -402,38 +472,7 @@
     }
     c.lineWidth = 1;
     // labels (only of the tracks on screen): ident + Mode S, then FL, climb/descent arrow, GS (kt)
-    if (ui.labels.checked) {
-      c.font = LABEL_FONT;
-      c.textBaseline = "alphabetic";
-      const leader = new Path2D();
-      for (let s = 0; s < 3; s++) {
-        c.fillStyle = STATUS_COLOUR[s];
-        for (let i = 0; i < n; i++) {
-          if (f.status[i] !== s) continue;
-          const x = px[i], y = py[i];
-          if (x < -80 || x > W || y < -10 || y > H + 40) continue;
-          if (state.alertByTrack.has(f.id[i])) continue; // drawn below, in alert colour
-          const ms = f.mode_s[i];
-          c.fillText(ms ? `${ident(f, i)} ${ms}` : ident(f, i), x + 10, y - 10);
-          c.fillText(levelLine(f, i), x + 10, y + 1);
-          leader.moveTo(x + 4, y - 4);
-          leader.lineTo(x + 9, y - 9);
-        }
-      }
-      for (const [id, alerts] of state.alertByTrack) {
-        const i = state.index.get(id);
-        if (i === undefined) continue;
-        const x = px[i], y = py[i];
-        const kinds = alerts.map((a) => alertTag(a)).join(" ");
-        c.fillStyle = COLOURS[alerts[0].kind];
-        const ms = f.mode_s[i];
-        c.fillText(ms ? `${ident(f, i)} ${ms}` : ident(f, i), x + 10, y - 10);
-        c.fillText(levelLine(f, i), x + 10, y + 1);
-        c.fillText(kinds, x + 10, y + 12);
-      }
-      c.strokeStyle = "rgba(200, 214, 229, 0.35)";
-      c.stroke(leader);
-    }
+    if (ui.labels.checked) drawLabels(c, f, px, py, W, H);
     // the selected track
     if (state.selectedId !== null) {
       const i = state.index.get(state.selectedId);
