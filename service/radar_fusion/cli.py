@@ -251,6 +251,10 @@ def _serve(args: argparse.Namespace) -> int:
         print(f"cannot open the Zenoh session (bus mode {settings.bus.mode}), not starting:\n{exc}", file=sys.stderr)
         daemon.stop(timeout_s=1.0)
         return 3
+    except OSError as exc:  # the metrics endpoint's port is taken (or the timing log cannot be written)
+        print(f"cannot start ({exc.strerror or exc}), not starting", file=sys.stderr)
+        daemon.stop(timeout_s=1.0)
+        return 3
     # Latency: move everything loaded so far (modules, config, the session) out of the
     # garbage collector's reach, so its full passes only walk what the periods create
     # (a full pass over the ~10^5 start-up objects showed as 50-100 ms period spikes).
