@@ -258,6 +258,10 @@ def test_a_daemon_restarted_without_its_state_starts_a_new_picture():
     assert frames[-1]["new_stream"] is True and feed.stream_restarts == 1
     assert sent[-1] == ("alerts", {"type": "alerts", "alerts": []})
     assert feed.stats()["tracks_age_s"] >= 0.0 and feed.stats()["tracks_stale_after_s"] == 3 * 4.0
+    # one id of several going younger is a track taking over an older one's id: no new picture
+    feed.handle([], batch([track(1, age_s=8.0), track(2, age_s=8.0), track(3, age_s=8.0)], period=11, t=1.7e9 + 16))
+    feed.handle([], batch([track(1, age_s=12.0), track(2, age_s=12.0), track(3, age_s=4.0)], period=12, t=1.7e9 + 20))
+    assert "new_stream" not in [f for ch, f in sent if ch == "tracks"][-1] and feed.stream_restarts == 1
 
 
 # --------------------------------------------------------------------- the server

@@ -8,6 +8,7 @@ import pytest
 
 from radar_fusion.config import settings_from_dict
 from radar_fusion.engine import Engine
+from radar_fusion.engine.admission import FUTURE_RELOCK_BATCHES
 from radar_fusion.engine.watermarks import Watermarks
 from radar_fusion.wire import DecodedPlots, RadarStatus
 
@@ -366,6 +367,10 @@ def test_a_batch_numbered_far_ahead_is_a_jump_not_lost_batches():
         t += 0.1
     assert r.eng.ingest_plots(plots("a", 0, t)) == 1  # 0 is no longer among the recent numbers
     assert r.eng.health()["radars"]["a"]["seq_restarts"] == 3 and not r.eng.rejected
+    # a link down for 4,200 batches (8.5 min of a 4 s radar's 32 sectors) lost them: a gap
+    assert r.eng.ingest_plots(plots("a", 4_201, t + 1.0)) == 1
+    h = r.eng.health()["radars"]["a"]
+    assert (h["seq_gaps"], h["seq_restarts"]) == (4_200, 3)
 
 
 # ------------------------------------------------------------ realistic radar timing
@@ -396,6 +401,32 @@ def four_radar_settings(**system):
             "outliers": {"enabled": False},
         }
     )
+
+
+def test_a_wrong_clock_that_sends_first_after_a_start_does_not_shut_the_others_out():
+    """After a start the first radar to send sets the time; with its clock 45 s slow, the
+    others' right times looked 45 s ahead of the only radar keeping time, and (it kept
+    moving) were refused for good, the picture one radar's. They outnumber it: after the
+    relock's eight refusals their time is followed, and the slow radar's plots are late."""
+    eng = Engine(four_radar_settings())
+    ids = list(ROTATIONS_S)
+    slow, right = ids[0], ids[1:]
+    seq = dict.fromkeys(ids, 0)
+
+    def send(rid, t):
+        seq[rid] += 1
+        return eng.ingest_plots(plots(rid, seq[rid], t))
+
+    for k in range(5):  # the slow one first, alone, a few seconds
+        send(slow, T0 - 45.0 + k)
+    took = {rid: 0 for rid in ids}
+    for k in range(5, 60):
+        for rid in ids:
+            took[rid] += send(rid, T0 + k - (45.0 if rid == slow else 0.0))
+        eng.poll()
+    assert all(took[rid] >= 55 - FUTURE_RELOCK_BATCHES for rid in right), took
+    assert took[slow] < 10 and eng.rejected["plot_late"] > 40
+    assert eng.counters["radar_time_relocks"] == 1
 
 
 def sweep_messages(duration_s, seed=0, status_first=(), from_s=0.0):

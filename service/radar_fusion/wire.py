@@ -223,8 +223,8 @@ class RadarHealth(BaseModel):
     seq_restarts: int = Field(
         0,
         description="times the radar's batch numbering started again: numbers used recently with newer plots "
-        "(a front-end restart: taken, not refused as duplicates), or a number more than 4,096 from the last one "
-        "(not counted as lost or out-of-order batches) (v1 extension)",
+        "(a front-end restart: taken, not refused as duplicates), or a number more than 4,096 behind the last one or "
+        "10 million ahead (not counted as out-of-order or lost batches) (v1 extension)",
     )
     rejected: dict[str, int] = Field(default_factory=dict)
     wild: int = Field(0, description="plots dropped by the live wild-plot gate (counted apart from rejections)")

@@ -350,12 +350,15 @@ class Feed:
             self.sink("health", json.dumps({"type": "health", "health": health}, separators=(",", ":")))
 
     def _ids_given_again(self, frame: dict[str, Any]) -> bool:
-        """Whether a track id of the previous batch is a younger track in this one: in one
-        stream a track's age only grows (as the safety nets' process.py judges it)."""
+        """Whether the track ids of the previous batch are younger tracks in this one, at
+        least half of those in both (as the safety nets' process.py judges it: one id can
+        go back within a stream, a track taking over an older one's id)."""
         if self._ids_ages is None:
             return False
         before = dict(zip(*self._ids_ages, strict=True))
-        return any(age < before[i] - 0.1 for i, age in zip(frame["id"], frame["age_s"], strict=True) if i in before)
+        common = [(age, before[i]) for i, age in zip(frame["id"], frame["age_s"], strict=True) if i in before]
+        younger = sum(age < was - 0.1 for age, was in common)
+        return younger > 0 and 2 * younger >= len(common)
 
     def _count(self, counter: Counter[str], name: str) -> None:
         with self._cond:  # stats() copies the counters from another thread

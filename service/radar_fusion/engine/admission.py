@@ -34,6 +34,10 @@ FUTURE_RELOCK_BATCHES = 8
 #: and with newer plots, that show a radar's front-end restarted its numbering
 #: (Admission._seq_restarted)
 SEQ_RESTART_BATCHES = 3
+#: the most batches counted as lost between two numbers (a day at 100 batches a second):
+#: a larger jump is a numbering started anew, or a damaged number (2^63 - 1 once added
+#: 9.2e18 to seq_gaps)
+MAX_SEQ_GAP = 10_000_000
 
 
 @dataclass
@@ -51,7 +55,8 @@ class RadarState:
     rotation_period_s: float | None = None
     wild: int = 0
     future_streak: int = 0  # consecutive batches refused whole as plot_future
-    others_moved_at_streak: int = 0  # Admission.moved less this radar's own, when the streak began
+    moved_at_streak: list[int] = field(default_factory=list)  # every radar's ``moved`` when the streak began
+    first_moved_s: float = math.nan  # its watermark when it first moved on (how long it has kept time)
     streak_first_t_s: float = math.nan  # the streak's first and newest refused times,
     streak_last_t_s: float = math.nan  # and whether they never went back
     streak_in_order: bool = True
@@ -145,7 +150,10 @@ class Admission:
         """Move radar ``i``'s watermark to ``t_s`` (if later), counting that it moved."""
         if t_s > self.buffer.watermark_s[i]:
             self.moved += 1
-            self.radars[i].moved += 1
+            radar = self.radars[i]
+            radar.moved += 1
+            if radar.moved == 1:
+                radar.first_moved_s = t_s
             self.buffer.advance_watermark(i, t_s)
             self.moved_at_newest_s[i] = max(self.buffer.watermark_s.tolist())
 
@@ -153,7 +161,7 @@ class Admission:
         """A message of radar ``i`` stamped ``t_s`` refused whole as too far in the future."""
         radar = self.radars[i]
         if radar.future_streak == 0:
-            radar.others_moved_at_streak = self.moved - radar.moved
+            radar.moved_at_streak = [r.moved for r in self.radars]
             radar.streak_first_t_s, radar.streak_in_order = t_s, True
         else:
             radar.streak_in_order &= t_s >= radar.streak_last_t_s
@@ -162,21 +170,32 @@ class Admission:
 
     def _may_relock(self, i: int) -> bool:
         """Whether radar ``i``'s time, refused as too far in the future, is now taken as its
-        new time base: after ``FUTURE_RELOCK_BATCHES`` refusals in a row, and only if no
-        other radar's time moved on meanwhile. A radar back from a long outage alone, or
-        every radar's time ahead of a restored state, is followed; one radar ahead of
-        others that keep time (a clock jump, a forged time) is refused for as long as it
-        stays ahead. Followed, it would lead every period and turn the others' good plots
-        late (and a state saved then would carry its time). The refused times must also
-        run on, as a clock does: repeats of one time (a forged or stuck stamp) are not
-        followed."""
+        new time base: after ``FUTURE_RELOCK_BATCHES`` refusals in a row, and only if the
+        radars refused as ahead outnumber those that kept time meanwhile (moved on, and had
+        for ``radar_timeout_s`` of their own time before). A radar back from a long outage
+        alone, every radar's time ahead of a restored state, or the right clocks against a
+        wrong one that happened to send first after a start, are followed; one radar ahead
+        of others that keep time (a clock jump, a forged time) is refused for as long as
+        it stays ahead. Followed, it would lead every period and turn the others' good plots
+        late (and a state saved then would carry its time). Two radars that disagree keep
+        the one that kept time. The refused times must also run on, as a clock does:
+        repeats of one time (a forged or stuck stamp) are not followed."""
         radar = self.radars[i]
-        return (
+        if not (
             radar.future_streak >= FUTURE_RELOCK_BATCHES
-            and self.moved - radar.moved == radar.others_moved_at_streak
             and radar.streak_in_order
             and radar.streak_last_t_s > radar.streak_first_t_s
+        ):
+            return False
+        wm: list[float] = self.buffer.watermark_s.tolist()
+        settled_s = self.buffer.radar_timeout_s
+        kept_time = sum(
+            1
+            for j, (r, was) in enumerate(zip(self.radars, radar.moved_at_streak, strict=True))
+            if j != i and r.moved > was and wm[j] - r.first_moved_s >= settled_s
         )
+        ahead = sum(1 for r in self.radars if r.future_streak > 0)
+        return kept_time == 0 or ahead > kept_time
 
     def _future_limit_s(self, i: int) -> float:
         """Latest plausible event time from radar ``i``; later is refused as
@@ -238,7 +257,7 @@ class Admission:
         if radar.last_seq is None or batch.seq > radar.last_seq:
             if radar.last_seq is not None and batch.seq > radar.last_seq + 1:
                 gap = batch.seq - radar.last_seq - 1
-                if gap < window:
+                if gap <= MAX_SEQ_GAP:  # batches lost on the way (an outage of the link: hours of them)
                     radar.seq_gaps += gap
                 else:  # a jump, not lost batches: a front-end numbering anew (or a damaged number)
                     radar.seq_restarts += 1

@@ -205,7 +205,7 @@ def _next_period(state: dict[str, Any], engine: Engine, track_t_s: float | None)
         return None
     if type(value) is not int or not 0 <= value * period_s <= _LATEST_T_S:
         raise StateMismatch(f"a damaged state: next_period {value!r}")
-    if track_t_s is not None and abs(value * period_s - track_t_s) > _PERIOD_SLACK_S:
+    if saved_period_s is None and track_t_s is not None and abs(value * period_s - track_t_s) > _PERIOD_SLACK_S:
         # a state from before period_s was saved, of another period: its index is not this grid's
         raise StateMismatch(
             f"state's next period starts at {value * period_s:.0f} s, its tracks are of {track_t_s:.0f} s: "

@@ -300,15 +300,18 @@ class SafetyNetsProcess:
         return alerts
 
     def _ids_given_again(self, columns: TrackColumns) -> bool:
-        """Whether a track id of the previous batch is a younger track now: in one stream a
-        track's age only grows (a merged track keeps its oldest start), so the daemon
-        restarted without its state and hands out ids from 1 again, with time moving on.
-        Its open alerts, vertical-rate histories and confirmations belong to other aircraft."""
+        """Whether the track ids of the previous batch are younger tracks now, at least half
+        of those in both: the daemon restarted without its state and hands out ids from 1
+        again, with time moving on, so its open alerts, vertical-rate histories and
+        confirmations belong to other aircraft. Within one stream an id's age can go back
+        only for one track at a time (a track that takes over an older one's id keeps its
+        own start: an SSR aircraft's wild plot did it, and any one id flagged a restart)."""
         if self._ids_ages is None:
             return False
         ids, ages = self._ids_ages
         _, before, now = np.intersect1d(ids, columns.track_id, assume_unique=True, return_indices=True)
-        return bool((columns.age_s[now] < ages[before] - AGE_SLACK_S).any())
+        younger = int((columns.age_s[now] < ages[before] - AGE_SLACK_S).sum())
+        return younger > 0 and 2 * younger >= now.size
 
     def _reject(self, reason: str, detail: str) -> None:
         self.rejected[reason] += 1
