@@ -481,6 +481,27 @@ def test_apw_sees_a_corner_clipped_between_two_samples(tmp_path):
         assert out[0]["time_to_entry_s"] == pytest.approx(fine_t[np.argmax(truth)], abs=0.01)
 
 
+def test_apw_no_entry_where_the_path_crosses_the_corner_above_the_volume(tmp_path):
+    """A descent at 1,500 fpm that clips R1's corner (FL0-95) at FL95.2, inside the band only
+    after it has left the area again: no entry. The band was judged at either sample of the
+    segment, and the sample after the clip (FL94.x, outside the area) made one."""
+    from radar_fusion.safety_nets.polygon import Polygon, ring_xy
+
+    ring = [[8.1, 47.1], [8.3, 47.1], [8.3, 47.2], [8.1, 47.2]]
+    poly = Polygon([(ring_xy(PLANE, ring), [])])
+    cx, cy = (float(np.ravel(v)[0]) for v in PLANE.to_plane(np.array([47.1]), np.array([8.3])))
+    v = 250.0
+    vx = vy = v / math.sqrt(2.0)
+    for lead_s in 60.0 + np.linspace(0.0, 1.9, 12):  # the phase of the 2 s samples
+        px, py = cx - 40.0 / math.sqrt(2.0), cy + 40.0 / math.sqrt(2.0)  # a 80 m chord
+        x0, y0 = px - vx * lead_s, py - vy * lead_s
+        fine_t = np.arange(0.0, 2 * lead_s, 0.0002 * 1000 / v)
+        t_in = fine_t[np.argmax(poly.contains(np.column_stack([x0 + vx * fine_t, y0 + vy * fine_t])))]
+        fl0 = 95.2 + 0.25 * t_in  # 1,500 fpm down: FL95.2 where it enters, below 95 0.8 s on
+        row = dict(id=1, x=x0, y=y0, vx=vx, vy=vy, fl=fl0, vr=-1500.0)
+        assert nets(areas_file=_areas_file(tmp_path), apw_confirm_periods=1).update(0.0, arrays([row])) == [], lead_s
+
+
 def test_msaw_sees_a_corner_of_high_terrain_clipped_between_two_samples(tmp_path):
     """As APW: level at FL80, a straight path cuts the corner of a 10,000 ft MSA polygon
     over 30-400 m, between two samples 500 m apart that are both outside. Warned of at the

@@ -23,7 +23,7 @@ def apw_hits(cfg: SafetyNetsConfig, areas: list[Area], tr: TrackColumns, accel: 
     samples every ``sample_step_s``; inside = in the polygon and lower ≤ FL ≤ upper. A
     path between two samples that crosses the polygon's boundary enters it there too
     (a corner clipped between samples, both outside: at 250 m/s a 2 s step is 500 m),
-    when the level at either sample is inside the volume's band.
+    when the level there, interpolated between the samples, is inside the volume's band.
     """
     e = np.flatnonzero(eligible(tr) & moving(tr))
     if e.size == 0:
@@ -52,7 +52,14 @@ def apw_hits(cfg: SafetyNetsConfig, areas: list[Area], tr: TrackColumns, accel: 
             p0 = np.column_stack([xc[:, :-1].ravel(), yc[:, :-1].ravel()])
             p1 = np.column_stack([xc[:, 1:].ravel(), yc[:, 1:].ravel()])
             u = area.polygon.first_crossing(p0, p1).reshape(cand.size, m - 1)
-            t_cross = pred.t_s[:-1] + np.where(vert[:, :-1] | vert[:, 1:], u, np.inf) * np.diff(pred.t_s)
+            # the level where the path crosses the edge, between the samples' (as MSAW): a
+            # descent that crosses above the volume and is inside its band only later is no entry
+            f_cross = f[:, :-1] + np.where(np.isfinite(u), u, 0.0) * (f[:, 1:] - f[:, :-1])
+            with np.errstate(invalid="ignore"):
+                in_band = (f_cross >= area.lower_fl) & (f_cross <= area.upper_fl)
+            if cfg.apw_unknown_fl_inside:
+                in_band |= ~np.isfinite(f_cross)
+            t_cross = pred.t_s[:-1] + np.where(in_band, u, np.inf) * np.diff(pred.t_s)
             t_in = np.minimum(t_in, t_cross.min(axis=1))
         for k in np.flatnonzero(np.isfinite(t_in)):
             tid = int(tr.track_id[e[cand[k]]])
