@@ -19,6 +19,7 @@ from typing import Any, Literal
 
 import msgpack
 import numpy as np
+from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 WIRE_VERSION = 1
@@ -184,6 +185,25 @@ class TrackBatch(_Message):
         "pair); a consumer drops a message of an epoch lower than the highest it has seen (a stale active)",
     )
     instance: str | None = Field(None, description="with [redundancy] on: the publishing daemon's instance name")
+
+
+def ids_given_again(
+    before: tuple[ArrayLike, ArrayLike] | None, track_id: ArrayLike, age_s: ArrayLike, slack_s: float
+) -> bool:
+    """Whether the TrackBatch with ``track_id`` and ``age_s`` starts a new tracks stream
+    after the batch whose ids and ages were ``before``: at least half of the ids in both
+    are younger tracks now (by more than ``slack_s``, the ages' rounding). A daemon that
+    restarted without its state hands out ids from 1 again, time moving on, so the open
+    alerts and pictures of the old ids belong to other aircraft. Within one stream an id's
+    age goes back only for one track at a time: a track that takes over an older one's id
+    keeps its own start (an SSR aircraft's wild plot did it; any one id taken for a
+    restart ended every open alert). The safety nets (process.py) and the display (feed.py)
+    judge a received stream by it."""
+    if before is None:
+        return False
+    _, was, now = np.intersect1d(np.asarray(before[0]), np.asarray(track_id), assume_unique=True, return_indices=True)
+    younger = int((np.asarray(age_s, float)[now] < np.asarray(before[1], float)[was] - slack_s).sum())
+    return younger > 0 and 2 * younger >= now.size
 
 
 class Alert(_Message):

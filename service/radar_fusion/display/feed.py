@@ -38,7 +38,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from ..bus import RateLimitedLog
-from ..wire import WIRE_VERSION, Alert, Health, RadarStatus, Rejection, TrackBatch, unpack
+from ..wire import WIRE_VERSION, Alert, Health, RadarStatus, Rejection, TrackBatch, ids_given_again, unpack
 
 log = logging.getLogger("radar_fusion.display")
 
@@ -53,6 +53,8 @@ stopped, or the bus between): the page says so and greys it, rather than show it
 MAX_EVENT_T_S = 1e10
 """Event times a frame may carry (UTC epoch s, until 2286): a TrackBatch or an alert
 beyond is refused (the page's clock cannot show it, and its alerts would outlive all)."""
+AGE_SLACK_S = 0.1
+"""A track's age in a frame is rounded to 0.1 s (tracks_frame): younger by more is another track."""
 INBOX_LIMIT = 10_000
 """Alerts, health and status messages waiting to be decoded; beyond, the oldest are dropped."""
 CALLSIGN_MAX_CHARS = 8
@@ -328,7 +330,7 @@ class Feed:
             key = f"{self.prefix}/fusion/tracks"
             if self._ok(frame, key) and self._current(frame, key):
                 assert isinstance(frame, dict)
-                if self._ids_given_again(frame):
+                if ids_given_again(self._ids_ages, frame["id"], frame["age_s"], AGE_SLACK_S):
                     # the daemon restarted without its state: its ids from 1 again, on other
                     # aircraft; the old alerts and the page's trails are not theirs
                     self.stream_restarts += 1
@@ -348,17 +350,6 @@ class Feed:
             self.sink("radars", json.dumps({"type": "radars", "status": self.radar_status}, separators=(",", ":")))
         if health is not None:
             self.sink("health", json.dumps({"type": "health", "health": health}, separators=(",", ":")))
-
-    def _ids_given_again(self, frame: dict[str, Any]) -> bool:
-        """Whether the track ids of the previous batch are younger tracks in this one, at
-        least half of those in both (as the safety nets' process.py judges it: one id can
-        go back within a stream, a track taking over an older one's id)."""
-        if self._ids_ages is None:
-            return False
-        before = dict(zip(*self._ids_ages, strict=True))
-        common = [(age, before[i]) for i, age in zip(frame["id"], frame["age_s"], strict=True) if i in before]
-        younger = sum(age < was - 0.1 for age, was in common)
-        return younger > 0 and 2 * younger >= len(common)
 
     def _count(self, counter: Counter[str], name: str) -> None:
         with self._cond:  # stats() copies the counters from another thread

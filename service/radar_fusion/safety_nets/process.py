@@ -50,6 +50,7 @@ import msgpack
 import numpy as np
 
 from ..geo.coordinates import SystemPlane
+from ..wire import ids_given_again
 from .nets import ALERT_KINDS, SafetyNets
 from .track_input import TrackBatchReader
 
@@ -57,7 +58,6 @@ if TYPE_CHECKING:
     import argparse
 
     from ..config import Settings
-    from ..engine.columns import TrackColumns
 
 log = logging.getLogger("radar_fusion.safety_nets")
 
@@ -69,7 +69,7 @@ the daemon judged them in process (a bound in batches, 8, dropped periods of the
 replay and changed its alerts)."""
 STREAM_RESTART_BATCHES = 3
 #: a track's age may read this much younger in a later batch (rounding) and still be the
-#: same track (:meth:`SafetyNetsProcess._ids_given_again`)
+#: same track (wire.ids_given_again)
 AGE_SLACK_S = 0.01
 """Consecutive out-of-order batches taken as a new tracks stream (see the module docstring)."""
 LINGER_S = 0.3
@@ -286,7 +286,9 @@ class SafetyNetsProcess:
             log.warning("a new tracks stream (t went back to %s): the open alerts end", columns.t_s)
             self.counters["stream_restarts"] += 1
             alerts += self.nets.restart(self.newest_t)
-        elif self.newest_t is not None and self._ids_given_again(columns):
+        elif self.newest_t is not None and ids_given_again(
+            self._ids_ages, columns.track_id, columns.age_s, AGE_SLACK_S
+        ):
             log.warning("a new tracks stream (its track ids were given to new tracks): the open alerts end")
             self.counters["stream_restarts"] += 1
             alerts += self.nets.restart(self.newest_t)
@@ -298,20 +300,6 @@ class SafetyNetsProcess:
             for alert in alerts:
                 alert["epoch"] = columns.epoch
         return alerts
-
-    def _ids_given_again(self, columns: TrackColumns) -> bool:
-        """Whether the track ids of the previous batch are younger tracks now, at least half
-        of those in both: the daemon restarted without its state and hands out ids from 1
-        again, with time moving on, so its open alerts, vertical-rate histories and
-        confirmations belong to other aircraft. Within one stream an id's age can go back
-        only for one track at a time (a track that takes over an older one's id keeps its
-        own start: an SSR aircraft's wild plot did it, and any one id flagged a restart)."""
-        if self._ids_ages is None:
-            return False
-        ids, ages = self._ids_ages
-        _, before, now = np.intersect1d(ids, columns.track_id, assume_unique=True, return_indices=True)
-        younger = int((columns.age_s[now] < ages[before] - AGE_SLACK_S).sum())
-        return younger > 0 and 2 * younger >= now.size
 
     def _reject(self, reason: str, detail: str) -> None:
         self.rejected[reason] += 1
