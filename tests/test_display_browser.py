@@ -18,6 +18,7 @@ they fail: there the browser is part of the environment.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
@@ -269,14 +270,11 @@ def _track_batch(t_s: float, period: int, age_s: float) -> bytes:
     return msgpack.packb({"v": 1, "t": t_s, "period": period, "tracks": tracks, "ended": []})
 
 
-def test_a_picture_no_longer_fed_is_shown_stale_not_live_also_after_a_reload(browser, scenario, free_port):
-    """The daemon stops: the page said "live" over the last picture for as long as its
-    WebSocket was open, and again after a reload (the server replays its latest frames).
-    Now, three periods of wall time without a TrackBatch, the header says NO TRACK DATA
-    and the picture is greyed; a batch with a clock beyond any event time does not break
-    the page; the next batch of a daemon restarted without its state is a new picture."""
-    base = settings_on_port(scenario / "config.toml", free_port)
-    settings = base.model_copy(update={"system": base.system.model_copy(update={"period_s": 1.0})})
+@contextlib.contextmanager
+def display_fed_by_hand(browser, settings):
+    """A display on a router of the test's own (no daemon: the test publishes the
+    TrackBatches), a page open on it: yields (sender on the tracks key, display, page, the
+    page's errors), and closes all three."""
     endpoint = settings.bus.listen[0]
     router = open_session(zenoh_config("router", listen=[endpoint]))
     display = DisplayServer(settings, port=0, zenoh_config=zenoh_config("client", connect=[endpoint]))
@@ -285,7 +283,23 @@ def test_a_picture_no_longer_fed_is_shown_stale_not_live_also_after_a_reload(bro
         display.start()
         page, errors = open_page(browser, display.url)
         time.sleep(0.5)  # the display's subscriptions reach the router
-        tracks = reliable_sender(router, "atc/fusion/tracks")
+        yield reliable_sender(router, "atc/fusion/tracks"), display, page, errors
+    finally:
+        if page is not None:
+            page.close()
+        display.stop()
+        router.close()
+
+
+def test_a_picture_no_longer_fed_is_shown_stale_not_live_also_after_a_reload(browser, scenario, free_port):
+    """The daemon stops: the page said "live" over the last picture for as long as its
+    WebSocket was open, and again after a reload (the server replays its latest frames).
+    Now, three periods of wall time without a TrackBatch, the header says NO TRACK DATA
+    and the picture is greyed; a batch with a clock beyond any event time does not break
+    the page; the next batch of a daemon restarted without its state is a new picture."""
+    base = settings_on_port(scenario / "config.toml", free_port)
+    settings = base.model_copy(update={"system": base.system.model_copy(update={"period_s": 1.0})})
+    with display_fed_by_hand(browser, settings) as (tracks, display, page, errors):
         t0 = 1.7e9
         for k in range(3):
             tracks.put(_track_batch(t0 + k, 100 + k, 600.0 + k))
@@ -310,11 +324,6 @@ def test_a_picture_no_longer_fed_is_shown_stale_not_live_also_after_a_reload(bro
         assert wait_until(lambda: dataset(page)["period"] == "140" and dataset(page)["stale"] == "false", 10)
         assert conn.text_content() == "live" and display.stats()["stream_restarts"] == 1
         assert errors == []
-    finally:
-        if page is not None:
-            page.close()
-        display.stop()
-        router.close()
 
 
 def test_the_labels_of_close_aircraft_are_placed_apart(browser, scenario, free_port):
@@ -322,27 +331,15 @@ def test_the_labels_of_close_aircraft_are_placed_apart(browser, scenario, free_p
     view takes them all: the second label goes where the first does not cover it (they
     were drawn one over the other)."""
     settings = settings_on_port(scenario / "config.toml", free_port)
-    endpoint = settings.bus.listen[0]
-    router = open_session(zenoh_config("router", listen=[endpoint]))
-    display = DisplayServer(settings, port=0, zenoh_config=zenoh_config("client", connect=[endpoint]))
-    page = None
-    try:
-        display.start()
-        page, errors = open_page(browser, display.url)
-        time.sleep(0.5)
+    with display_fed_by_hand(browser, settings) as (sender, _display, page, errors):
         tracks = msgpack.unpackb(_track_batch(1.7e9, 5, 60.0))["tracks"]
         third = dict(tracks[0], track_id=3, x_m=40_000.0, y_m=20_000.0)
         tracks[0].update(x_m=0.0, y_m=0.0)
         tracks[1].update(x_m=300.0, y_m=0.0)
         batch = {"v": 1, "t": 1.7e9, "period": 5, "tracks": [*tracks, third], "ended": []}
-        reliable_sender(router, "atc/fusion/tracks").put(msgpack.packb(batch))
+        sender.put(msgpack.packb(batch))
         assert wait_until(lambda: dataset(page).get("period") == "5" and "labelOverlaps" in dataset(page), 10)
         assert dataset(page)["labelOverlaps"] == "0" and errors == []
-    finally:
-        if page is not None:
-            page.close()
-        display.stop()
-        router.close()
 
 
 def test_frame_time_at_4000_tracks(browser, tmp_path, free_port, record_property):
