@@ -869,9 +869,7 @@ def cluster_sensitivity(
     wj = np.zeros((n_clusters, 2, n_slots, n_bias))
     for i in range(n):
         c, k = labels[i], slot[i]
-        a, b, d = cov_m2[i, 0, 0], cov_m2[i, 0, 1], cov_m2[i, 1, 1]
-        det = a * d - b * b
-        w00, w01, w11 = d / det, -b / det, a / det
+        _, w00, w01, w11 = _inv_sym_2x2(cov_m2[i, 0, 0], cov_m2[i, 0, 1], cov_m2[i, 1, 1])
         s[c, 0, 0] += w00
         s[c, 0, 1] += w01
         s[c, 1, 1] += w11
@@ -881,12 +879,10 @@ def cluster_sensitivity(
                 wj[c, 0, k, j] += w00 * j0 + w01 * j1
                 wj[c, 1, k, j] += w01 * j0 + w11 * j1
     for c in range(n_clusters):
-        a, b, d = s[c, 0, 0], s[c, 0, 1], s[c, 1, 1]
-        det = a * d - b * b
-        if not (det > 0.0 and a > 0.0 and math.isfinite(det)):
+        ok, i00, i01, i11 = _inv_sym_2x2(s[c, 0, 0], s[c, 0, 1], s[c, 1, 1])
+        if not ok:
             wj[c] = 0.0  # an empty cluster, or a covariance that is not one: no sensitivity known
             continue
-        i00, i01, i11 = d / det, -b / det, a / det
         for k in range(n_slots):
             for j in range(n_bias):
                 u, v = wj[c, 0, k, j], wj[c, 1, k, j]
@@ -895,6 +891,14 @@ def cluster_sensitivity(
                 wj[c, 0, k, j] = f0 if finite else 0.0
                 wj[c, 1, k, j] = f1 if finite else 0.0
     return wj, radars
+
+
+@compiled
+def _inv_sym_2x2(a: float, b: float, d: float) -> tuple[bool, float, float, float]:
+    """The inverse (i00, i01, i11) of the symmetric 2x2 [[a, b], [b, d]], and whether it is
+    a covariance's (det > 0, a > 0, finite): the compiled loops' one 2x2 inverse."""
+    det = a * d - b * b
+    return det > 0.0 and a > 0.0 and math.isfinite(det), d / det, -b / det, a / det
 
 
 @compiled
@@ -946,11 +950,9 @@ def update_sensitivity(
             p00 += w * cov_post[t, j, 0, 0]
             p01 += w * cov_post[t, j, 0, 3]
             p11 += w * cov_post[t, j, 3, 3]
-        a, b, d = cov_meas[i, 0, 0], cov_meas[i, 0, 1], cov_meas[i, 1, 1]
-        det = a * d - b * b
-        if not (det > 0.0 and a > 0.0 and math.isfinite(det)):
+        ok, r00, r01, r11 = _inv_sym_2x2(cov_meas[i, 0, 0], cov_meas[i, 0, 1], cov_meas[i, 1, 1])
+        if not ok:
             continue  # no gain known: the track keeps its sensitivity
-        r00, r01, r11 = d / det, -b / det, a / det
         k00, k01 = p00 * r00 + p01 * r01, p00 * r01 + p01 * r11
         k10, k11 = p01 * r00 + p11 * r01, p01 * r01 + p11 * r11
         if not (math.isfinite(k00) and math.isfinite(k01) and math.isfinite(k10) and math.isfinite(k11)):
