@@ -65,13 +65,18 @@ class RecordingWriter:
         self.close()
 
 
-def read_header(path: str | Path) -> dict[str, Any]:
-    with _open(Path(path), "r") as f:
-        unpacker = msgpack.Unpacker(f, raw=False, max_bin_len=1 << 26)
-        header = next(unpacker, None)  # an empty file: not a recording
+def _reader(f: BinaryIO | gzip.GzipFile, path: str | Path) -> tuple[msgpack.Unpacker, dict[str, Any]]:
+    """An unpacker over an open recording and its header; ValueError when it is not one."""
+    unpacker = msgpack.Unpacker(f, raw=False, max_bin_len=1 << 26)
+    header = next(unpacker, None)  # an empty file: not a recording
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ValueError(f"{path}: not a radar-fusion recording")
-    return header
+    return unpacker, header
+
+
+def read_header(path: str | Path) -> dict[str, Any]:
+    with _open(Path(path), "r") as f:
+        return _reader(f, path)[1]
 
 
 def read_recording(path: str | Path) -> Iterator[Record]:
@@ -84,10 +89,7 @@ def read_recording(path: str | Path) -> Iterator[Record]:
     raises ValueError."""
     n = 0
     with _open(Path(path), "r") as f:
-        unpacker = msgpack.Unpacker(f, raw=False, max_bin_len=1 << 26)
-        header = next(unpacker, None)
-        if not isinstance(header, dict) or header.get("format") != FORMAT:
-            raise ValueError(f"{path}: not a radar-fusion recording")
+        unpacker, _ = _reader(f, path)
         for item in unpacker:
             if not (isinstance(item, list | tuple) and len(item) == 3 and isinstance(item[1], str)):
                 raise ValueError(f"{path}: record {n + 1} is not (time, key, payload)")
