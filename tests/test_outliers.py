@@ -252,6 +252,28 @@ def test_live_gate_accepts_coordinated_turn():
         assert _feed(LiveOutlierGate(), 9, t, r, az).all()
 
 
+def test_live_gate_takes_the_plot_after_a_long_silence_whatever_the_aircraft_did():
+    """A radar track silent 40 s (the antenna's cone of silence; real data: Jahorina's
+    4CA9F6 came out of it 42 s later) while the aircraft turned 90° at 2.5°/s: its next plot
+    lies some 6 km off the window's line, and is taken (the window restarts after
+    max_gap_s, 30 s). With a 60 s limit it was refused; and within 30 s a wild plot still is."""
+    t, r, az = _track(60, turn_deg_s=2.5, turn=(84.0, 120.0), seed=3)
+    keep = (t < 84.0) | (t >= 120.0)
+    t, r, az = t[keep], r[keep], az[keep]
+    first_after = int(np.flatnonzero(t >= 120.0)[0])
+    assert t[first_after] - t[first_after - 1] == 40.0
+    assert _feed(LiveOutlierGate(), 1, t, r, az).all()
+    assert not _feed(LiveOutlierGate(max_gap_s=60.0), 1, t, r, az)[first_after]
+    # a wild plot 3 km off after 16 s of silence (three missed scans) is still refused
+    t2, r2, az2 = _track(40, seed=4)
+    keep2 = (t2 < 60.0) | (t2 >= 76.0)
+    t2, r2, az2 = t2[keep2], r2[keep2].copy(), az2[keep2]
+    after = int(np.flatnonzero(t2 >= 76.0)[0])
+    r2[after] += 3000.0
+    acc = _feed(LiveOutlierGate(), 2, t2, r2, az2)
+    assert not acc[after] and acc[np.arange(t2.size) != after].all()
+
+
 def test_live_gate_wild_plots_in_a_turn():
     """A 12 s radar's track turning at 1.5°/s from its fourth scan, 20 noise draws (issue 15
     item 7; seen at 1,000x10 with 3 % wild plots: an aircraft's track coasted out):
