@@ -910,6 +910,44 @@ def test_jahorina_through_engine_one_track_per_aircraft():
     assert rms_track < 3.0 and rms_speed < 8.0
 
 
+def test_jahorina_aircraft_over_the_antenna_keeps_its_track_and_its_speed():
+    """Real data: Mode S 4CA9F6 at FL360 flies over the Jahorina antenna. Its plots close in
+    to 10 km slant range (ground range about 4 km, elevation 65°) over 37 s, the antenna's
+    cone of silence hides it for 42 s, and it comes out 150° of azimuth further on. Mode C
+    is pressure altitude: taken as the height with 60 m of error, those plots put it at 139
+    instead of its own 205 m/s (BDS 5,0), its track refused those reports, and the plot after
+    the cone was refused as wild (the live gate's window, 60 s long, drew its line through
+    it): the aircraft had no track for its last 25 s. Now the height's error grows with the
+    height (coordinates.MODE_C_HEIGHT_SIGMA_FRACTION) and the live gate restarts a window
+    after 30 s of silence. Measured: speed 179-210 m/s while the plots came (before: 139-214),
+    the track's id back on the plot after the cone (tracks_reacquired), no plot refused as
+    wild in the whole recording."""
+    from radar_fusion.engine import Engine
+    from radar_fusion.tools.replay import replay_into_engine
+
+    need(JAHORINA)
+    settings = example_settings({"jahorina"})
+    engine = Engine(settings)
+    _bridge, messages, _ = bridge_file(JAHORINA, settings, DAY)
+    outputs = replay_into_engine(engine, [(0.0, m.key, m.payload) for m in messages])
+    own_speed = [s[1] for s in bds50_reference(JAHORINA, day=DAY)["4CA9F6"]]
+    assert min(own_speed) > 204.0 and max(own_speed) < 206.0  # it flies straight and level
+    seen = [
+        (o.track_batch["t"], tr)
+        for o in outputs
+        for tr in o.track_batch["tracks"]
+        if tr["mode_s"] == "4CA9F6" and tr["status"] != "tentative"
+    ]
+    assert {tr["track_id"] for _t, tr in seen} == {seen[0][1]["track_id"]}  # one id throughout
+    assert seen[-1][0] == outputs[-1].track_batch["t"]  # and a track at the end: after the cone
+    assert engine.counters["tracks_reacquired"] == 1 and engine.counters["plots_wild"] == 0
+    k = float(engine.plane.scale_factor(seen[0][1]["lat_deg"], seen[0][1]["lon_deg"]))
+    # its speed in the batches its plots reached, from its third update to the cone
+    closing = [math.hypot(tr["vx_mps"], tr["vy_mps"]) / k for _t, tr in seen if tr["updates"] >= 3 and tr["sources"]]
+    assert len(closing) >= 5
+    assert min(closing) > 205.0 - 30.0 and max(closing) < 205.0 + 10.0, closing
+
+
 def free_tcp_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -253,8 +253,8 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
     simulator's σ); predicted to every settled period time:
     the same RMS as measurement_floor's, with and without the reports; the reports bring it
     well below the plots' own bound."""
-    from radar_fusion.geo.air_data import indicated_airspeed_mps, true_airspeed_mps
-    from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
+    from radar_fusion.geo.air_data import indicated_airspeed_mps, pressure_altitude_of_height_m, true_airspeed_mps
+    from radar_fusion.geo.coordinates import mode_c_height_m, polar_to_plane
     from radar_fusion.geo.units import M_PER_FT
     from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
 
@@ -275,11 +275,13 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
         radar[keep],
         cat("range_m")[keep],
         cat("azimuth_deg")[keep],
-        flight_level_to_altitude_m(cat("fl")[keep]),
+        mode_c_height_m(cat("fl")[keep], *settings.tracking.mode_c_met()),
         assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT,
+        sigma_known_altitude_fraction=settings.tracking.mode_c_sigma_fraction(),
         return_valid=True,
     )
     assert valid.all()
+    assert settings.tracking.mode_c_met() == (scenario.atmosphere.temperature_deviation_k, scenario.atmosphere.qnh_hpa)
     order = np.argsort(t, kind="stable")
     t, gs, heading, cov = t[order], gs[order], heading[order], cov[order]
     assert np.all(np.diff(t) < 60.0)  # no gap: one track throughout
@@ -350,6 +352,7 @@ def test_pcrb_with_velocity_reports_against_a_kalman_filter_of_the_same_measurem
                 w = np.array([u[1], -u[0]])
                 H[:, 8] = tas * w  # the heading error turns the air vector to the right
                 dev_k = scenario.atmosphere.temperature_deviation_k
+                alt_m = float(pressure_altitude_of_height_m(alt_m, dev_k, scenario.atmosphere.qnh_hpa))
                 ias = float(indicated_airspeed_mps(tas, alt_m, dev_k))
                 # dTAS/dIAS by a wider difference than the bound's (the same slope to 1e-6)
                 slope = (true_airspeed_mps(ias + 2.0, alt_m, dev_k) - true_airspeed_mps(ias - 2.0, alt_m, dev_k)) / 4.0
@@ -389,7 +392,7 @@ def test_pcrb_with_the_radars_offsets_unknown_against_a_joint_kalman_filter():
     own bound back, and unknown ones raise it."""
     import dataclasses
 
-    from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
+    from radar_fusion.geo.coordinates import mode_c_height_m, polar_to_plane
     from radar_fusion.geo.units import M_PER_FT
     from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
 
@@ -406,9 +409,12 @@ def test_pcrb_with_the_radars_offsets_unknown_against_a_joint_kalman_filter():
     radar = np.concatenate([np.full(len(c), c.radar_index) for c in cols])
     keep = (cat("target_index") >= 0) & ~cat("wild")
     t, tgt, rng_m, az_deg = cat("t_s")[keep], cat("target_index")[keep], cat("range_m")[keep], cat("azimuth_deg")[keep]
-    radar, alt_m = radar[keep], flight_level_to_altitude_m(cat("fl")[keep])
+    radar, alt_m = radar[keep], mode_c_height_m(cat("fl")[keep], *settings.tracking.mode_c_met())
     assumed_m = settings.tracking.assumed_altitude_ft * M_PER_FT
-    convert = lambda r, a: polar_to_plane(sim.plane, sim.sites, radar, r, a, alt_m, assumed_altitude_m=assumed_m)
+    fraction = settings.tracking.mode_c_sigma_fraction()
+    convert = lambda r, a: polar_to_plane(
+        sim.plane, sim.sites, radar, r, a, alt_m, assumed_altitude_m=assumed_m, sigma_known_altitude_fraction=fraction
+    )
     x, y, cov, _g = convert(rng_m, az_deg)
     # J by finite differences: a metre of range, a thousandth of a degree of azimuth
     dr, da = convert(rng_m + 1.0, az_deg)[:2], convert(rng_m, az_deg + 1e-3)[:2]
@@ -513,7 +519,7 @@ def test_the_bounds_air_report_model_matches_the_simulated_reports(turn_rate_dps
     turning at 2°/s: the heading residual's mean near zero and its variance within 15 % of
     the model's; the IAS residual (against the truth's TAS made indicated in the day's
     temperature) likewise."""
-    from radar_fusion.geo.air_data import indicated_airspeed_mps
+    from radar_fusion.geo.air_data import indicated_airspeed_mps, pressure_altitude_of_height_m
 
     scenario, sim, _settings = _steady_flight(4, 2, 1500.0, 2, turn_rate_dps)
     p = sim.all_plots()
@@ -540,7 +546,11 @@ def test_the_bounds_air_report_model_matches_the_simulated_reports(turn_rate_dps
     tas = np.hypot(air_e, air_n)
     true_heading = np.degrees(np.arctan2(air_e, air_n)) + own[:, 2]
     d_heading = (p.magnetic_heading_deg[has] - true_heading + 180.0) % 360.0 - 180.0
-    d_ias = p.indicated_airspeed_mps[has] - indicated_airspeed_mps(tas, alt_m, atm.temperature_deviation_k)
+    # the IAS of the TAS at the pressure altitude of the truth's height, in the aircraft's own
+    # air (the day's temperature deviation and its own departure from it)
+    air_dev_k = atm.temperature_deviation_k + own[:, 3]
+    pressure_alt_m = pressure_altitude_of_height_m(alt_m, air_dev_k, atm.qnh_hpa)
+    d_ias = p.indicated_airspeed_mps[has] - indicated_airspeed_mps(tas, pressure_alt_m, air_dev_k)
     rate_rad_s = math.radians(turn_rate_dps)
     var_heading = rates.sigma_heading_deg**2 + (90.0 / 512.0) ** 2 / 12.0
     var_heading += math.degrees(rate_rad_s) ** 2 * (hi - lo) ** 2 / 12.0  # the age's spread in a turn
@@ -548,7 +558,7 @@ def test_the_bounds_air_report_model_matches_the_simulated_reports(turn_rate_dps
     # in a turn with wind the airspeed changes too (the turn's acceleration, across the ground
     # track, has a part along the air vector): the age's spread times it, in indicated terms
     along = speed * rate_rad_s * np.sin(track - np.arctan2(air_e, air_n))
-    ias_per_tas = indicated_airspeed_mps(tas, alt_m, atm.temperature_deviation_k) / tas
+    ias_per_tas = indicated_airspeed_mps(tas, pressure_alt_m, air_dev_k) / tas
     var_ias += float(np.mean((ias_per_tas * along) ** 2)) * (hi - lo) ** 2 / 12.0
     assert abs(np.mean(d_heading)) < 0.05 + 0.1 * math.sqrt(var_heading)
     assert np.var(d_heading) == pytest.approx(var_heading, rel=0.15)

@@ -307,7 +307,9 @@ def test_covariance_monte_carlo_site_at_center_100nm():
     plane = SystemPlane(CENTER_LAT, CENTER_LON)
     sites = RadarSites([CENTER_LAT], [CENTER_LON], [100.0], [50.0], [0.1])
     rho, az, h = 100 * NM, 30.0, 9000.0
-    _, _, cov, _ = polar_to_plane(plane, sites, [0], [rho], [az], [h])
+    # the draws' height is exact: the Mode C height's error is left out (tested on its own,
+    # test_covariance_monte_carlo_mode_c_height_error_near_the_zenith)
+    _, _, cov, _ = polar_to_plane(plane, sites, [0], [rho], [az], [h], sigma_known_altitude_fraction=0.0)
     emp = _monte_carlo(sites, plane, rho, az, h, 20000, seed=11)
     np.testing.assert_allclose(whitened(emp, cov[0]), np.eye(2), atol=0.05)
 
@@ -316,7 +318,7 @@ def test_covariance_monte_carlo_200nm_site_300km_off_center_rotation_matters():
     plane = SystemPlane(CENTER_LAT, CENTER_LON)
     sites = site_300km_from_center()
     rho, az, h = 200 * NM, 20.0, 11000.0
-    x, y, cov, _ = polar_to_plane(plane, sites, [0], [rho], [az], [h])
+    x, y, cov, _ = polar_to_plane(plane, sites, [0], [rho], [az], [h], sigma_known_altitude_fraction=0.0)
     emp = _monte_carlo(sites, plane, rho, az, h, 20000, seed=12)
     np.testing.assert_allclose(whitened(emp, cov[0]), np.eye(2), atol=0.05)
 
@@ -903,6 +905,70 @@ def test_true_airspeed_of_an_indicated_one():
     for dev_k in (0.0, -15.0, 20.0):
         tas = ad.true_airspeed_mps(cas, fl350, dev_k)
         np.testing.assert_allclose(ad.indicated_airspeed_mps(tas, fl350, dev_k), cas, rtol=1e-10)
+
+
+def test_height_of_a_pressure_altitude_against_the_hypsometric_integral():
+    """A Mode C level's height above sea level on a non-ISA day, against the hypsometric
+    equation integrated numerically over pressure: z = ∫ R T(p) / (g p) dp from the level's
+    pressure up to QNH, with T(p) = T_isa + ΔT at the pressure altitude of p (ISA's inverse,
+    written here from Doc 7488's two layers). Below and above the tropopause, warm and cold
+    days, QNH off standard; and the inverse gives the level back."""
+    from scipy.integrate import quad
+
+    from radar_fusion.geo import air_data as ad
+
+    R, G, T0, L, P0 = 287.05287, 9.80665, 288.15, -0.0065, 101_325.0
+    T11 = T0 + L * 11_000.0
+    P11 = P0 * (T11 / T0) ** (-G / (L * R))
+
+    def isa_h_of_p(p):
+        if p >= P11:
+            return (T0 / L) * ((p / P0) ** (-L * R / G) - 1.0)
+        return 11_000.0 - R * T11 / G * math.log(p / P11)
+
+    def isa_p_of_h(h):
+        if h < 11_000.0:
+            return P0 * ((T0 + L * h) / T0) ** (-G / (L * R))
+        return P11 * math.exp(-G * (h - 11_000.0) / (R * T11))
+
+    def thickness_m(p_low_pa, p_high_pa, dev_k):  # the hypsometric equation, over pressure
+        def t_of_p(p):
+            return max(T0 + L * min(isa_h_of_p(p), 11_000.0), T11) + dev_k
+
+        return quad(lambda p: R * t_of_p(p) / (G * p), p_low_pa, p_high_pa, limit=200)[0]
+
+    for dev_k, qnh_hpa in ((0.0, 1013.25), (15.0, 1013.25), (-20.0, 1013.25), (8.0, 1031.0), (-5.0, 990.0)):
+        for fl in (10.0, 100.0, 300.0, 360.0, 450.0):
+            h = fl * 30.48
+            want = thickness_m(isa_p_of_h(h), qnh_hpa * 100.0, dev_k)
+            got = float(ad.height_of_pressure_altitude_m(h, dev_k, qnh_hpa))
+            assert got == pytest.approx(want, abs=0.05), (dev_k, qnh_hpa, fl)
+            assert float(ad.pressure_altitude_of_height_m(got, dev_k, qnh_hpa)) == pytest.approx(h, abs=1e-6)
+    # the figures the code's comments give
+    assert float(ad.height_of_pressure_altitude_m(360 * 30.48, 15.0)) - 360 * 30.48 == pytest.approx(656, abs=1)
+    assert float(ad.height_of_pressure_altitude_m(300 * 30.48, 5.0)) - 300 * 30.48 == pytest.approx(178, abs=1)
+
+
+def test_covariance_monte_carlo_mode_c_height_error_near_the_zenith():
+    """A plot with Mode C at FL360 8 km (ground) from the antenna: its true height lies
+    off the Mode C one by hypot(60 m, 3 % of it) (the pressure altitude on a day off ISA,
+    coordinates.MODE_C_HEIGHT_SIGMA_FRACTION); the empirical covariance of the positions the
+    independent converter gives, the true slant range measured and the Mode C height used,
+    whitens to the identity with polar_to_plane's. The height term is most of it there: with
+    60 m alone the along-range variance is several times too small."""
+    from radar_fusion.geo.coordinates import MODE_C_HEIGHT_SIGMA_FRACTION
+
+    plane = SystemPlane(CENTER_LAT, CENTER_LON)
+    sites = RadarSites(*[[v] for v in (51.0, 7.0, 1900.0, 20.0, 0.05)])
+    h_mode_c = 360 * 30.48
+    rho = float(ref_slant_from_ground(ref_radius(51.0), 1900.0, h_mode_c, 8000.0))
+    az = 150.0
+    sigma_h = math.hypot(60.0, MODE_C_HEIGHT_SIGMA_FRACTION * h_mode_c)
+    _, _, cov, _ = polar_to_plane(plane, sites, [0], [rho], [az], [h_mode_c])
+    emp = _monte_carlo(sites, plane, rho, az, h_mode_c, 20000, seed=17, h_used=h_mode_c, sigma_h=sigma_h)
+    np.testing.assert_allclose(whitened(emp, cov[0]), np.eye(2), atol=0.06)
+    _, _, cov_60, _ = polar_to_plane(plane, sites, [0], [rho], [az], [h_mode_c], sigma_known_altitude_fraction=0.0)
+    assert np.trace(emp) > 5.0 * np.trace(cov_60[0])
 
 
 def test_the_velocity_frame_is_the_exact_factors_but_for_the_gauss_maps_own_scale():

@@ -301,6 +301,9 @@ def test_the_innovations_leave_the_clock_offset_common_to_all_radars_alone(demo,
         engine = Engine(settings_from_dict(cfg))
         batches = [o.track_batch for o in replay_into_engine(engine, simulation.messages)]
         result[on] = ev.evaluate(batches, truth).pos_rms_m
-        assert np.all(np.abs(engine.registration.bias[:, 3]) < 0.03), engine.registration.bias[:, 3]
+        # the common part stays near zero; each radar's, within a few hundredths of a second
+        # (with each aircraft's own air, 1 % of its height in its Mode C height: up to 0.039 s)
+        offsets_s = engine.registration.bias[:, 3]
+        assert abs(np.mean(offsets_s)) < 0.01 and np.all(np.abs(offsets_s) < 0.05), offsets_s
     print(f"{tracking_filter}: position RMS without the innovations {result[False]:.1f} m, with {result[True]:.1f} m")
     assert result[True] < 1.02 * result[False]

@@ -53,6 +53,8 @@ def settings():
             ],
             "outliers": {"enabled": False},
             "life_cycle": {"confirm_updates": 3},
+            # plot_of gives the heights exactly: no 3 % of the height as their error
+            "tracking": {"mode_c_height_sigma_fraction": 0.0},
         }
     )
 

@@ -5,7 +5,7 @@ tracker, the way its documentation composes one:
 
 * Measurements: every plot is converted to the daemon's system plane with the same code
   and the same per-plot covariance as the engine (:func:`radar_fusion.geo.coordinates.polar_to_plane`,
-  Mode C via :func:`~radar_fusion.geo.coordinates.flight_level_to_altitude_m`, the configured
+  Mode C via :func:`~radar_fusion.geo.coordinates.mode_c_height_m` (with the configured met), the configured
   height for plots without Mode C); each :class:`~stonesoup.types.detection.Detection`
   carries its own ``LinearGaussian`` measurement model (H picks x and y, R = the plot's
   2×2 covariance). Plots beyond a radar's ``max_range_m`` are dropped as the engine does.
@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from radar_fusion.geo.coordinates import RadarSites, SystemPlane, flight_level_to_altitude_m, polar_to_plane
+from radar_fusion.geo.coordinates import RadarSites, SystemPlane, mode_c_height_m, polar_to_plane
 from radar_fusion.geo.units import M_PER_FT
 
 _EPOCH = _dt.datetime(1970, 1, 1)
@@ -142,8 +142,9 @@ def convert_plots(settings, plot_batches: Iterable[Any]) -> ConvertedPlots:
             np.full(keep.size, i),
             b.range_m[keep],
             b.azimuth_deg[keep],
-            flight_level_to_altitude_m(b.fl[keep]),
+            mode_c_height_m(b.fl[keep], *settings.tracking.mode_c_met()),
             assumed_altitude_m=assumed_altitude_m,
+            sigma_known_altitude_fraction=settings.tracking.mode_c_sigma_fraction(),
             return_valid=True,
         )
         parts.append((b.t_s[keep][valid], x[valid], y[valid], cov[valid], np.full(int(valid.sum()), i)))

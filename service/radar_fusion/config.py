@@ -27,6 +27,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from .geo.coordinates import MODE_C_HEIGHT_SIGMA_FRACTION, MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET
 from .safety_nets.config import SafetyNetsConfig
 from .tracking.clustering import ClusteringParams
 from .tracking.imm import IMMParams
@@ -270,6 +271,43 @@ class TrackingConfig(_Section):
         description="height assumed for plots without Mode C, ft (their slant range is converted to "
         "ground range at it). Default 10,000 ft, the middle of terminal-area traffic",
     )
+    temperature_deviation_k: float | None = Field(
+        None,
+        ge=-50.0,
+        le=50.0,
+        description="the day's temperature less ISA's, K, from the met office. With it (or qnh_hpa) a Mode C "
+        "level is converted to its height by the hypsometric equation (geo.coordinates.mode_c_height_m) and "
+        "its height error is 1 % of it; without either, the level is taken as the height with 3 % of error "
+        "(FL360 lies 656 m higher at ISA+15: near an antenna that error is ground range). Default none",
+    )
+    qnh_hpa: float | None = Field(
+        None,
+        ge=900.0,
+        le=1100.0,
+        description="the day's sea-level pressure, hPa (QNH), as temperature_deviation_k: every level lies "
+        "8 m higher per hPa above 1013.25. Default none",
+    )
+
+    mode_c_height_sigma_fraction: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.2,
+        description="the Mode C height's 1-sigma error as a fraction of the height, beside its 60 m. Default "
+        "none: 3 % without the day's met (temperature_deviation_k, qnh_hpa), 1 % with it; 0 where the heights "
+        "are exact (a test's plots)",
+    )
+
+    def mode_c_met(self) -> tuple[float | None, float | None]:
+        """(temperature_deviation_k, qnh_hpa) for geo.coordinates.mode_c_height_m."""
+        return self.temperature_deviation_k, self.qnh_hpa
+
+    def mode_c_sigma_fraction(self) -> float:
+        """The Mode C height's 1-sigma error as a fraction of the height (polar_to_plane)."""
+        if self.mode_c_height_sigma_fraction is not None:
+            return self.mode_c_height_sigma_fraction
+        if self.temperature_deviation_k is None and self.qnh_hpa is None:
+            return MODE_C_HEIGHT_SIGMA_FRACTION
+        return MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET
 
 
 #: the farthest a radar may be from the system centre: the world-scale case's disc is 1,260 km

@@ -186,8 +186,8 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     """
     import numpy as np
 
-    from radar_fusion.geo.air_data import indicated_airspeed_mps, true_airspeed_mps
-    from radar_fusion.geo.coordinates import flight_level_to_altitude_m, polar_to_plane
+    from radar_fusion.geo.air_data import indicated_airspeed_mps, pressure_altitude_of_height_m, true_airspeed_mps
+    from radar_fusion.geo.coordinates import mode_c_height_m, polar_to_plane
     from radar_fusion.geo.units import M_PER_FT
     from radar_fusion.tools.evaluate import EvalParams
     from radar_fusion.tracking.initiation import unknown_velocity_var_m2ps2
@@ -212,8 +212,9 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
         radar,
         rng,
         az,
-        flight_level_to_altitude_m(fl),
+        mode_c_height_m(fl, *settings.tracking.mode_c_met()),
         assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT,
+        sigma_known_altitude_fraction=settings.tracking.mode_c_sigma_fraction(),
         return_valid=True,
     )
     t, x, y, cov, tgt = t[valid], x[valid], y[valid], cov[valid], tgt[valid]
@@ -304,7 +305,10 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     air = np.stack([ta["vx_mps"] - wind_x, ta["vy_mps"] - wind_y], axis=1)
     tas = np.maximum(np.hypot(air[:, 0], air[:, 1]), 1e-3)
     dev_k = atmosphere.temperature_deviation_k
-    # the IAS's noise along the air vector: times dTAS/dIAS there (a central difference)
+    # the IAS's noise along the air vector: times dTAS/dIAS there (a central difference), at
+    # the pressure altitude of the truth's height on the day (each aircraft's own air, a few
+    # kelvin off the day's, makes its TAS 0.4 % off: left out, a slightly lower bound)
+    alt_a = pressure_altitude_of_height_m(alt_a, dev_k, atmosphere.qnh_hpa)
     ias_a = indicated_airspeed_mps(tas, alt_a, dev_k)
     tas_per_ias = true_airspeed_mps(ias_a + 0.5, alt_a, dev_k) - true_airspeed_mps(ias_a - 0.5, alt_a, dev_k)
     var_a_along = tas_per_ias**2 * (rates.sigma_ias_mps**2 + kt_mps**2 / 12.0)
@@ -403,7 +407,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
             radar,
             rng,
             az,
-            flight_level_to_altitude_m(fl),
+            mode_c_height_m(fl, *settings.tracking.mode_c_met()),
             x,
             y,
             assumed_altitude_m=settings.tracking.assumed_altitude_ft * M_PER_FT,

@@ -44,7 +44,8 @@ def _toml_value(v: Any) -> str:
 
 def config_toml(scenario: Scenario) -> str:
     """A daemon configuration (DESIGN.md §3) for this scenario: the radars as the daemon
-    knows them (site, accuracy, rotation; not their biases, which it cannot know)."""
+    knows them (site, accuracy, rotation; not their biases, which it cannot know), and the
+    day's temperature and QNH (an ANSP's met office gives them; Mode C is pressure altitude)."""
     lines = [
         f"# radar-fusion daemon configuration for simulated scenario {scenario.name!r} (seed {scenario.seed})",
         "[system]",
@@ -57,6 +58,11 @@ def config_toml(scenario: Scenario) -> str:
         'listen = ["tcp/127.0.0.1:7447"]',
         "connect = []",
         'prefix = "atc"',
+        "",
+        "[tracking]",
+        "# the simulated day's temperature and QNH, as a met office gives them: Mode C is pressure altitude",
+        f"temperature_deviation_k = {_toml_value(float(scenario.atmosphere.temperature_deviation_k))}",
+        f"qnh_hpa = {_toml_value(float(scenario.atmosphere.qnh_hpa))}",
     ]
     for spec in scenario.radars:
         lines += ["", "[[radars]]"]

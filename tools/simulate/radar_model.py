@@ -21,7 +21,12 @@ N(0, sigma_azimuth_deg)`` (noise-free rho/az from :func:`coordinates.geodetic_to
 
 Report kind and identity: a Mode S target seen by a Mode S radar gives ``modes`` plots
 (Mode S address, Mode 3/A, Mode C quantised to 25 ft when the target reports 25 ft,
-else 100 ft); a transponder seen by a radar with a primary gives ``cmb`` when the
+else 100 ft; Mode C is the pressure altitude of the truth's height on the scenario's day,
+``Atmosphere.temperature_deviation_k`` off ISA with ``Atmosphere.qnh_hpa``, geo.air_data:
+FL300 is 178 m below the truth's height at ISA+5; the daemon is told the day's figures
+(files.config_toml), not each aircraft's own air, ``local_temperature_sigma_k`` off them,
+whose 1 % of the height its plot covariance carries,
+coordinates.MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET); a transponder seen by a radar with a primary gives ``cmb`` when the
 primary also detected it (probability ``pd_psr``), else ``ssr``; a target without a
 transponder, or any target seen by a primary-only radar, gives ``psr`` plots (no
 identity, no flight level). Mode C is present on a plot with probability ``p_mode_c``
@@ -46,7 +51,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from radar_fusion import wire
-from radar_fusion.geo.air_data import indicated_airspeed_mps
+from radar_fusion.geo.air_data import indicated_airspeed_mps, pressure_altitude_of_height_m
 from radar_fusion.geo.coordinates import RadarSites, SystemPlane, gaussian_earth_radius_m, geodetic_to_polar
 from radar_fusion.geo.units import M_PER_FT, MPS_PER_KT
 from radar_fusion.tracking.coordinated_turn import bank_of_turn_deg
@@ -225,7 +230,9 @@ def _air_reports(
     air_n = speed * np.cos(np.radians(track_deg)) - wind_n - own[:, 1]
     heading = np.degrees(np.arctan2(air_e, air_n)) + own[:, 2]
     heading += rng.normal(0.0, rates.sigma_heading_deg, carry.size)
-    ias = indicated_airspeed_mps(np.hypot(air_e, air_n), alt_m, atmosphere.temperature_deviation_k)
+    air_dev_k = atmosphere.temperature_deviation_k + own[:, 3]  # the air the aircraft flies in
+    pressure_alt_m = pressure_altitude_of_height_m(alt_m, air_dev_k, atmosphere.qnh_hpa)
+    ias = indicated_airspeed_mps(np.hypot(air_e, air_n), pressure_alt_m, air_dev_k)
     ias += rng.normal(0.0, rates.sigma_ias_mps, carry.size)
     heading_out[carry] = np.mod(np.round(heading * 512.0 / 90.0), 2048.0) * 90.0 / 512.0
     ias_out[carry] = np.clip(np.round(ias / MPS_PER_KT), 1.0, 1023.0) * MPS_PER_KT
@@ -326,7 +333,10 @@ def radar_plots(
     mode_s = np.where(kind == KIND_MODES, tt.mode_s[tgt], -1)
     quantum_ft = np.where((kind == KIND_MODES) & tt.q25[tgt], 25.0, 100.0)
     has_fl = secondary & tt.mode_c[tgt] & (rng.random(m) < rates.p_mode_c)
-    fl = np.where(has_fl, np.round(c["alt"] / M_PER_FT / quantum_ft) * quantum_ft / 100.0, np.nan)
+    atmosphere: Atmosphere = sim_ctx["atmosphere"]
+    air_dev_k = atmosphere.temperature_deviation_k + sim_ctx["aircraft_air_errors"][tgt, 3]
+    pressure_alt_m = pressure_altitude_of_height_m(c["alt"], air_dev_k, atmosphere.qnh_hpa)
+    fl = np.where(has_fl, np.round(pressure_alt_m / M_PER_FT / quantum_ft) * quantum_ft / 100.0, np.nan)
     track_numbers = rng.permutation(max(4095, n))[:n].astype(np.int64) + 1
     track_no = track_numbers[tgt] if n else np.zeros(0, np.int64)
 
@@ -348,7 +358,6 @@ def radar_plots(
     roll_deg, dap = _roll_reports(traj, tgt, c["t"], kind == KIND_MODES, rates, dap_rng)
     ground_speed_mps, track_angle_deg = _velocity_reports(traj, plane, tgt, c["t"], dap, rates, dap_rng)
     # BDS 6,0: heading and airspeed, from a second spawned generator
-    atmosphere: Atmosphere = sim_ctx["atmosphere"]
     magnetic_heading_deg, ias_mps = _air_reports(
         traj, plane, tgt, c["t"], kind == KIND_MODES, rates, atmosphere, sim_ctx["aircraft_air_errors"],
         rng.spawn(1)[0],

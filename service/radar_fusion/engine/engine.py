@@ -52,8 +52,8 @@ from ..geo.air_data import true_airspeed_mps
 from ..geo.coordinates import (
     RadarSites,
     SystemPlane,
-    flight_level_to_altitude_m,
     ground_velocity_to_plane,
+    mode_c_height_m,
     polar_to_plane,
 )
 from ..geo.units import FT_PER_FL, M_PER_FL, M_PER_FT
@@ -145,6 +145,8 @@ class Engine:
         self.rules = settings.life_cycle
         self.address_memory = AddressMemory()
         self.assumed_altitude_m = trk.assumed_altitude_ft * M_PER_FT
+        self.mode_c_met = trk.mode_c_met()  # the day's temperature and QNH, if configured
+        self.mode_c_sigma_fraction = trk.mode_c_sigma_fraction()
         self.one_plot_vel_var_m2ps2 = unknown_velocity_var_m2ps2(self.clustering.max_speed_mps)
         self.outlier_gate = LiveOutlierGate.from_params(settings.outliers) if settings.outliers.enabled else None
         self.buffer = PeriodBuffer(
@@ -333,7 +335,7 @@ class Engine:
         assert t_s is not None
         # a corrected time stays in its period: tracks are never predicted backwards
         t_s = np.clip(t_s, t_ref_s - self.settings.system.period_s, t_ref_s)
-        altitude_m = flight_level_to_altitude_m(raw.fl)
+        altitude_m = mode_c_height_m(raw.fl, *self.mode_c_met)
         no_c = ~np.isfinite(altitude_m)
         if no_c.any() and len(self.tracks):
             pick = primary_plot_altitude(
@@ -344,7 +346,7 @@ class Engine:
                 azimuth_deg,
                 ~no_c,
                 position_m(pred.x),
-                flight_level_to_altitude_m(pred.alt_x[:, 0]),
+                mode_c_height_m(pred.alt_x[:, 0], *self.mode_c_met),
                 cov_pos_m2(pred.P),
                 track_velocity_mps=velocity_mps(pred.x),
                 plot_dt_s=t_s - t_ref_s,
@@ -360,6 +362,7 @@ class Engine:
             azimuth_deg,
             altitude_m,
             assumed_altitude_m=self.assumed_altitude_m,
+            sigma_known_altitude_fraction=self.mode_c_sigma_fraction,
         )
         # A primary plot (no Mode C, no identity) no track lends a height to: at the assumed
         # height, the noise in cov_m2 and the spread over every height apart
@@ -454,8 +457,9 @@ class Engine:
             raw.radar[i],
             range_m,
             azimuth_deg,
-            flight_level_to_altitude_m(raw.fl[i]),
+            mode_c_height_m(raw.fl[i], *self.mode_c_met),
             assumed_altitude_m=self.assumed_altitude_m,
+            sigma_known_altitude_fraction=self.mode_c_sigma_fraction,
         )
         z, R = association.align_to_reference(
             np.column_stack([x_m, y_m]), cov_m2, t_s, t_ref_s, velocity_mps(pred.x[rows]), cov_vel(pred.P[rows])
@@ -914,11 +918,14 @@ class Engine:
         n_k = count[k]
         ias_k = np.bincount(lb, ias[have], n_clusters)[k] / n_k
         alt_k = np.bincount(lb, fl[have], n_clusters)[k] / n_k * M_PER_FL
+        # the day's temperature, if configured, turns the indicated airspeed into the true one
+        # (else ISA's: the wind learnt takes the 1 % a 5 K warmer day makes)
+        temperature_dev_k = self.mode_c_met[0] or 0.0
         lag_k = np.bincount(lb, t_c[lb] - plots.t_s[i], n_clusters)[k] / n_k
         true_deg = np.degrees(np.arctan2(east[k], north[k])) + p.magnetic_declination_deg
         v = np.full((n_clusters, 2), np.nan)
         v[k, 0], v[k, 1] = ground_velocity_to_plane(
-            self.plane, z_m[k, 0], z_m[k, 1], true_airspeed_mps(ias_k, alt_k), true_deg, alt_k
+            self.plane, z_m[k, 0], z_m[k, 1], true_airspeed_mps(ias_k, alt_k, temperature_dev_k), true_deg, alt_k
         )
         age = np.full(n_clusters, np.nan)
         age[k] = p.air_velocity_age_s + lag_k
@@ -1826,7 +1833,7 @@ class Engine:
         latest = np.argsort(chunk.t_s[p], kind="stable")[::-1]
         _, first = np.unique(t[latest], return_index=True)  # each track's latest report
         i, rows = p[latest[first]], t[latest[first]]
-        alt_m = flight_level_to_altitude_m(chunk.fl[i])
+        alt_m = mode_c_height_m(chunk.fl[i], *self.mode_c_met)
         vx, vy = ground_velocity_to_plane(
             self.plane, tr.x[rows, 0], tr.x[rows, 3], chunk.ground_speed_mps[i], chunk.track_angle_deg[i], alt_m
         )

@@ -80,3 +80,58 @@ def indicated_airspeed_mps(
     k = (GAMMA - 1.0) / 2.0
     qc = isa_pressure_pa(pressure_altitude_m) * ((1.0 + k * mach**2) ** (GAMMA / (GAMMA - 1.0)) - 1.0)
     return np.asarray(A0_MPS * np.sqrt(((qc / P0_PA + 1.0) ** ((GAMMA - 1.0) / GAMMA) - 1.0) / k))
+
+
+def _isa_deviation_integral_m(
+    pressure_altitude_m: NDArray[np.float64], temperature_deviation_k: ArrayLike
+) -> NDArray[np.float64]:
+    """∫₀^h ΔT / T_isa(s) ds, m: how much higher than ``h`` (pressure altitude) the level of
+    that pressure lies in air ``temperature_deviation_k`` warmer than ISA's at every level.
+    Below the tropopause T_isa = T0 + L s gives (ΔT / L) ln(T_isa(h) / T0); above it the
+    isothermal layer adds ΔT (h − 11 km) / T11."""
+    h = pressure_altitude_m
+    temperature_deviation_k = np.asarray(temperature_deviation_k, dtype=float)
+    below = (temperature_deviation_k / LAPSE_K_PER_M) * np.log(
+        (T0_K + LAPSE_K_PER_M * np.minimum(h, TROPOPAUSE_M)) / T0_K
+    )
+    return np.asarray(below + temperature_deviation_k * np.maximum(h - TROPOPAUSE_M, 0.0) / T11_K, dtype=float)
+
+
+def height_of_pressure_altitude_m(
+    pressure_altitude_m: ArrayLike, temperature_deviation_k: ArrayLike = 0.0, qnh_hpa: float = P0_PA / 100.0
+) -> NDArray[np.float64]:
+    """Height above mean sea level of a pressure altitude (a Mode C flight level × 100 ft),
+    m, on a day ``temperature_deviation_k`` off ISA at every level with sea-level pressure
+    ``qnh_hpa``. The hypsometric equation dz = −R T dp / (g p), with p(h) ISA's (the definition
+    of pressure altitude) and T = T_isa(h) + ΔT, gives dz/dh = T / T_isa = 1 + ΔT / T_isa(h);
+    sea level lies at the pressure altitude h0 of QNH, so z = h − h0 + ∫_{h0}^{h} ΔT / T_isa.
+    Heights are geopotential (the difference from geometric, h²/R_earth, is 19 m at FL360).
+    A warm day lifts every level: FL360 lies 219 m higher at ISA+5, 656 m at ISA+15; a QNH
+    10 hPa above standard lifts them all by 81 m. NaN passes
+    through."""
+    h = np.asarray(pressure_altitude_m, dtype=float)
+    h0 = _pressure_altitude_of_pa(qnh_hpa * 100.0)
+    dt = np.asarray(temperature_deviation_k, dtype=float)
+    return np.asarray(
+        h - h0 + _isa_deviation_integral_m(h, dt) - _isa_deviation_integral_m(np.asarray(h0), dt), dtype=float
+    )
+
+
+def pressure_altitude_of_height_m(
+    height_m: ArrayLike, temperature_deviation_k: ArrayLike = 0.0, qnh_hpa: float = P0_PA / 100.0
+) -> NDArray[np.float64]:
+    """The inverse of :func:`height_of_pressure_altitude_m`: the pressure altitude an aircraft
+    at ``height_m`` above mean sea level reports (its Mode C), m. Newton's method on
+    dz/dh = 1 + ΔT / T_isa(h); four steps reach 1e-6 m (z is nearly linear in h)."""
+    z = np.asarray(height_m, dtype=float)
+    dt = np.asarray(temperature_deviation_k, dtype=float)
+    h = z.copy()
+    for _ in range(4):
+        h = h - (height_of_pressure_altitude_m(h, dt, qnh_hpa) - z) / (1.0 + dt / isa_temperature_k(h))
+    return np.asarray(h, dtype=float)
+
+
+def _pressure_altitude_of_pa(pressure_pa: float) -> float:
+    """The pressure altitude of a static pressure, m (the inverse of :func:`isa_pressure_pa`
+    below the tropopause, where sea-level pressures lie)."""
+    return float((T0_K / LAPSE_K_PER_M) * ((pressure_pa / P0_PA) ** (-LAPSE_K_PER_M * R_AIR / G0_MPS2) - 1.0))

@@ -50,6 +50,7 @@ import numpy as np
 import pyproj
 from numpy.typing import NDArray
 
+from .air_data import height_of_pressure_altitude_m
 from .units import M_PER_FL
 
 __all__ = [
@@ -64,6 +65,7 @@ __all__ = [
     "geodetic_to_polar",
     "ground_to_slant_range",
     "mark_unconverted",
+    "mode_c_height_m",
     "plane_to_ground_polar",
     "polar_to_plane",
     "radial_to_plane",
@@ -536,6 +538,34 @@ def mark_unconverted(
 MIN_CROSS_RANGE_VAR_M2 = 1.0
 
 
+#: 1-sigma error of a Mode C level taken as a height, as a fraction of the height: Mode C is
+#: pressure altitude, and on a day ΔT off ISA a level lies ΔT/T_isa higher, 0.4 % per kelvin
+#: (geo.air_data.height_of_pressure_altitude_m: FL360 656 m higher at ISA+15). 3 %: ±7.5 K,
+#: mid-latitude days. Near the antenna that error becomes ground range (dg/dh ~ h/g): real
+#: data, Jahorina's 4CA9F6 at FL360 passing 4 km from the antenna, whose plots, taken with
+#: 60 m, put it at 139 instead of its own 205 m/s, its track refusing its BDS 5,0 reports
+MODE_C_HEIGHT_SIGMA_FRACTION = 0.03
+#: ... and where the day's temperature and QNH are configured (:func:`mode_c_height_m`): the
+#: air departs from one temperature deviation at every level and place by a few kelvin, 1 %
+MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET = 0.01
+
+
+def mode_c_height_m(fl: Any, temperature_deviation_k: float | None = None, qnh_hpa: float | None = None) -> np.ndarray:
+    """Mode C flight level -> height above mean sea level, m. Without the day's met data
+    (both None) the pressure altitude itself, fl × 30.48 (:func:`flight_level_to_altitude_m`);
+    with it, the level's height on a day ``temperature_deviation_k`` off ISA at every level
+    (0 if None) with sea-level pressure ``qnh_hpa`` (1013.25 if None), by the hypsometric
+    equation (geo.air_data.height_of_pressure_altitude_m). NaN passes through."""
+    pressure_altitude_m = flight_level_to_altitude_m(fl)
+    if temperature_deviation_k is None and qnh_hpa is None:
+        return pressure_altitude_m
+    return height_of_pressure_altitude_m(
+        pressure_altitude_m,
+        0.0 if temperature_deviation_k is None else float(temperature_deviation_k),
+        1013.25 if qnh_hpa is None else float(qnh_hpa),
+    )
+
+
 def polar_to_plane(
     plane: SystemPlane,
     sites: RadarSites,
@@ -546,6 +576,7 @@ def polar_to_plane(
     assumed_altitude_m: float = 3000.0,
     sigma_unknown_altitude_m: float = 3000.0,
     sigma_known_altitude_m: float = 60.0,
+    sigma_known_altitude_fraction: float = MODE_C_HEIGHT_SIGMA_FRACTION,
     *,
     return_valid: bool = False,
 ) -> tuple[np.ndarray, ...]:
@@ -559,6 +590,10 @@ def polar_to_plane(
         assumed_altitude_m: height used for plots without altitude (primary-only plots).
         sigma_unknown_altitude_m / sigma_known_altitude_m: 1-sigma height error used
             for the covariance of plots without / with altitude.
+        sigma_known_altitude_fraction: with altitude, the height error also grows by this
+            fraction of the height: hypot(sigma_known_altitude_m, fraction · h), the
+            pressure altitude's departure from the height on a non-ISA day
+            (:data:`MODE_C_HEIGHT_SIGMA_FRACTION`).
         return_valid: also return the ``valid`` mask (see below).
 
     Position. Ground range g from the spherical law of cosines on the site's Gaussian
@@ -570,6 +605,10 @@ def polar_to_plane(
 
         along-range  var_r = (dg/drho * sigma_rho)^2 + (dg/dh_t * sigma_h)^2
         cross-range  var_c = (R sin(gamma) * sigma_theta)^2
+
+    (sigma_h: with Mode C hypot(sigma_known_altitude_m, sigma_known_altitude_fraction · h),
+    without it sigma_unknown_altitude_m; dg/dh_t ~ −(h_t − h_r)/g grows without bound
+    towards the zenith, where a few hundred metres of height become a kilometre of range.)
 
     (R sin gamma is the geodesic's lateral displacement per radian of azimuth on the
     sphere; it equals g to 0.1 % at 250 NM, i.e. var_c ~ (g sigma_theta)^2.) The
@@ -613,7 +652,11 @@ def polar_to_plane(
 
     known = np.isfinite(h_t)
     h_used = np.where(known, h_t, float(assumed_altitude_m))
-    sigma_h = np.where(known, float(sigma_known_altitude_m), float(sigma_unknown_altitude_m))
+    sigma_h = np.where(
+        known,
+        np.hypot(float(sigma_known_altitude_m), float(sigma_known_altitude_fraction) * np.abs(h_used)),
+        float(sigma_unknown_altitude_m),
+    )
 
     r_m = sites.earth_radius_m[idx]
     h_r = sites.alt_m[idx]
@@ -764,7 +807,8 @@ def flight_level_to_altitude_m(fl: Any) -> np.ndarray:
 
     Assumption: pressure altitude is used as height above the ellipsoid, with no
     QNH, temperature or geoid correction (errors of a few hundred metres are possible;
-    the covariance's altitude term is meant to absorb them). NaN passes through.
+    the covariance's altitude term carries them, :data:`MODE_C_HEIGHT_SIGMA_FRACTION`).
+    NaN passes through.
     """
     return np.asarray(fl, dtype=float) * M_PER_FL
 
