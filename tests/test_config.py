@@ -48,6 +48,23 @@ def test_good_file_and_defaults(tmp_path):
     assert s.tracking.fusion_method == "matrix" and s.outliers.enabled
 
 
+def test_the_days_met_sets_the_mode_c_heights_error(tmp_path, monkeypatch):
+    """Without the day's temperature and QNH a Mode C height carries 3 % of error, with either
+    1 %; mode_c_height_sigma_fraction overrides both; values no day has are refused."""
+    s = load_settings(write(tmp_path, GOOD))
+    assert s.tracking.mode_c_met() == (None, None) and s.tracking.mode_c_sigma_fraction() == 0.03
+    monkeypatch.setenv("RADAR_FUSION_TRACKING__QNH_HPA", "1021")
+    s = load_settings(write(tmp_path, GOOD))
+    assert s.tracking.mode_c_met() == (None, 1021.0) and s.tracking.mode_c_sigma_fraction() == 0.01
+    monkeypatch.setenv("RADAR_FUSION_TRACKING__MODE_C_HEIGHT_SIGMA_FRACTION", "0.02")
+    assert load_settings(write(tmp_path, GOOD)).tracking.mode_c_sigma_fraction() == 0.02
+    for name, bad in (("QNH_HPA", "1021000"), ("TEMPERATURE_DEVIATION_K", "288")):  # Pa, not hPa; K, not ΔK
+        monkeypatch.setenv(f"RADAR_FUSION_TRACKING__{name}", bad)
+        with pytest.raises(ConfigError, match=name.lower()):
+            load_settings(write(tmp_path, GOOD))
+        monkeypatch.delenv(f"RADAR_FUSION_TRACKING__{name}")
+
+
 def test_environment_overrides_the_file(tmp_path, monkeypatch):
     monkeypatch.setenv("RADAR_FUSION_BUS__MODE", "client")
     monkeypatch.setenv("RADAR_FUSION_SYSTEM__PERIOD_S", "2.5")

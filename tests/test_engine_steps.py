@@ -1670,3 +1670,45 @@ def test_a_primary_plot_beside_a_mode_c_plot_counts_its_height_spread_in_the_joi
     assert len(eng.tracks) == 1 and eng.tracks.updates[0] == 2
     err_m = np.hypot(*(eng.tracks.x[0, [0, 3]] - truth_xy(float(eng.tracks.t_state_s[0]))))
     assert err_m < 300.0, err_m
+
+
+@pytest.mark.parametrize("bearing_deg", [60.0, 250.0])
+def test_the_days_met_puts_a_plot_near_the_zenith_where_the_aircraft_is(bearing_deg):
+    """An aircraft at FL360 4 km (ground) from radar a on a day 15 K warmer than ISA, QNH 1021:
+    its height is 656 + 66 m above FL360's 10,973 m (geo.air_data; the hypsometric equation,
+    test_coordinates), and its slant range is that of its height. Told the day's figures
+    ([tracking] temperature_deviation_k, qnh_hpa), the engine puts its one-plot track within a
+    few metres of the aircraft (its position from the site by the geodesic, projected: not
+    polar_to_plane); not told, 1.7 km off away from the radar (the pressure altitude taken for
+    the height is 722 m too low), its plot's covariance along the range (3 % of the height)
+    covering it."""
+    from radar_fusion.geo.air_data import height_of_pressure_altitude_m
+    from radar_fusion.geo.coordinates import WGS84_GEOD
+
+    fl = 360.0
+    height_m = float(height_of_pressure_altitude_m(fl * M_PER_FL, 15.0, 1021.0))
+    assert height_m - fl * M_PER_FL == pytest.approx(656 + 66, abs=3)
+    errors = {}
+    for met in (True, False):
+        raw = settings().model_dump()
+        raw["tracking"]["mode_c_height_sigma_fraction"] = None
+        if met:
+            raw["tracking"].update(temperature_deviation_k=15.0, qnh_hpa=1021.0)
+        eng = Engine(settings_from_dict(raw))
+        lon, lat, _ = WGS84_GEOD.fwd(eng.sites.lon_deg[0], eng.sites.lat_deg[0], bearing_deg, 4000.0)
+        truth = np.array(eng.plane.to_plane(np.array([lat]), np.array([lon]))).reshape(2)
+        r_m, az_deg, _ = geodetic_to_polar(eng.sites, 0, np.array([lat]), np.array([lon]), np.array([height_m]))
+        plot = plot_of(eng, 0, 1, T0 + 1.0)
+        plot.range_m, plot.azimuth_deg, plot.fl = r_m, az_deg, np.array([fl])
+        eng.ingest_plots(plot)
+        cols = eng.flush()[-1].track_columns
+        assert len(cols) == 1
+        d = cols.x[0, [0, 3]] - truth
+        errors[met] = float(np.hypot(*d))
+        if not met:  # off along the range, away from the radar (the height taken too low), as its covariance allows
+            site = np.array(eng.plane.to_plane(eng.sites.lat_deg[:1], eng.sites.lon_deg[:1])).reshape(2)
+            u = (truth - site) / np.hypot(*(truth - site))
+            assert float(d @ u) > 1500.0
+            cov = np.array([[cols.cov_xy[0, 0], cols.cov_xy[0, 1]], [cols.cov_xy[0, 1], cols.cov_xy[0, 2]]])
+            assert float(d @ np.linalg.solve(cov, d)) < 9.0  # within 3 sigma
+    assert errors[True] < 10.0 and errors[False] > 1500.0, errors
