@@ -546,9 +546,8 @@ def test_the_bounds_air_report_model_matches_the_simulated_reports(turn_rate_dps
     tas = np.hypot(air_e, air_n)
     true_heading = np.degrees(np.arctan2(air_e, air_n)) + own[:, 2]
     d_heading = (p.magnetic_heading_deg[has] - true_heading + 180.0) % 360.0 - 180.0
-    # the IAS of the TAS at the pressure altitude of the truth's height, in the aircraft's own
-    # air (the day's temperature deviation and its own departure from it)
-    air_dev_k = atm.temperature_deviation_k + own[:, 3]
+    # the IAS of the TAS at the pressure altitude of the truth's height on the day
+    air_dev_k = atm.temperature_deviation_k
     pressure_alt_m = pressure_altitude_of_height_m(alt_m, air_dev_k, atm.qnh_hpa)
     d_ias = p.indicated_airspeed_mps[has] - indicated_airspeed_mps(tas, pressure_alt_m, air_dev_k)
     rate_rad_s = math.radians(turn_rate_dps)

@@ -637,6 +637,8 @@ def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
     the scenario's within 2.5 m/s (median; 6 at most: each aircraft has its own departure
     from the wind and heading error, Atmosphere.aircraft_errors); tracks without a wind of
     their own take their layer's."""
+    from radar_fusion.geo.air_data import height_of_pressure_altitude_m
+
     scenario, run = _turning_traffic(4, 60.0)
     on, s_on = run()
     off, s_off = run(velocity_air=False)
@@ -658,8 +660,9 @@ def test_heading_and_airspeed_reports_measure_the_velocity_through_a_turn():
     # true north within a fraction of a degree here)
     known = np.flatnonzero(np.isfinite(on.layer_wind_mps[:, 0]))
     assert known.size >= 3
-    mid_m = (known + 0.5) * on.settings.tracking.imm.wind_layer_ft * 0.3048
-    east, north = scenario.atmosphere.wind_mps(mid_m)
+    mid_m = (known + 0.5) * on.settings.tracking.imm.wind_layer_ft * 0.3048  # layers of pressure altitude
+    atm = scenario.atmosphere
+    east, north = atm.wind_mps(height_of_pressure_altitude_m(mid_m, atm.temperature_deviation_k, atm.qnh_hpa))
     err = np.hypot(on.layer_wind_mps[known, 0] - east, on.layer_wind_mps[known, 1] - north)
     # (each aircraft's own error of the air vector does not average out over the few of a
     # layer: its own departure from the wind, 2 m/s per axis, its heading error, 0.5° or

@@ -306,8 +306,7 @@ def measurement_floor(sim, settings, settle_s: float) -> dict[str, Any]:
     tas = np.maximum(np.hypot(air[:, 0], air[:, 1]), 1e-3)
     dev_k = atmosphere.temperature_deviation_k
     # the IAS's noise along the air vector: times dTAS/dIAS there (a central difference), at
-    # the pressure altitude of the truth's height on the day (each aircraft's own air, a few
-    # kelvin off the day's, makes its TAS 0.4 % off: left out, a slightly lower bound)
+    # the pressure altitude of the truth's height on the day
     alt_a = pressure_altitude_of_height_m(alt_a, dev_k, atmosphere.qnh_hpa)
     ias_a = indicated_airspeed_mps(tas, alt_a, dev_k)
     tas_per_ias = true_airspeed_mps(ias_a + 0.5, alt_a, dev_k) - true_airspeed_mps(ias_a - 0.5, alt_a, dev_k)

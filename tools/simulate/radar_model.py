@@ -24,9 +24,10 @@ Report kind and identity: a Mode S target seen by a Mode S radar gives ``modes``
 else 100 ft; Mode C is the pressure altitude of the truth's height on the scenario's day,
 ``Atmosphere.temperature_deviation_k`` off ISA with ``Atmosphere.qnh_hpa``, geo.air_data:
 FL300 is 178 m below the truth's height at ISA+5; the daemon is told the day's figures
-(files.config_toml), not each aircraft's own air, ``local_temperature_sigma_k`` off them,
-whose 1 % of the height its plot covariance carries,
-coordinates.MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET); a transponder seen by a radar with a primary gives ``cmb`` when the
+(files.config_toml), so it converts Mode C back exactly, while its plot covariance keeps
+1 % of the height for real days' uneven air, coordinates.MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET:
+each aircraft's own air, 2.5 K off the day's, was simulated and left out, docs/measurements.md,
+"Mode C is pressure altitude"); a transponder seen by a radar with a primary gives ``cmb`` when the
 primary also detected it (probability ``pd_psr``), else ``ssr``; a target without a
 transponder, or any target seen by a primary-only radar, gives ``psr`` plots (no
 identity, no flight level). Mode C is present on a plot with probability ``p_mode_c``
@@ -230,9 +231,9 @@ def _air_reports(
     air_n = speed * np.cos(np.radians(track_deg)) - wind_n - own[:, 1]
     heading = np.degrees(np.arctan2(air_e, air_n)) + own[:, 2]
     heading += rng.normal(0.0, rates.sigma_heading_deg, carry.size)
-    air_dev_k = atmosphere.temperature_deviation_k + own[:, 3]  # the air the aircraft flies in
-    pressure_alt_m = pressure_altitude_of_height_m(alt_m, air_dev_k, atmosphere.qnh_hpa)
-    ias = indicated_airspeed_mps(np.hypot(air_e, air_n), pressure_alt_m, air_dev_k)
+    dev_k = atmosphere.temperature_deviation_k
+    pressure_alt_m = pressure_altitude_of_height_m(alt_m, dev_k, atmosphere.qnh_hpa)
+    ias = indicated_airspeed_mps(np.hypot(air_e, air_n), pressure_alt_m, dev_k)
     ias += rng.normal(0.0, rates.sigma_ias_mps, carry.size)
     heading_out[carry] = np.mod(np.round(heading * 512.0 / 90.0), 2048.0) * 90.0 / 512.0
     ias_out[carry] = np.clip(np.round(ias / MPS_PER_KT), 1.0, 1023.0) * MPS_PER_KT
@@ -334,8 +335,8 @@ def radar_plots(
     quantum_ft = np.where((kind == KIND_MODES) & tt.q25[tgt], 25.0, 100.0)
     has_fl = secondary & tt.mode_c[tgt] & (rng.random(m) < rates.p_mode_c)
     atmosphere: Atmosphere = sim_ctx["atmosphere"]
-    air_dev_k = atmosphere.temperature_deviation_k + sim_ctx["aircraft_air_errors"][tgt, 3]
-    pressure_alt_m = pressure_altitude_of_height_m(c["alt"], air_dev_k, atmosphere.qnh_hpa)
+    dev_k = atmosphere.temperature_deviation_k
+    pressure_alt_m = pressure_altitude_of_height_m(c["alt"], dev_k, atmosphere.qnh_hpa)
     fl = np.where(has_fl, np.round(pressure_alt_m / M_PER_FT / quantum_ft) * quantum_ft / 100.0, np.nan)
     track_numbers = rng.permutation(max(4095, n))[:n].astype(np.int64) + 1
     track_no = track_numbers[tgt] if n else np.zeros(0, np.int64)

@@ -103,25 +103,19 @@ class Atmosphere:
     """σ per axis of each aircraft's own departure from the layer's wind, m/s, constant over
     its flight (the wind is not one field: on the Barcelona hour aircraft of one layer
     differ by a few m/s)"""
-    local_temperature_sigma_k: float = 2.5
-    """σ of each aircraft's air departing from the day's temperature deviation, K, constant
-    over its flight (the air is not one ISA+ΔT everywhere: a met office's one figure leaves
-    a few kelvin, 1 % of the height in the level's height)"""
     heading_bias_sigma_deg: float = 0.5
     """σ of each aircraft's constant heading error, degrees (compass and installation): on
     the Barcelona hour the air vector plus the layer's wind misses the BDS 5,0 velocity by
     2.1 m/s median, 4.3 RMS, where the registers' steps alone make 1 m/s"""
 
     def aircraft_errors(self, n_targets: int, seed: int) -> np.ndarray:
-        """Each aircraft's own wind departure (east, north, m/s), heading error (degrees) and
-        temperature departure (K, :attr:`local_temperature_sigma_k`), (n_targets, 4), from a
-        generator of their own (``seed`` and a fixed key: the other draws of the seed stay as
-        they were)."""
+        """Each aircraft's own wind departure (east, north, m/s) and heading error (degrees),
+        (n_targets, 3), from a generator of their own (``seed`` and a fixed key: the other
+        draws of the seed stay as they were)."""
         rng = np.random.default_rng([seed, 6060])
-        out = np.empty((n_targets, 4))
+        out = np.empty((n_targets, 3))
         out[:, :2] = rng.normal(0.0, self.local_wind_sigma_mps, (n_targets, 2))
         out[:, 2] = rng.normal(0.0, self.heading_bias_sigma_deg, n_targets)
-        out[:, 3] = rng.normal(0.0, self.local_temperature_sigma_k, n_targets)
         return out
 
     def wind_mps(self, alt_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
