@@ -49,13 +49,18 @@ def test_good_file_and_defaults(tmp_path):
 
 
 def test_the_days_met_sets_the_mode_c_heights_error(tmp_path, monkeypatch):
-    """Without the day's temperature and QNH a Mode C height carries 3 % of error, with either
-    1 %; mode_c_height_sigma_fraction overrides both; values no day has are refused."""
+    """Without the day's temperature a Mode C height carries 3 % of error, with it 1 % (QNH alone
+    moves every level by one offset: still 3 %); mode_c_height_sigma_fraction overrides both;
+    values no day has are refused."""
     s = load_settings(write(tmp_path, GOOD))
     assert s.tracking.mode_c_met() == (None, None) and s.tracking.mode_c_sigma_fraction() == 0.03
     monkeypatch.setenv("RADAR_FUSION_TRACKING__QNH_HPA", "1021")
     s = load_settings(write(tmp_path, GOOD))
-    assert s.tracking.mode_c_met() == (None, 1021.0) and s.tracking.mode_c_sigma_fraction() == 0.01
+    assert s.tracking.mode_c_met() == (None, 1021.0) and s.tracking.mode_c_sigma_fraction() == 0.03
+    monkeypatch.setenv("RADAR_FUSION_TRACKING__TEMPERATURE_DEVIATION_K", "12")
+    s = load_settings(write(tmp_path, GOOD))
+    assert s.tracking.mode_c_met() == (12.0, 1021.0) and s.tracking.mode_c_sigma_fraction() == 0.01
+    monkeypatch.delenv("RADAR_FUSION_TRACKING__TEMPERATURE_DEVIATION_K")
     monkeypatch.setenv("RADAR_FUSION_TRACKING__MODE_C_HEIGHT_SIGMA_FRACTION", "0.02")
     assert load_settings(write(tmp_path, GOOD)).tracking.mode_c_sigma_fraction() == 0.02
     for name, bad in (("QNH_HPA", "1021000"), ("TEMPERATURE_DEVIATION_K", "288")):  # Pa, not hPa; K, not ΔK

@@ -256,7 +256,9 @@ def test_live_gate_takes_the_plot_after_a_long_silence_whatever_the_aircraft_did
     """A radar track silent 40 s (the antenna's cone of silence; real data: Jahorina's
     4CA9F6 came out of it 42 s later) while the aircraft turned 90° at 2.5°/s: its next plot
     lies some 6 km off the window's line, and is taken (the window restarts after
-    max_gap_s, 30 s). With a 60 s limit it was refused; and within 30 s a wild plot still is."""
+    max_gap_s, 30 s, and max_gap_scans of its radar's rotation). With a 60 s limit it was
+    refused; within 30 s a wild plot still is, and after a 12 s radar's two missed scans
+    (36 s, under four rotations)."""
     t, r, az = _track(60, turn_deg_s=2.5, turn=(84.0, 120.0), seed=3)
     keep = (t < 84.0) | (t >= 120.0)
     t, r, az = t[keep], r[keep], az[keep]
@@ -272,6 +274,25 @@ def test_live_gate_takes_the_plot_after_a_long_silence_whatever_the_aircraft_did
     r2[after] += 3000.0
     acc = _feed(LiveOutlierGate(), 2, t2, r2, az2)
     assert not acc[after] and acc[np.arange(t2.size) != after].all()
+    # a 12 s radar's two missed scans (36 s) keep its window (max_gap_scans, 4 rotations):
+    # a wild plot 3 km off after them is refused; with the 30 s alone it was taken
+    t3, r3, az3 = _track(30, seed=5, scan_s=12.0)
+    keep3 = (t3 < 120.0) | (t3 >= 144.0)
+    t3, r3, az3 = t3[keep3], r3[keep3].copy(), az3[keep3]
+    after3 = int(np.flatnonzero(t3 >= 144.0)[0])
+    assert t3[after3] - t3[after3 - 1] == 36.0
+    r3[after3] += 3000.0
+
+    def feed_with_rotation(gate):
+        one = np.ones(1)
+        return np.array(
+            [gate.filter(np.array([3]), t3[i : i + 1], r3[i : i + 1], az3[i : i + 1], rotation_s=12.0 * one)[0]
+             for i in range(t3.size)]
+        )  # fmt: skip
+
+    acc3 = feed_with_rotation(LiveOutlierGate())
+    assert not acc3[after3] and acc3[np.arange(t3.size) != after3].all()
+    assert feed_with_rotation(LiveOutlierGate(max_gap_scans=0.0))[after3]
 
 
 def test_live_gate_wild_plots_in_a_turn():

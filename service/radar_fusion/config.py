@@ -275,17 +275,20 @@ class TrackingConfig(_Section):
         None,
         ge=-50.0,
         le=50.0,
-        description="the day's temperature less ISA's, K, from the met office. With it (or qnh_hpa) a Mode C "
-        "level is converted to its height by the hypsometric equation (geo.coordinates.mode_c_height_m) and "
-        "its height error is 1 % of it; without either, the level is taken as the height with 3 % of error "
-        "(FL360 lies 656 m higher at ISA+15: near an antenna that error is ground range). Default none",
+        description="the day's temperature less ISA's, K, as a mean over the air column from sea level to the "
+        "flight levels (the met office's upper-air figure, not the surface temperature), read at start. With it "
+        "a Mode C level is converted to its height by the hypsometric equation (geo.coordinates.mode_c_height_m) "
+        "and its height error is 1 % of it; without it, 3 % (FL360 lies 656 m higher at ISA+15: near an antenna "
+        "that error is ground range). A figure that may be stale or off by more than 2-3 K: raise "
+        "mode_c_height_sigma_fraction (0.4 % per kelvin). Default none",
     )
     qnh_hpa: float | None = Field(
         None,
         ge=900.0,
         le=1100.0,
-        description="the day's sea-level pressure, hPa (QNH), as temperature_deviation_k: every level lies "
-        "8 m higher per hPa above 1013.25. Default none",
+        description="the day's sea-level pressure, hPa (QNH): every level lies 8 m higher per hPa above 1013.25. "
+        "It moves every level by one offset, not the error that grows with the height: alone, the height error "
+        "stays 3 %. The safety nets' own [safety_nets] qnh_hpa (MSAW) is separate: set both. Default none",
     )
 
     mode_c_height_sigma_fraction: float | None = Field(
@@ -293,8 +296,7 @@ class TrackingConfig(_Section):
         ge=0.0,
         le=0.2,
         description="the Mode C height's 1-sigma error as a fraction of the height, beside its 60 m. Default "
-        "none: 3 % without the day's met (temperature_deviation_k, qnh_hpa), 1 % with it; 0 where the heights "
-        "are exact (a test's plots)",
+        "none: 1 % with temperature_deviation_k, 3 % without it; 0 where the heights are exact (a test's plots)",
     )
 
     def mode_c_met(self) -> tuple[float | None, float | None]:
@@ -305,7 +307,7 @@ class TrackingConfig(_Section):
         """The Mode C height's 1-sigma error as a fraction of the height (polar_to_plane)."""
         if self.mode_c_height_sigma_fraction is not None:
             return self.mode_c_height_sigma_fraction
-        if self.temperature_deviation_k is None and self.qnh_hpa is None:
+        if self.temperature_deviation_k is None:  # QNH alone leaves the error that grows with the height
             return MODE_C_HEIGHT_SIGMA_FRACTION
         return MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET
 

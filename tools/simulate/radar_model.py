@@ -24,7 +24,7 @@ Report kind and identity: a Mode S target seen by a Mode S radar gives ``modes``
 else 100 ft; Mode C is the pressure altitude of the truth's height on the scenario's day,
 ``Atmosphere.temperature_deviation_k`` off ISA with ``Atmosphere.qnh_hpa``, geo.air_data:
 FL300 is 178 m below the truth's height at ISA+5; the daemon is told the day's figures
-(files.config_toml), so it converts Mode C back exactly, while its plot covariance keeps
+(files.config_toml), so it converts Mode C back (to the quantum), while its plot covariance keeps
 1 % of the height for real days' uneven air, coordinates.MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET:
 each aircraft's own air, 2.5 K off the day's, was simulated and left out, docs/measurements.md,
 "Mode C is pressure altitude"); a transponder seen by a radar with a primary gives ``cmb`` when the

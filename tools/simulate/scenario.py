@@ -95,7 +95,8 @@ class Atmosphere:
     temperature_deviation_k: float = 5.0
     """the day's temperature less ISA's at every height, K: the true airspeed of an
     indicated one is then 1 % off ISA's, and every Mode C level lies higher than its
-    pressure altitude (178 m at FL300), which no tracker is told"""
+    pressure altitude (178 m at FL300); the daemon's configuration carries it, as a met
+    office gives it (files.config_toml)"""
     qnh_hpa: float = 1013.25
     """the day's sea-level pressure, hPa: Mode C is pressure altitude above 1013.25 hPa's
     level, 8 m lower per hPa above it"""

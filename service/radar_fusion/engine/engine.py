@@ -314,6 +314,7 @@ class Engine:
                     raw.azimuth_deg[has_key],
                     self.sites.sigma_range_m[radar],
                     self.sites.sigma_azimuth_rad[radar],
+                    self.rotation_s[radar],
                 )
                 wild = has_key[~ok]
                 if wild.size:  # a track of the plot's identity may expect it (a turn the gate cannot see)

@@ -36,8 +36,10 @@ same sphere and the same geodesic both ways makes :func:`geodetic_to_polar` the 
 inverse of :func:`polar_to_plane` (round trip well below a millimetre).
 
 Heights are the target's height above the ellipsoid. Mode C gives pressure altitude;
-we use it as geometric height (no QNH, temperature or geoid correction) -- see
-:func:`flight_level_to_altitude_m`.
+:func:`mode_c_height_m` takes it as the height, or converts it with the day's temperature
+and QNH where they are configured (no geoid correction: the geoid lies some tens of metres
+off the ellipsoid, inside the height's 60 m), and the plot covariance carries its error
+(:data:`MODE_C_HEIGHT_SIGMA_FRACTION`).
 """
 
 from __future__ import annotations
@@ -545,8 +547,8 @@ MIN_CROSS_RANGE_VAR_M2 = 1.0
 #: data, Jahorina's 4CA9F6 at FL360 passing 4 km from the antenna, whose plots, taken with
 #: 60 m, put it at 139 instead of its own 205 m/s, its track refusing its BDS 5,0 reports
 MODE_C_HEIGHT_SIGMA_FRACTION = 0.03
-#: ... and where the day's temperature and QNH are configured (:func:`mode_c_height_m`): the
-#: air departs from one temperature deviation at every level and place by a few kelvin, 1 %
+#: ... and where the day's temperature is configured (:func:`mode_c_height_m`): the air
+#: departs from one temperature deviation at every level and place by a few kelvin, 1 %
 MODE_C_HEIGHT_SIGMA_FRACTION_WITH_MET = 0.01
 
 

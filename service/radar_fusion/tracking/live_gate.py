@@ -65,10 +65,18 @@ class LiveGateParams(BaseModel):
     max_gap_s: float = Field(
         30.0,
         gt=0,
-        description="a radar track silent this long restarts its window: its line no longer tells a wild plot from "
-        "a turn. Default 30 s: an airliner's 25° bank turn (4.6 m/s²) takes it 2 km off the line in 30 s, as far "
-        "as a wild plot lies (60 s, as before: real data, Jahorina's 4CA9F6 came out of the antenna's cone of "
-        "silence 42 s and 150° of azimuth later, its plot refused as wild and its track lost)",
+        description="a radar track silent this long, and max_gap_scans of its radar's rotations, restarts its "
+        "window: its line no longer tells a wild plot from a turn. Default 30 s: an airliner's 25° bank turn "
+        "(4.6 m/s²) takes it 2 km off the line in 30 s, as far as a wild plot lies (with 60 s, real data, "
+        "Jahorina's 4CA9F6 came out of the antenna's cone of silence 42 s and 150° of azimuth later, its plot "
+        "refused as wild and its track lost)",
+    )
+    max_gap_scans: float = Field(
+        4.0,
+        ge=0,
+        description="... and the silence must also be longer than this many of the radar's rotations: a 12 s "
+        "radar's two or three missed scans (36-48 s) keep the window, which then still refuses a wild plot after "
+        "them (with 30 s alone, a review found 3 km wild plots after two missed 12 s scans all taken). Default 4",
     )
     evict_after_s: float = Field(300.0, gt=0, description="radar tracks not seen this long are forgotten")
     max_keys: int = Field(
@@ -176,6 +184,7 @@ class LiveOutlierGate:
         max_accel_mps2: float = _DEFAULT.max_accel_mps2,
         relock_after: int = _DEFAULT.relock_after,
         max_gap_s: float = _DEFAULT.max_gap_s,
+        max_gap_scans: float = _DEFAULT.max_gap_scans,
         evict_after_s: float = _DEFAULT.evict_after_s,
         max_keys: int = _DEFAULT.max_keys,
     ) -> None:
@@ -194,6 +203,7 @@ class LiveOutlierGate:
         self.max_accel_mps2 = float(max_accel_mps2)
         self.relock_after = int(relock_after)
         self.max_gap_s = float(max_gap_s)
+        self.max_gap_scans = float(max_gap_scans)
         self.evict_after_s = float(evict_after_s)
         self.max_keys = int(max_keys)
         self.rejected = 0
@@ -367,6 +377,7 @@ class LiveOutlierGate:
         azimuth_deg: npt.ArrayLike,
         sigma_range_m: npt.ArrayLike | None = None,
         sigma_azimuth_rad: npt.ArrayLike | None = None,
+        rotation_s: npt.ArrayLike | None = None,
     ) -> NDArray[np.bool_]:
         """Boolean mask `accept` for a batch of plots (True = pass on to clustering).
 
@@ -378,6 +389,9 @@ class LiveOutlierGate:
         ways. At 300 km a radar of 0.1° is 520 m across the beam and 50 m along it: with
         150 m both ways its good plots were refused (a window of four can fit them by chance
         too well), and a gross range error of a kilometre is 7 σ of a 150 m floor.
+        rotation_s: the plots' radar's rotation period (per plot or one for all): a radar
+        track silent longer than ``max_gap_s`` and ``max_gap_scans`` of them restarts its
+        window; without it, ``max_gap_s`` alone.
         """
         keys = np.asarray(keys, dtype=np.int64)
         n = keys.size
@@ -396,6 +410,9 @@ class LiveOutlierGate:
         if sigma_azimuth_rad is not None:
             across_m = rng * np.asarray(sigma_azimuth_rad, dtype=float)
             np.maximum(scale_c_m, np.nan_to_num(across_m), out=scale_c_m)
+        gap_s = np.full(n, self.max_gap_s)
+        if rotation_s is not None:
+            np.maximum(gap_s, self.max_gap_scans * np.nan_to_num(np.asarray(rotation_s, dtype=float)), out=gap_s)
         t_now = float(t_s.max())
         if t_now - self._last_sweep_t > 0.25 * self.evict_after_s:
             self._sweep(t_now)
@@ -411,7 +428,7 @@ class LiveOutlierGate:
             order, rows, t_s, x, y,
             self._t, self._x, self._y, self._pt, self._px, self._py,
             self._count, self._head, self._npend, self._last_t,
-            float(self.max_gap_s), int(self.min_history), int(self.k), scale_r_m, scale_c_m,
+            gap_s, int(self.min_history), int(self.k), scale_r_m, scale_c_m,
             float(self.max_accel_mps2), int(ARC_PLOTS), float(self.threshold), int(self.relock_after), accept,
         )  # fmt: skip
         self.rejected += int(n - accept.sum())
@@ -638,7 +655,7 @@ def _decide_in_order(
     head: np.ndarray,
     npend: np.ndarray,
     last_t: np.ndarray,
-    max_gap_s: float,
+    max_gap_s: np.ndarray,
     min_history: int,
     k: int,
     scale_r_m: np.ndarray,
@@ -653,7 +670,7 @@ def _decide_in_order(
     their rows (rows[i] of the window, the pending plots and the counters; −1: accepted
     untracked) and accept[i]; returns how many relocked. Per plot:
 
-    * after a gap over max_gap_s the row starts afresh;
+    * after a gap over max_gap_s[i] (the plot's: LiveOutlierGate.filter) the row starts afresh;
     * with min_history plots or more in the window, the plot passes when its standardised
       k-mean distance (:func:`_kmd_one`) is at most ``threshold``; when the line's scale² is
       above BENT_VAR (a turn bent the window) and the arc through the window's newest
@@ -691,7 +708,7 @@ def _decide_in_order(
         row = rows[i]
         if row < 0:
             continue
-        if t[i] - last_t[row] > max_gap_s:
+        if t[i] - last_t[row] > max_gap_s[i]:
             count[row] = 0
             head[row] = 0
             npend[row] = 0
