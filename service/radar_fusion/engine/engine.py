@@ -355,16 +355,7 @@ class Engine:
             )
             altitude_m = np.where(no_c, pick.altitude_m, altitude_m)
             self.counters["plots_primary_track_height"] += int(np.isfinite(altitude_m[no_c]).sum())
-        x_m, y_m, cov_m2, _ = polar_to_plane(
-            self.plane,
-            self.sites,
-            raw.radar,
-            range_m,
-            azimuth_deg,
-            altitude_m,
-            assumed_altitude_m=self.assumed_altitude_m,
-            sigma_known_altitude_fraction=self.mode_c_sigma_fraction,
-        )
+        x_m, y_m, cov_m2 = self._to_plane(raw.radar, range_m, azimuth_deg, altitude_m)
         # A primary plot (no Mode C, no identity) no track lends a height to: at the assumed
         # height, the noise in cov_m2 and the spread over every height apart
         # (geo/unknown_height.py). (At the mean ground range over every height instead, the
@@ -406,6 +397,24 @@ class Engine:
             raw.magnetic_heading_deg,
             raw.indicated_airspeed_mps,
         )
+
+    def _to_plane(
+        self, radar: np.ndarray, range_m: np.ndarray, azimuth_deg: np.ndarray, altitude_m: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Plots (registration-corrected range and azimuth, height) -> plane position and
+        covariance (geo/coordinates.polar_to_plane), with the configured assumed height for
+        plots without one and the Mode C height's error (``mode_c_sigma_fraction``)."""
+        x_m, y_m, cov_m2, _ = polar_to_plane(
+            self.plane,
+            self.sites,
+            radar,
+            range_m,
+            azimuth_deg,
+            altitude_m,
+            assumed_altitude_m=self.assumed_altitude_m,
+            sigma_known_altitude_fraction=self.mode_c_sigma_fraction,
+        )
+        return x_m, y_m, cov_m2
 
     def _address_seen(self, mode_s: np.ndarray, t_s: np.ndarray) -> None:
         """Plots refused as wild (the live gate, a consensus outlier) that carry the Mode S
@@ -452,15 +461,8 @@ class Engine:
             raw.radar[i], raw.range_m[i], raw.azimuth_deg[i], raw.t_s[i], bias=self._reg_applied
         )
         assert t_s is not None
-        x_m, y_m, cov_m2, _ = polar_to_plane(
-            self.plane,
-            self.sites,
-            raw.radar[i],
-            range_m,
-            azimuth_deg,
-            mode_c_height_m(raw.fl[i], *self.mode_c_met),
-            assumed_altitude_m=self.assumed_altitude_m,
-            sigma_known_altitude_fraction=self.mode_c_sigma_fraction,
+        x_m, y_m, cov_m2 = self._to_plane(
+            raw.radar[i], range_m, azimuth_deg, mode_c_height_m(raw.fl[i], *self.mode_c_met)
         )
         z, R = association.align_to_reference(
             np.column_stack([x_m, y_m]), cov_m2, t_s, t_ref_s, velocity_mps(pred.x[rows]), cov_vel(pred.P[rows])

@@ -91,9 +91,7 @@ def _isa_deviation_integral_m(
     isothermal layer adds ΔT (h − 11 km) / T11."""
     h = pressure_altitude_m
     temperature_deviation_k = np.asarray(temperature_deviation_k, dtype=float)
-    below = (temperature_deviation_k / LAPSE_K_PER_M) * np.log(
-        (T0_K + LAPSE_K_PER_M * np.minimum(h, TROPOPAUSE_M)) / T0_K
-    )
+    below = (temperature_deviation_k / LAPSE_K_PER_M) * np.log(isa_temperature_k(h) / T0_K)
     return np.asarray(below + temperature_deviation_k * np.maximum(h - TROPOPAUSE_M, 0.0) / T11_K, dtype=float)
 
 
